@@ -1,0 +1,23 @@
+# vigil: `make run` runs the main job, `make test` runs the tests.
+# Both set everything up first (Debian packages, .venv, Python dependencies).
+VENV ?= .venv
+PY := $(VENV)/bin/python
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= egl
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+.PHONY: setup run test lint bench
+setup:
+	@bash scripts/setup.sh
+
+run: setup
+	$(VENV)/bin/vigil main --out runs/main
+
+test: setup
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+lint: setup
+	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .
+
+bench: setup
+	$(PY) bench/run_all.py
