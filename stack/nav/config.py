@@ -1,0 +1,234 @@
+"""Typed, validated configuration for navigation and speech.
+
+Each dataclass is frozen and names its units; ``from_dict`` validates a YAML mapping and
+raises :class:`stack.cells.ConfigError` naming the key, the value and the rule.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any, TypeVar
+
+from stack.cells import ConfigError
+
+T = TypeVar("T")
+
+
+def _from_dict(cls: type[T], data: Mapping[str, Any] | None, prefix: str) -> T:
+    """Build a config dataclass from a mapping; unknown keys and wrong types are errors."""
+    if data is None:
+        return cls()
+    if not isinstance(data, Mapping):
+        raise ConfigError(prefix, data, "must be a mapping")
+    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        if key not in known:
+            raise ConfigError(f"{prefix}.{key}", value, f"unknown key (known: {sorted(known)})")
+        default = getattr(cls, key)
+        kwargs[key] = _coerce(f"{prefix}.{key}", value, default)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:  # __post_init__ names keys with the default prefix
+        default_prefix = exc.key.split(".", 1)[0]
+        key = prefix + exc.key[len(default_prefix) :]
+        raise ConfigError(key, exc.value, exc.rule) from None
+
+
+def _coerce(key: str, value: Any, default: Any) -> Any:
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(key, value, "must be true or false")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(key, value, "must be a number")
+        return float(value)
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(key, value, "must be an integer")
+        return value
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(key, value, "must be a string")
+        return value
+    if isinstance(default, tuple):
+        if isinstance(value, str) or not isinstance(value, list | tuple):
+            raise ConfigError(key, value, "must be a list")
+        return tuple(value)
+    return value
+
+
+def _positive(prefix: str, obj: Any, *names: str) -> None:
+    for name in names:
+        v = getattr(obj, name)
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"{prefix}.{name}", v, "must be a finite number > 0")
+
+
+def _non_negative(prefix: str, obj: Any, *names: str) -> None:
+    for name in names:
+        v = getattr(obj, name)
+        if not (math.isfinite(v) and v >= 0):
+            raise ConfigError(f"{prefix}.{name}", v, "must be a finite number >= 0")
+
+
+@dataclass(frozen=True)
+class FollowerConfig:
+    """Limits and gains of the holonomic path follower (mecanum base).
+
+    Body frame: x forward, y left, z up (REP 103).
+    """
+
+    max_vx_mps: float = 0.5  # forward/backward speed limit [m/s]
+    max_vy_mps: float = 0.4  # lateral speed limit; a mecanum base moves sideways [m/s]
+    max_speed_mps: float = 0.5  # limit on the planar speed |(vx, vy)| [m/s]
+    max_wz_radps: float = 1.0  # yaw rate limit [rad/s]
+    max_accel_x_mps2: float = 0.8  # [m/s^2]
+    max_accel_y_mps2: float = 0.8  # [m/s^2]
+    max_accel_wz_radps2: float = 2.0  # [rad/s^2]
+    decel_mps2: float = 0.5  # braking used to plan the approach to the goal [m/s^2]
+    lookahead_m: float = 0.35  # carrot distance along the path [m]
+    goal_tolerance_m: float = 0.08  # position tolerance; orientation is ignored [m]
+    approach_gain_per_s: float = 1.5  # speed = gain * distance near the goal [1/s]
+    heading_gain_per_s: float = 1.0  # holds the start heading while moving; 0 disables [1/s]
+    robot_radius_m: float = 0.3  # [m]
+    inflation_margin_m: float = 0.05  # added to the radius when inflating obstacles [m]
+    person_radius_m: float = 0.3  # a person's footprint on the floor [m]
+    stale_pose_s: float = 0.5  # pose older than this: zero velocity [s]
+    timeout_s: float = 60.0  # whole task [s]
+    blocked_timeout_s: float = 5.0  # waiting for a person to clear the way before BLOCKED [s]
+    replan_period_s: float = 0.5  # retry interval while waiting [s]
+    max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
+    unknown_is_occupied: bool = True
+
+    def validate(self, prefix: str = "follower") -> None:
+        """Check every value.
+
+        Raises:
+            ConfigError: the first value that breaks its rule.
+        """
+        _positive(
+            prefix,
+            self,
+            "max_vx_mps",
+            "max_vy_mps",
+            "max_speed_mps",
+            "max_wz_radps",
+            "max_accel_x_mps2",
+            "max_accel_y_mps2",
+            "max_accel_wz_radps2",
+            "decel_mps2",
+            "lookahead_m",
+            "goal_tolerance_m",
+            "approach_gain_per_s",
+            "stale_pose_s",
+            "timeout_s",
+            "replan_period_s",
+        )
+        _non_negative(
+            prefix,
+            self,
+            "heading_gain_per_s",
+            "robot_radius_m",
+            "inflation_margin_m",
+            "person_radius_m",
+            "blocked_timeout_s",
+            "max_start_escape_m",
+        )
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def inflation_radius_m(self) -> float:
+        return self.robot_radius_m + self.inflation_margin_m
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "follower") -> FollowerConfig:
+        """Validate a mapping (e.g. the ``follower`` section of a YAML file).
+
+        Raises:
+            ConfigError: unknown key, wrong type or a value out of range.
+        """
+        return _from_dict(cls, data, prefix)
+
+
+SPEECH_POLICIES = ("queue", "replace")
+DEFAULT_WARNINGS = {
+    "en": "Please do not stay here. This area is restricted.",
+    "pt": "Por favor, não fique aqui. Esta área é restrita.",
+}
+
+
+@dataclass(frozen=True)
+class SpeechConfig:
+    """The warning and how it is spoken (thesis 4.4: eSpeak)."""
+
+    voice: str = "en"  # espeak-ng voice: "en" (default) or "pt" (Portuguese)
+    warning_text: str = ""  # empty: the built-in warning for the voice's language (en, pt)
+    words_per_minute: int = 160  # espeak-ng -s
+    pitch: int = 50  # espeak-ng -p, 0..99
+    amplitude: int = 100  # espeak-ng -a, 0..200
+    policy: str = "queue"  # a request while speaking: "queue" it or "replace" the current one
+    max_queue: int = 4  # queued requests beyond this are dropped (oldest kept)
+    espeak_path: str = "espeak-ng"  # executable name or path
+    timeout_s: float = 10.0  # bound on one synthesis [s]
+    emulate_playback: bool = True  # WAV output: stay "speaking" for the audio's duration
+    restricted_cells: tuple[int, ...] = (1,)  # where arriving with a person near triggers it
+    near_cells: int = 1  # person within this Chebyshev cell distance counts as "near"
+
+    def validate(self, prefix: str = "speech") -> None:
+        """Check every value.
+
+        Raises:
+            ConfigError: the first value that breaks its rule.
+        """
+        if not self.voice.strip():
+            raise ConfigError(f"{prefix}.voice", self.voice, "must name an espeak-ng voice")
+        if not self.warning_text.strip() and self.language not in DEFAULT_WARNINGS:
+            raise ConfigError(
+                f"{prefix}.warning_text",
+                self.warning_text,
+                f"must be given for voice {self.voice!r} (built-in: {sorted(DEFAULT_WARNINGS)})",
+            )
+        if not 80 <= self.words_per_minute <= 450:
+            raise ConfigError(f"{prefix}.words_per_minute", self.words_per_minute, "80..450")
+        if not 0 <= self.pitch <= 99:
+            raise ConfigError(f"{prefix}.pitch", self.pitch, "must lie in 0..99")
+        if not 0 <= self.amplitude <= 200:
+            raise ConfigError(f"{prefix}.amplitude", self.amplitude, "must lie in 0..200")
+        if self.policy not in SPEECH_POLICIES:
+            raise ConfigError(f"{prefix}.policy", self.policy, f"must be one of {SPEECH_POLICIES}")
+        if self.max_queue < 1:
+            raise ConfigError(f"{prefix}.max_queue", self.max_queue, "must be >= 1")
+        _positive(prefix, self, "timeout_s")
+        for c in self.restricted_cells:
+            if isinstance(c, bool) or not isinstance(c, int) or c < 1:
+                raise ConfigError(f"{prefix}.restricted_cells", c, "cells are positive integers")
+        if self.near_cells < 0:
+            raise ConfigError(f"{prefix}.near_cells", self.near_cells, "must be >= 0")
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def language(self) -> str:
+        """The voice's language: ``en`` for ``en-gb+f3``, ``pt`` for ``pt-br``."""
+        return self.voice.split("+", 1)[0].split("-", 1)[0].split("/")[-1].lower()
+
+    @property
+    def warning(self) -> str:
+        """The text to say: ``warning_text``, or the built-in one for the language."""
+        return self.warning_text.strip() or DEFAULT_WARNINGS[self.language]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "speech") -> SpeechConfig:
+        """Validate a mapping (e.g. the ``speech`` section of a YAML file).
+
+        Raises:
+            ConfigError: unknown key, wrong type or a value out of range.
+        """
+        return _from_dict(cls, data, prefix)

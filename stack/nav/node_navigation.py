@@ -1,0 +1,339 @@
+"""The navigation node: the planner's action (or a goal pose) in, ``/cmd_vel`` out.
+
+Subscribes (names are parameters):
+    ``/nav/action`` std_msgs/String: "North", "South", "East", "West", "Do nothing".
+    ``/nav/action_id`` std_msgs/Int32: the same as :class:`stack.cells.Direction` numbers.
+    ``/goal_pose`` geometry_msgs/PoseStamped: a goal in the map frame (orientation ignored).
+    pose: ``/odom`` nav_msgs/Odometry (twin) or ``/amcl_pose``
+        geometry_msgs/PoseWithCovarianceStamped (robot), chosen by ``pose_source``.
+    ``/map`` nav_msgs/OccupancyGrid (transient local), unless ``map_yaml`` is given.
+    ``/perception/leg_people`` geometry_msgs/PoseArray: people's positions in the map
+        frame (the leg detector's tracks).
+    ``/stop`` std_msgs/Bool: true stops at once and cancels; goals are refused until false.
+
+Publishes:
+    ``/cmd_vel`` geometry_msgs/Twist: body-frame (vx, vy, wz), capped at the limits.
+    ``/nav/progress`` std_msgs/String: JSON {goal_id, state, distance_remaining_m,
+        elapsed_s, replans, cell}.
+    ``/nav/result`` std_msgs/String: JSON {goal_id, result, error_code, error_name, message,
+        action, from_cell, target_cell, cell}; one per action or goal, including Do
+        nothing (succeeded at once) and refused actions.
+
+Parameters: ``config_file`` (YAML with optional ``grid`` and ``follower`` sections),
+``pose_source`` (odom | amcl), ``pose_topic`` (empty: the source's default),
+``map_yaml``, ``control_rate_hz``, ``progress_rate_hz``, ``free_map_margin_m`` (the free
+map used when there is no map), ``map_frame``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import rclpy
+import yaml
+from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Bool, Int32, String
+
+from stack.cells import CellGrid, ConfigError
+from stack.nav.config import FollowerConfig
+from stack.nav.follower import (
+    ZERO_TWIST,
+    FollowerState,
+    FollowerStatus,
+    NavErrorCode,
+    NavResult,
+    PathFollower,
+    Pose2D,
+    Twist2D,
+    cap_twist,
+)
+from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, load_map_yaml
+from stack.nav.waypoints import ActionOutcome, CellWaypoints, parse_action
+
+POSE_SOURCES = {"odom": "/odom", "amcl": "/amcl_pose"}
+
+
+def yaw_from_quaternion(q) -> float:
+    """Yaw [rad] of a geometry_msgs/Quaternion (rotation about z)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def twist_to_msg(cmd: Twist2D) -> Twist:
+    msg = Twist()
+    msg.linear.x, msg.linear.y, msg.angular.z = cmd.vx_mps, cmd.vy_mps, cmd.wz_radps
+    return msg
+
+
+def occupancy_from_msg(msg: OccupancyGrid) -> OccupancyMap:
+    """Convert a nav_msgs/OccupancyGrid (raises MapError when malformed)."""
+    info = msg.info
+    return from_occupancy_grid(
+        msg.data,
+        info.width,
+        info.height,
+        info.resolution,
+        (info.origin.position.x, info.origin.position.y),
+        yaw_from_quaternion(info.origin.orientation),
+    )
+
+
+def load_config_file(path: str) -> tuple[CellGrid, FollowerConfig]:
+    """Read the ``grid`` and ``follower`` sections of a YAML file (both optional).
+
+    Raises:
+        ConfigError: unreadable file or an invalid value.
+    """
+    if not path:
+        return CellGrid(), FollowerConfig()
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError("config_file", path, f"cannot be read: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError("config_file", path, "must hold a mapping")
+    grid = CellGrid.from_mapping(data["grid"]) if "grid" in data else CellGrid()
+    return grid, FollowerConfig.from_dict(data.get("follower"))
+
+
+class NavigationNode(Node):
+    """Turns actions into waypoints and follows A* paths to them."""
+
+    def __init__(self, **kwargs):
+        super().__init__("navigation", **kwargs)
+        p = self.declare_parameter
+        config_file = p("config_file", "").value
+        source = p("pose_source", "odom").value
+        pose_topic = p("pose_topic", "").value
+        map_yaml = p("map_yaml", "").value
+        rate_hz = p("control_rate_hz", 20.0).value
+        progress_hz = p("progress_rate_hz", 2.0).value
+        margin_m = p("free_map_margin_m", 1.0).value
+        self.map_frame = p("map_frame", "map").value
+        topics = {
+            name: p(f"{name}_topic", default).value
+            for name, default in (
+                ("action", "/nav/action"),
+                ("action_id", "/nav/action_id"),
+                ("goal", "/goal_pose"),
+                ("map", "/map"),
+                ("people", "/perception/leg_people"),
+                ("stop", "/stop"),
+                ("cmd_vel", "/cmd_vel"),
+                ("progress", "/nav/progress"),
+                ("result", "/nav/result"),
+            )
+        }
+        if source not in POSE_SOURCES:
+            raise ConfigError("pose_source", source, f"must be one of {sorted(POSE_SOURCES)}")
+        if not rate_hz > 0 or not progress_hz > 0:
+            raise ConfigError("control_rate_hz", (rate_hz, progress_hz), "rates must be > 0")
+        self.grid, self.config = load_config_file(config_file)
+        self.waypoints = CellWaypoints(self.grid)
+        if map_yaml:
+            occ_map = load_map_yaml(map_yaml)
+        else:  # until /map arrives: free floor around the cells, so the robot can still move
+            w, h = self.grid.size_m
+            x0, y0 = self.grid.origin_m
+            occ_map = OccupancyMap.empty(
+                w + 2 * margin_m, h + 2 * margin_m, 0.05, (x0 - margin_m, y0 - margin_m)
+            )
+        self.follower = PathFollower(self.config, occ_map)
+
+        self.pose: Pose2D | None = None
+        self.pose_stamp_s = -math.inf
+        self.people: list[tuple[float, float]] = []
+        self.stopped = False
+        self.goal_id = 0
+        self.task: dict = {}
+        self._was_moving = False
+        self._ticks = 0
+        self._progress_every = max(1, round(rate_hz / progress_hz))
+
+        self.cmd_pub = self.create_publisher(Twist, topics["cmd_vel"], 10)
+        self.progress_pub = self.create_publisher(String, topics["progress"], 10)
+        self.result_pub = self.create_publisher(String, topics["result"], 10)
+        self.create_subscription(String, topics["action"], self.on_action, 10)
+        self.create_subscription(Int32, topics["action_id"], self.on_action_id, 10)
+        self.create_subscription(PoseStamped, topics["goal"], self.on_goal, 10)
+        self.create_subscription(PoseArray, topics["people"], self.on_people, 10)
+        self.create_subscription(Bool, topics["stop"], self.on_stop, 10)
+        pose_topic = pose_topic or POSE_SOURCES[source]
+        pose_type = Odometry if source == "odom" else PoseWithCovarianceStamped
+        self.create_subscription(pose_type, pose_topic, self.on_pose, 10)
+        if not map_yaml:
+            latched = QoSProfile(
+                depth=1,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                reliability=ReliabilityPolicy.RELIABLE,
+            )
+            self.create_subscription(OccupancyGrid, topics["map"], self.on_map, latched)
+        self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
+        self.get_logger().info(
+            f"navigation: pose from {pose_topic} ({source}), map "
+            f"{map_yaml or topics['map']}, {rate_hz:g} Hz"
+        )
+
+    # -- inputs --------------------------------------------------------------
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_pose(self, msg) -> None:
+        pose = msg.pose.pose
+        x, y = pose.position.x, pose.position.y
+        yaw = yaw_from_quaternion(pose.orientation)
+        if not all(math.isfinite(v) for v in (x, y, yaw)):
+            self.get_logger().warning(f"ignoring a non-finite pose ({x}, {y}, {yaw})")
+            return
+        # the receive time: a source that stops publishing makes the pose stale
+        self.pose, self.pose_stamp_s = Pose2D(x, y, yaw), self.now_s()
+
+    def on_people(self, msg: PoseArray) -> None:
+        pts = [(p.position.x, p.position.y) for p in msg.poses]
+        self.people = [(x, y) for x, y in pts if math.isfinite(x) and math.isfinite(y)]
+
+    def on_map(self, msg: OccupancyGrid) -> None:
+        try:
+            occ_map = occupancy_from_msg(msg)
+        except MapError as exc:
+            self.get_logger().warning(f"ignoring a malformed map: {exc}")
+            return
+        self.follower.set_map(occ_map)
+        self.get_logger().info(f"map {occ_map.shape[1]}x{occ_map.shape[0]} received")
+
+    def on_stop(self, msg: Bool) -> None:
+        self.stopped = bool(msg.data)
+        if self.stopped:
+            self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+            if self.follower.active:
+                self.report(self.follower.cancel("stop requested"))
+
+    def on_action_id(self, msg: Int32) -> None:
+        self.handle_action(int(msg.data))
+
+    def on_action(self, msg: String) -> None:
+        self.handle_action(msg.data)
+
+    def handle_action(self, raw: str | int) -> None:
+        self.goal_id += 1
+        try:
+            action = parse_action(raw)
+        except ValueError as exc:
+            self.get_logger().warning(str(exc))
+            self.publish_result(NavResult.REFUSED, NavErrorCode.INVALID_ACTION, str(exc))
+            return
+        self.task = {"action": action.label if action.value < 4 else "Do nothing"}
+        if self.pose is None:
+            self.publish_result(NavResult.REFUSED, NavErrorCode.NO_POSE, "no pose yet")
+            return
+        cell = self.waypoints.cell_of(self.pose.x_m, self.pose.y_m)
+        target = self.waypoints.target(cell, action)
+        self.task.update(from_cell=cell, target_cell=target.cell)
+        if target.outcome is ActionOutcome.REFUSED:
+            self.get_logger().warning(f"refusing action: {target.reason}")
+            self.publish_result(NavResult.REFUSED, NavErrorCode.ACTION_LEAVES_MAP, target.reason)
+        elif target.outcome is ActionOutcome.HOLD:
+            if self.follower.active:
+                self.follower.cancel("superseded by Do nothing")
+            self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+            self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "holding position")
+        else:
+            self.begin(target.waypoint_m)
+
+    def on_goal(self, msg: PoseStamped) -> None:
+        frame = msg.header.frame_id
+        x, y = msg.pose.position.x, msg.pose.position.y
+        if frame and frame != self.map_frame:
+            self.get_logger().warning(f"ignoring goal in frame {frame!r}, need {self.map_frame!r}")
+            return
+        if not (math.isfinite(x) and math.isfinite(y)):
+            self.get_logger().warning(f"ignoring a non-finite goal ({x}, {y})")
+            return
+        self.goal_id += 1
+        self.task = {"action": "goal_pose", "target_cell": self.grid.cell_at(x, y)}
+        self.begin((x, y))
+
+    def begin(self, goal_xy: tuple[float, float]) -> None:
+        if self.stopped:
+            self.publish_result(NavResult.CANCELED, NavErrorCode.STOPPED, "stop is active")
+            return
+        self.follower.start(goal_xy, self.now_s())
+
+    # -- the control loop ----------------------------------------------------
+    def on_timer(self) -> None:
+        self._ticks += 1
+        if not self.follower.active:
+            if self._was_moving:  # one zero after a task ends; idle otherwise is silent
+                self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+                self._was_moving = False
+            return
+        status = self.follower.step(self.pose, self.pose_stamp_s, self.now_s(), self.people)
+        cmd = ZERO_TWIST if self.stopped else cap_twist(status.cmd, self.config)
+        self.cmd_pub.publish(twist_to_msg(cmd))
+        self._was_moving = True
+        if status.result is not None:
+            self.report(status)
+        elif self._ticks % self._progress_every == 0:
+            self.publish_progress(status)
+
+    def robot_cell(self) -> int | None:
+        if self.pose is None:
+            return None
+        return self.grid.cell_at(self.pose.x_m, self.pose.y_m)
+
+    def publish_progress(self, status: FollowerStatus) -> None:
+        dist = status.distance_remaining_m
+        body = {
+            "goal_id": self.goal_id,
+            "state": status.state.value,
+            "distance_remaining_m": None if math.isnan(dist) else round(dist, 3),
+            "replans": status.replans,
+            "message": status.message,
+            "cell": self.robot_cell(),
+        }
+        self.progress_pub.publish(String(data=json.dumps(body)))
+
+    def report(self, status: FollowerStatus) -> None:
+        assert status.result is not None
+        if status.state is FollowerState.DONE and status.result is not NavResult.SUCCEEDED:
+            self.get_logger().warning(f"navigation {status.result.value}: {status.message}")
+        self.publish_result(status.result, status.error_code, status.message)
+
+    def publish_result(self, result: NavResult, code: NavErrorCode, message: str) -> None:
+        body = {
+            "goal_id": self.goal_id,
+            "result": result.value,
+            "error_code": int(code),
+            "error_name": code.name,
+            "message": message,
+            "action": self.task.get("action"),
+            "from_cell": self.task.get("from_cell"),
+            "target_cell": self.task.get("target_cell"),
+            "cell": self.robot_cell(),
+        }
+        self.result_pub.publish(String(data=json.dumps(body)))
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = NavigationNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            if rclpy.ok():  # leave the base standing still
+                node.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,230 @@
+"""Point-based value iteration: the backup operator, belief sampling and Perseus.
+
+The point-based backup at a belief b (section 2.2.3.3) picks, for every action a and
+observation z, the alpha vector that is best for the successor belief, and returns
+
+    alpha(s) = R(s, a*) + gamma sum_s' T(s, a*, s') sum_z O(s', a*, z) alpha_{k*(z)}(s')
+
+for the best action a*. It is vectorised with sparse matrices: the work is
+proportional to the non-zeros reachable from b, not to |S| x |Z|.
+
+Perseus (Spaan and Vlassis 2005) backs up randomly chosen sampled beliefs until
+every belief's value has improved (or stayed), which keeps few alpha vectors.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from stack.planning import belief as belief_ops
+from stack.planning.bounds import blind_lower_bound, qmdp, require_discounted
+from stack.planning.policy import AlphaPolicy
+from stack.planning.pomdp import POMDP
+
+
+class Backup:
+    """The point-based backup for one model, with its sparse tables prepared once."""
+
+    def __init__(self, pomdp: POMDP):
+        require_discounted(pomdp)
+        self.pomdp = pomdp
+        self.gamma = pomdp.discount
+        self.S, self.A, self.Z = pomdp.n_states, pomdp.n_actions, pomdp.n_observations
+        self.O = [pomdp.O[a].tocsr() for a in range(self.A)]
+        # row index of every stored entry of O[a], for the gather in alpha construction
+        self.O_rows = [np.repeat(np.arange(self.S), np.diff(O.indptr)) for O in self.O]
+        self.T = [pomdp.T[a].tocsr() for a in range(self.A)]
+        self.TT = [pomdp.TT(a) for a in range(self.A)]
+        self.R = pomdp.R
+
+    def action_values(
+        self, alphas: np.ndarray, b: np.ndarray
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+        """Q(b, a) under the lower bound ``alphas`` for every a, and the chosen vectors.
+
+        Returns:
+            q: (A,) one-step lookahead values.
+            choice: per action, (reachable observations, index of the best vector for each).
+        """
+        q = np.empty(self.A)
+        choice = []
+        for a in range(self.A):
+            pred = self.TT[a] @ b
+            idx = np.flatnonzero(pred)
+            Osub = self.O[a][idx]  # (n, Z) rows of the reachable next states
+            scaled = alphas[:, idx] * pred[idx]  # (K, n)
+            G = (Osub.T @ scaled.T).T if alphas.shape[0] > 1 else (Osub.T @ scaled[0])[None, :]
+            pz = Osub.T @ pred[idx]
+            zs = np.flatnonzero(pz > 0)
+            Gz = G[:, zs]
+            k = Gz.argmax(axis=0)
+            q[a] = self.R[:, a] @ b + self.gamma * Gz[k, np.arange(zs.size)].sum()
+            choice.append((zs, k))
+        return q, choice
+
+    def __call__(self, alphas: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int, float]:
+        """Back up ``alphas`` at belief ``b``.
+
+        Returns:
+            (alpha vector (S,), its action, its value at b).
+        """
+        q, choice = self.action_values(alphas, b)
+        a = int(np.argmax(q))
+        zs, k = choice[a]
+        # observations unreachable from b: any vector gives a valid alpha; take b's best
+        kstar = np.full(self.Z, int(np.argmax(alphas @ b)))
+        kstar[zs] = k
+        O = self.O[a]
+        rows = self.O_rows[a]
+        v = np.bincount(rows, weights=O.data * alphas[kstar[O.indices], rows], minlength=self.S)
+        alpha = self.R[:, a] + self.gamma * (self.T[a] @ v)
+        return alpha, a, float(q[a])
+
+
+def sample_beliefs(
+    pomdp: POMDP,
+    starts: Sequence[np.ndarray],
+    n_beliefs: int,
+    rng: np.random.Generator,
+    Q: np.ndarray | None = None,
+    explore: float = 0.3,
+    horizon: int = 40,
+) -> np.ndarray:
+    """Reachable beliefs from trajectories of a QMDP policy (random actions with
+    probability ``explore``), as Symbolic Perseus samples them (section 4.3).
+
+    Returns:
+        (N, S) array of distinct beliefs; the start beliefs come first.
+    """
+    if Q is None:
+        Q = qmdp(pomdp)
+    S, A = pomdp.n_states, pomdp.n_actions
+    seen: set[bytes] = set()
+    out: list[np.ndarray] = []
+
+    def add(b: np.ndarray) -> None:
+        key = np.round(b, 7).tobytes()
+        if key not in seen:
+            seen.add(key)
+            out.append(b)
+
+    for b in starts:
+        add(np.asarray(b, dtype=float))
+    T = [pomdp.T[a].tocsr() for a in range(A)]
+    O = [pomdp.O[a].tocsr() for a in range(A)]
+    attempts = 0
+    while len(out) < n_beliefs and attempts < 50 * n_beliefs:
+        b = starts[attempts % len(starts)]
+        s = _draw(np.arange(S), b, rng)
+        for _ in range(horizon):
+            attempts += 1
+            a = int(rng.integers(A)) if rng.random() < explore else int(np.argmax(b @ Q))
+            s = _draw_row(T[a], s, rng)
+            z = _draw_row(O[a], s, rng)
+            b = belief_ops.update(pomdp, b, a, z)
+            add(b)
+            if len(out) >= n_beliefs:
+                break
+    return np.vstack(out)
+
+
+def _draw(values: np.ndarray, p: np.ndarray, rng: np.random.Generator) -> int:
+    c = np.cumsum(p)
+    return int(values[min(np.searchsorted(c, rng.random() * c[-1], side="right"), len(c) - 1)])
+
+
+def _draw_row(M, i: int, rng: np.random.Generator) -> int:
+    lo, hi = M.indptr[i], M.indptr[i + 1]
+    return _draw(M.indices[lo:hi], M.data[lo:hi], rng)
+
+
+@dataclass
+class IterationStats:
+    iteration: int
+    value_b0: float
+    n_alphas: int
+    backups: int
+    elapsed_s: float
+    upper_b0: float | None = None
+
+    @property
+    def gap(self) -> float | None:
+        return None if self.upper_b0 is None else self.upper_b0 - self.value_b0
+
+
+def perseus(
+    pomdp: POMDP,
+    beliefs: np.ndarray,
+    iterations: int = 50,
+    rng: np.random.Generator | None = None,
+    initial: AlphaPolicy | None = None,
+    time_limit_s: float | None = None,
+    progress: Callable[[IterationStats], None] | None = None,
+    b0: np.ndarray | None = None,
+) -> tuple[AlphaPolicy, list[IterationStats]]:
+    """Perseus: randomised point-based value iteration over a fixed belief set.
+
+    Args:
+        pomdp: the model (discount < 1).
+        beliefs: (N, S) belief set, e.g. from :func:`sample_beliefs`.
+        iterations: Perseus iterations (the thesis used 50).
+        rng: source of the random backup order.
+        initial: starting lower bound; default the blind policies.
+        time_limit_s: stop after the iteration that passes this time.
+        progress: called after every iteration.
+        b0: belief whose value is reported (default pomdp.b0).
+
+    Returns:
+        The policy and the per-iteration statistics.
+    """
+    rng = rng or np.random.default_rng(0)
+    b0 = pomdp.b0 if b0 is None else b0
+    backup = Backup(pomdp)
+    if initial is None:
+        alphas = blind_lower_bound(pomdp)
+        actions = np.arange(pomdp.n_actions)
+    else:
+        alphas, actions = initial.alphas.copy(), initial.actions.copy()
+    B = np.asarray(beliefs)
+    start = time.perf_counter()
+    history: list[IterationStats] = []
+    n_backups = 0
+    for it in range(1, iterations + 1):
+        old = (alphas @ B.T).max(axis=0)
+        new_alphas: list[np.ndarray] = []
+        new_actions: list[int] = []
+        new_vals = np.full(len(B), -np.inf)
+        todo = np.arange(len(B))
+        while todo.size:
+            i = int(rng.choice(todo))
+            # Gauss-Seidel: back up against the old vectors and those made this iteration,
+            # so value travels further than one step per iteration (gamma = 0.99 is slow)
+            pool = alphas if not new_alphas else np.vstack([alphas, *new_alphas])
+            alpha, a, _ = backup(pool, B[i])
+            n_backups += 1
+            if alpha @ B[i] < old[i]:
+                k = int(np.argmax(alphas @ B[i]))
+                alpha, a = alphas[k], int(actions[k])
+            new_alphas.append(alpha)
+            new_actions.append(a)
+            new_vals = np.maximum(new_vals, B @ alpha)
+            todo = np.flatnonzero(new_vals < old - 1e-9)
+        alphas = np.vstack(new_alphas)
+        actions = np.asarray(new_actions)
+        stats = IterationStats(
+            iteration=it,
+            value_b0=float((alphas @ b0).max()),
+            n_alphas=len(alphas),
+            backups=n_backups,
+            elapsed_s=time.perf_counter() - start,
+        )
+        history.append(stats)
+        if progress:
+            progress(stats)
+        if time_limit_s is not None and stats.elapsed_s > time_limit_s:
+            break
+    return AlphaPolicy(alphas=alphas, actions=actions, meta={"solver": "perseus"}), history

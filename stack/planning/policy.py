@@ -1,0 +1,99 @@
+"""An alpha-vector policy: V(b) = max_k alpha_k . b, action of the maximising vector."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+class PolicyFileError(ValueError):
+    """A policy file that cannot be read or does not fit the model."""
+
+
+@dataclass(frozen=True, eq=False)
+class AlphaPolicy:
+    """Alpha vectors (K, S) with their actions (K,).
+
+    Attributes:
+        alphas: one row per vector.
+        actions: the action index of each vector.
+        meta: free-form facts about how the policy was made (solver, bounds, model).
+    """
+
+    alphas: np.ndarray
+    actions: np.ndarray
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.alphas.ndim != 2 or self.actions.shape != (self.alphas.shape[0],):
+            raise ValueError(
+                f"alphas {self.alphas.shape} and actions {self.actions.shape} do not match"
+            )
+        if self.alphas.shape[0] == 0:
+            raise ValueError("a policy needs at least one alpha vector")
+
+    @property
+    def n_states(self) -> int:
+        return self.alphas.shape[1]
+
+    def values(self, belief: np.ndarray) -> np.ndarray:
+        return self.alphas @ belief
+
+    def value(self, belief: np.ndarray) -> float:
+        """The lower bound max_k alpha_k . b."""
+        return float(self.values(belief).max())
+
+    def action(self, belief: np.ndarray) -> int:
+        """The action of the best alpha vector at ``belief``.
+
+        Ties go to the first vector, so the choice is deterministic.
+        """
+        if belief.shape != (self.n_states,):
+            raise ValueError(f"belief has shape {belief.shape}, policy expects ({self.n_states},)")
+        return int(self.actions[int(np.argmax(self.values(belief)))])
+
+    def action_values(self, belief: np.ndarray, n_actions: int) -> np.ndarray:
+        """Best vector value per action (-inf for actions no vector recommends)."""
+        v = self.values(belief)
+        out = np.full(n_actions, -np.inf)
+        np.maximum.at(out, self.actions, v)
+        return out
+
+    # -- files ---------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write the policy as a compressed ``.npz`` (alphas, actions, JSON metadata)."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(
+            path, alphas=self.alphas, actions=self.actions, meta=np.array(json.dumps(self.meta))
+        )
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, n_states: int | None = None) -> AlphaPolicy:
+        """Read a policy written by :meth:`save`.
+
+        Raises:
+            PolicyFileError: unreadable file, missing arrays, or a state count that
+                does not match ``n_states``.
+        """
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                alphas, actions = data["alphas"], data["actions"]
+                meta = json.loads(str(data["meta"])) if "meta" in data else {}
+        except FileNotFoundError:
+            raise
+        except (OSError, KeyError, ValueError) as exc:
+            raise PolicyFileError(f"{path}: not a policy file ({exc})") from None
+        if n_states is not None and alphas.shape[1] != n_states:
+            raise PolicyFileError(
+                f"{path}: policy is for {alphas.shape[1]} states, the model has {n_states}"
+            )
+        return cls(alphas=alphas, actions=actions.astype(int), meta=meta)

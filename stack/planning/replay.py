@@ -1,0 +1,325 @@
+"""Chapter 5 replayed: tables 5.1-5.4 fed to our belief tracker and policy.
+
+Each table gives, step by step, the action the thesis's planner chose and the
+observations that followed (robot cell, person cell, person velocity). As in the
+thesis (chapter 5), the action of step n is chosen from the belief after the
+observations of step n-1, and the first from the initial belief. The replay feeds
+the same observations and compares our action with the thesis's at every step,
+and our beliefs with the values the text quotes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stack.planning import belief as belief_ops
+from stack.planning.model import ACTIONS, DIRECTIONS, FactoredModel
+from stack.planning.policy import AlphaPolicy
+from stack.planning.pomdp import POMDP
+
+
+@dataclass(frozen=True)
+class Step:
+    action: str
+    robot: int
+    person: int | None
+    velocity: str
+
+
+@dataclass(frozen=True)
+class Quote:
+    """A belief the text quotes after the observations of ``step``.
+
+    ``what`` is ``("position", cells)`` (P(person in any of cells)) or
+    ``("direction", names)``.
+    """
+
+    step: int
+    what: str
+    values: tuple
+    thesis: float
+
+    @property
+    def label(self) -> str:
+        vals = " or ".join(str(v) for v in self.values)
+        return f"P({'at' if self.what == 'position' else 'moving'} {vals})"
+
+
+@dataclass(frozen=True)
+class Table:
+    name: str
+    title: str
+    task: str  # "r1" or "r2"
+    robot: int
+    person: int | None
+    direction: str
+    steps: tuple[Step, ...]
+    quotes: tuple[Quote, ...] = field(default=())
+
+
+def _steps(rows: str) -> tuple[Step, ...]:
+    out = []
+    for line in rows.strip().splitlines():
+        action, robot, person, velocity = (x.strip() for x in line.split("|"))
+        out.append(
+            Step(action, int(robot), None if person == "No person" else int(person), velocity)
+        )
+    return tuple(out)
+
+
+def _pos(step: int, cells, thesis: float) -> Quote:
+    return Quote(step, "position", tuple(cells), thesis)
+
+
+def _dir(step: int, names, thesis: float) -> Quote:
+    return Quote(step, "direction", tuple(names), thesis)
+
+
+TABLES: dict[str, Table] = {
+    "5.1": Table(
+        "5.1",
+        "Simulation with one restricted area",
+        "r1",
+        robot=7,
+        person=11,
+        direction="not moving",
+        steps=_steps(
+            """
+            Do nothing | 7 | 9 | East higher
+            Do nothing | 7 | 7 | East higher
+            East | 5 | 5 | East higher
+            East | 3 | 3 | East 0-0.2
+            East | 1 | 1 | Not moving
+            Do nothing | 1 | 4 | West 0.2-0.7
+            Do nothing | 1 | 6 | West higher
+            West | 3 | 8 | South 0-0.2
+            Do nothing | 3 | 7 | Not moving
+            West | 5 | 7 | Not moving
+            West | 7 | 10 | North 0-0.2
+            Do nothing | 7 | 10 | Not moving
+            """
+        ),
+        quotes=(
+            _dir(1, ["East"], 0.75),
+            _pos(1, [9], 0.22),
+            _pos(1, [11], 0.73),
+            _pos(2, [7], 0.85),
+            _dir(2, ["East"], 0.89),
+            _pos(6, [4], 0.61),
+            _pos(6, [1], 0.31),
+            _dir(6, ["West"], 0.69),
+            _dir(6, ["North"], 0.17),
+            _dir(7, ["West"], 0.89),
+            _pos(7, [6], 0.9),
+        ),
+    ),
+    "5.2": Table(
+        "5.2",
+        "Experiment with the NRS and one restricted area",
+        "r1",
+        robot=8,
+        person=None,
+        direction="not moving",
+        steps=_steps(
+            """
+            South | 7 | No person | Not moving
+            Do nothing | 7 | 10 | East 0-0.2
+            Do nothing | 7 | 5 | East 0-0.2
+            East | 5 | 1 | Not moving
+            East | 3 | 2 | Not moving
+            East | 1 | 1 | Not moving
+            Do nothing | 1 | 6 | East 0-0.2
+            Do nothing | 1 | 12 | Not moving
+            West | 3 | No person | Not moving
+            West | 5 | No person | Not moving
+            West | 7 | No person | Not moving
+            """
+        ),
+        quotes=(
+            _dir(2, ["East"], 0.49),
+            _pos(2, [10], 0.58),
+            _dir(3, ["East"], 0.8),
+            _pos(3, [5], 0.72),
+            _pos(3, [8], 0.09),
+            _pos(4, [1, 2], 0.8),
+            _pos(6, [1, 2], 0.99),
+            _dir(7, ["East"], 0.49),
+        ),
+    ),
+    "5.3": Table(
+        "5.3",
+        "Experiment 1 with two restricted areas",
+        "r2",
+        robot=9,
+        person=None,
+        direction="not moving",
+        steps=_steps(
+            """
+            East | 7 | No person | Not moving
+            Do nothing | 7 | 9 | South 0-0.2
+            North | 8 | 12 | Not moving
+            West | 10 | 9 | North 0-0.2
+            West | 12 | 11 | Not moving
+            Do nothing | 12 | 9 | Not moving
+            Do nothing | 12 | 9 | Not moving
+            Do nothing | 12 | 6 | Not moving
+            Do nothing | 12 | 5 | Not moving
+            South | 11 | 5 | Not moving
+            """
+        ),
+        quotes=(
+            _pos(2, [9], 0.57),
+            _dir(2, ["South"], 0.47),
+            _dir(2, ["Not moving"], 0.28),
+            _dir(2, ["West", "North"], 0.15),
+            _pos(7, [9], 0.99),
+            _dir(7, ["Not moving"], 0.96),
+            _pos(8, [6], 0.57),
+            _pos(8, [9], 0.3),
+            _pos(9, [9], 0.03),
+        ),
+    ),
+    "5.4": Table(
+        "5.4",
+        "Experiment 2 with two restricted areas",
+        "r2",
+        robot=9,
+        person=None,
+        direction="not moving",
+        steps=_steps(
+            """
+            East | 7 | No person | Not moving
+            Do nothing | 7 | 7 | North higher
+            Do nothing | 7 | 6 | East 0-0.2
+            East | 5 | 1 | Not moving
+            East | 3 | 4 | East 0-0.2
+            East | 1 | 2 | Not moving
+            Do nothing | 1 | 4 | Not moving
+            Do nothing | 1 | 8 | Not moving
+            Do nothing | 1 | 6 | West 0-0.2
+            West | 3 | 8 | Not moving
+            West | 5 | 6 | Not moving
+            West | 7 | 8 | South 0.2-0.7
+            Do nothing | 7 | 7 | Not moving
+            Do nothing | 7 | 10 | North 0.2-0.7
+            North | 8 | 11 | Not moving
+            West | 10 | 11 | East 0-0.2
+            West | 12 | 11 | Not moving
+            """
+        ),
+        quotes=(
+            _pos(3, [6], 0.88),
+            _dir(3, ["East"], 0.61),
+            _dir(14, ["North"], 0.65),
+            _dir(14, ["West"], 0.15),
+        ),
+    ),
+}
+
+
+@dataclass
+class StepResult:
+    step: int
+    thesis_action: str
+    chosen_action: str
+    agrees: bool
+    tie: bool  # the thesis's action is (near) as good as ours under our policy
+    observation: Step
+    action_values: list[float]
+
+
+@dataclass
+class QuoteResult:
+    quote: Quote
+    ours: float
+
+
+@dataclass
+class TableResult:
+    table: Table
+    steps: list[StepResult]
+    quotes: list[QuoteResult]
+    beliefs: list[np.ndarray]  # belief before each step's action (len = steps), then the last
+
+    @property
+    def agreement(self) -> int:
+        return sum(s.agrees for s in self.steps)
+
+    @property
+    def agreement_with_ties(self) -> int:
+        return sum(s.agrees or s.tie for s in self.steps)
+
+
+def track_beliefs(model: FactoredModel, pomdp: POMDP, table: Table) -> list[np.ndarray]:
+    """The beliefs of a table: the initial one, then one after each step's observations."""
+    b = model.initial_belief(table.robot, [(table.person, table.direction)])
+    beliefs = [b]
+    for st in table.steps:
+        a = ACTIONS.index(st.action)
+        z = model.observation_index(st.robot, [(st.person, st.velocity)])
+        b = belief_ops.update(pomdp, b, a, z)
+        beliefs.append(b)
+    return beliefs
+
+
+def quoted_value(model: FactoredModel, belief: np.ndarray, quote: Quote) -> float:
+    t = belief.reshape(model.state_shape)
+    if quote.what == "position":
+        marg = t.sum(axis=(0, 2))
+        return float(sum(marg[model.position_index(c)] for c in quote.values))
+    marg = t.sum(axis=(0, 1))
+    return float(sum(marg[DIRECTIONS.index(d)] for d in quote.values))
+
+
+def replay_table(
+    model: FactoredModel,
+    pomdp: POMDP,
+    table: Table,
+    choose: Callable[[np.ndarray], tuple[int, np.ndarray]],
+    tie_tolerance: float = 0.005,
+) -> TableResult:
+    """Replay one table.
+
+    Args:
+        model, pomdp: the factored and flat task model (one person).
+        table: the thesis table.
+        choose: belief -> (action index, per-action values used to judge ties).
+        tie_tolerance: the thesis's action counts as a tie when its value is within
+            this fraction of the best value's magnitude.
+    """
+    beliefs = track_beliefs(model, pomdp, table)
+    steps = []
+    for i, st in enumerate(table.steps):
+        a, q = choose(beliefs[i])
+        thesis_a = ACTIONS.index(st.action)
+        scale = max(abs(q[a]), 1.0)
+        tie = bool(np.isfinite(q[thesis_a]) and q[a] - q[thesis_a] <= tie_tolerance * scale)
+        steps.append(
+            StepResult(i + 1, st.action, ACTIONS[a], a == thesis_a, tie, st, [float(x) for x in q])
+        )
+    quotes = [QuoteResult(q, quoted_value(model, beliefs[q.step], q)) for q in table.quotes]
+    return TableResult(table, steps, quotes, beliefs)
+
+
+def policy_chooser(policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True):
+    """A ``choose`` function for :func:`replay_table` from an alpha-vector policy.
+
+    With ``lookahead`` the action maximises the one-step lookahead value under the
+    policy's vectors (a greedy policy on the value function, as Symbolic Perseus's
+    non-stationary tracer does); otherwise it is the best vector's action.
+    """
+    from stack.planning.pbvi import Backup
+
+    backup = Backup(pomdp)
+
+    def choose(b: np.ndarray) -> tuple[int, np.ndarray]:
+        if lookahead:
+            q, _ = backup.action_values(policy.alphas, b)
+        else:
+            q = policy.action_values(b, pomdp.n_actions)
+        return int(np.argmax(q)), q
+
+    return choose

@@ -1,0 +1,377 @@
+"""The task file: the thesis's POMDP task (chapter 3, section 4.2) as validated dataclasses.
+
+A task file is YAML with these sections (see ``config/task-r1.yaml`` and
+``docs/MODEL.md`` for every parameter and the sentence of the thesis behind it):
+
+- ``grid``: the cells (numbering, metric size; :class:`stack.cells.CellGrid`);
+- ``restricted_cells``, ``rest_cell``, ``people``, ``discount``;
+- ``rewards``: table 4.1;
+- ``robot``: the robot's transition model (figures A.5-A.6);
+- ``person``: a person's direction and position transition models (section 3.2.1);
+- ``observation``: the person's position and velocity observation models (section 3.2.4).
+
+Every value is checked at load time; a bad one raises :class:`stack.cells.ConfigError`
+naming the key, the value and the rule it breaks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from stack.cells import CellGrid, ConfigError
+
+DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
+
+
+@dataclass(frozen=True)
+class Rewards:
+    """Table 4.1 plus the move cost of section 4.2."""
+
+    move: float = -0.2  # every North/South/East/West action
+    rest_cell: float = 0.0  # robot at the rest (equidistant) cell
+    restricted_guarded: float = 30.0  # robot at a restricted cell and a person at or heading to it
+    restricted_idle: float = -10.0  # robot at a restricted cell, nobody there or heading there
+    out_of_map: float = -30.0  # robot outside the map
+    other_cell: float = -3.0  # robot anywhere else
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """The robot's position transition (section 3.2.1, appendix A figures A.5-A.6)."""
+
+    move_success: float = 0.95  # reaches the neighbouring cell (or leaves the map at an edge)
+
+
+@dataclass(frozen=True)
+class DirectionModel:
+    """P(D' | D): a person's movement direction from one decision step to the next.
+
+    For a moving person: keep the direction, turn to each perpendicular one, turn
+    back (the least likely, section 3.2.1), or stop (the remainder). A person at
+    rest stays at rest or starts in any of the four directions alike.
+    """
+
+    keep: float = 0.6
+    turn: float = 0.1  # each of the two perpendicular directions
+    reverse: float = 0.05
+    rest_stay: float = 0.7  # P(not moving -> not moving)
+
+
+@dataclass(frozen=True)
+class PositionModel:
+    """P(P' | P, D): a person's cell from one decision step to the next.
+
+    Weights (normalised per row) for where a person in a cell ends up, by the
+    direction they were moving in. ``floor`` is spread over every cell so that no
+    position is impossible (section 3.2.4: avoid zero probabilities).
+    """
+
+    moving_stay: float = 0.35  # still in the same cell (cells are large, section 3.2.1)
+    moving_ahead: float = 0.45  # the adjacent cell in the direction of motion
+    moving_ahead2: float = 0.1  # two cells ahead
+    moving_side: float = 0.03  # each other 4-neighbour
+    moving_diagonal: float = 0.02  # each diagonal neighbour ahead
+    rest_stay: float = 0.9  # a resting person stays in the cell
+    rest_side: float = 0.02  # each 4-neighbour of a resting person
+    rest_diagonal: float = 0.005  # each diagonal neighbour of a resting person
+    leave: float = 0.01  # leaves the region from any cell
+    leave_at_edge: float = 0.5  # share of a move off the region's edge that leaves the region
+    enter: float = 0.2  # P(no person -> a person somewhere), spread over the cells
+    floor: float = 0.002  # total weight spread over all cells
+
+
+@dataclass(frozen=True)
+class PositionObservationModel:
+    """P(O_P | P'): the camera's cell for a person (section 3.2.4)."""
+
+    correct: float = 0.8  # the true cell
+    miss: float = 0.05  # a person present but not detected: "No person"
+    near_decay: float = 0.2  # relative weight of a cell one step further away
+    false_positive: float = 0.05  # nobody there, yet a cell is reported (spread uniformly)
+
+
+@dataclass(frozen=True)
+class VelocityObservationModel:
+    """P(O_V | P', D'): direction and speed class observed for a person (section 3.2.4).
+
+    The observed direction is the true one, a perpendicular one, the opposite one,
+    or "Not moving"; the speed class given a direction is drawn from ``moving_speed``
+    (for the true direction of a moving person: higher speeds likelier) or
+    ``other_speed`` (slow speeds likelier).
+    """
+
+    moving_direction: float = 0.7  # observed direction = true direction
+    moving_turn: float = 0.06  # each perpendicular direction
+    moving_reverse: float = 0.02
+    # remainder: "Not moving"
+    moving_speed: tuple[float, float, float] = (0.5, 0.3, 0.2)  # higher, 0.2-0.7, 0-0.2
+    other_speed: tuple[float, float, float] = (0.1, 0.3, 0.6)
+    rest_not_moving: float = 0.7  # a resting person observed "Not moving"
+    absent_not_moving: float = 0.97  # nobody there: "Not moving"
+
+
+@dataclass(frozen=True)
+class Initial:
+    """The initial state, known with certainty as in every experiment of chapter 5."""
+
+    robot: int = 7  # robot cell
+    person: int | None = 11  # person cell, None for "no person"
+    direction: str = "not moving"  # north, south, east, west or not moving
+
+
+@dataclass(frozen=True)
+class Task:
+    """Everything needed to build the POMDP of a task."""
+
+    name: str = "task"
+    grid: CellGrid = field(default_factory=CellGrid)
+    restricted_cells: tuple[int, ...] = (1,)
+    rest_cell: int = 7
+    people: int = 1
+    discount: float = 0.99
+    rewards: Rewards = field(default_factory=Rewards)
+    robot: RobotModel = field(default_factory=RobotModel)
+    direction: DirectionModel = field(default_factory=DirectionModel)
+    position: PositionModel = field(default_factory=PositionModel)
+    obs_position: PositionObservationModel = field(default_factory=PositionObservationModel)
+    obs_velocity: VelocityObservationModel = field(default_factory=VelocityObservationModel)
+    initial: Initial = field(default_factory=Initial)
+
+    def __post_init__(self) -> None:
+        cells = set(self.grid.cells)
+        if not self.restricted_cells:
+            raise ConfigError("restricted_cells", list(self.restricted_cells), "needs at least one cell")
+        for c in self.restricted_cells:
+            if c not in cells:
+                raise ConfigError("restricted_cells", c, f"is not a cell of the grid (1..{len(cells)})")
+        if len(set(self.restricted_cells)) != len(self.restricted_cells):
+            raise ConfigError("restricted_cells", list(self.restricted_cells), "lists a cell twice")
+        if self.rest_cell not in cells:
+            raise ConfigError("rest_cell", self.rest_cell, f"is not a cell of the grid (1..{len(cells)})")
+        if self.rest_cell in self.restricted_cells:
+            raise ConfigError("rest_cell", self.rest_cell, "must not be a restricted cell")
+        if not isinstance(self.people, int) or isinstance(self.people, bool) or self.people < 1:
+            raise ConfigError("people", self.people, "must be a positive integer")
+        if not 0.0 < self.discount < 1.0:
+            raise ConfigError("discount", self.discount, "must be in (0, 1) for an infinite horizon")
+        _check_models(self)
+        ini = self.initial
+        if ini.robot not in cells:
+            raise ConfigError("initial.robot", ini.robot, "is not a cell of the grid")
+        if ini.person is not None and ini.person not in cells:
+            raise ConfigError("initial.person", ini.person, "is not a cell of the grid (or 'none')")
+        if ini.direction not in DIRECTION_NAMES:
+            raise ConfigError("initial.direction", ini.direction, f"must be one of {DIRECTION_NAMES}")
+
+    def replace(self, **changes: Any) -> Task:
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Task:
+        """Build and validate a task from a parsed YAML mapping.
+
+        Raises:
+            ConfigError: for an unknown key, a wrong type or a value out of range.
+        """
+        if not isinstance(data, Mapping):
+            raise ConfigError("task", data, "must be a mapping")
+        known = {f.name for f in dataclasses.fields(cls)}
+        _reject_unknown("", data, known | {"observations"})
+        kwargs: dict[str, Any] = {}
+        if "name" in data:
+            kwargs["name"] = str(data["name"])
+        if "grid" in data:
+            kwargs["grid"] = CellGrid.from_mapping(data["grid"])
+        if "restricted_cells" in data:
+            v = data["restricted_cells"]
+            if not isinstance(v, list) or not all(_is_int(c) for c in v):
+                raise ConfigError("restricted_cells", v, "must be a list of cell numbers")
+            kwargs["restricted_cells"] = tuple(v)
+        for key in ("rest_cell", "people"):
+            if key in data:
+                if not _is_int(data[key]):
+                    raise ConfigError(key, data[key], "must be an integer")
+                kwargs[key] = data[key]
+        if "discount" in data:
+            kwargs["discount"] = _number("discount", data["discount"])
+        if "initial" in data:
+            kwargs["initial"] = _initial(data["initial"])
+        sections = {
+            "rewards": Rewards,
+            "robot": RobotModel,
+            "direction": DirectionModel,
+            "position": PositionModel,
+            "obs_position": PositionObservationModel,
+            "obs_velocity": VelocityObservationModel,
+        }
+        for key, klass in sections.items():
+            if key in data:
+                kwargs[key] = _section(key, data[key], klass)
+        return cls(**kwargs)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The task as plain data, in the layout of a task file."""
+        out: dict[str, Any] = {
+            "name": self.name,
+            "grid": {
+                "numbering": [list(r) for r in self.grid.numbering],
+                "cell_size_m": list(self.grid.cell_size_m),
+                "origin_m": list(self.grid.origin_m),
+            },
+            "restricted_cells": list(self.restricted_cells),
+            "rest_cell": self.rest_cell,
+            "people": self.people,
+            "discount": self.discount,
+        }
+        for key in ("rewards", "robot", "direction", "position", "obs_position", "obs_velocity"):
+            sec = dataclasses.asdict(getattr(self, key))
+            out[key] = {k: list(v) if isinstance(v, tuple) else v for k, v in sec.items()}
+        ini = self.initial
+        out["initial"] = {
+            "robot": ini.robot,
+            "person": "none" if ini.person is None else ini.person,
+            "direction": ini.direction,
+        }
+        return out
+
+
+def load_task(path: str | Path) -> Task:
+    """Read and validate a task file.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ConfigError: the file is not valid YAML or a value breaks a rule.
+    """
+    path = Path(path)
+    text = path.read_text()
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(str(path), "<file>", f"is not valid YAML: {exc}") from None
+    if data is None:
+        raise ConfigError(str(path), "<empty>", "a task file needs at least a grid")
+    return Task.from_dict(data)
+
+
+# -- validation helpers -----------------------------------------------------------
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _number(key: str, v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ConfigError(key, v, "must be a number")
+    return float(v)
+
+
+def _reject_unknown(prefix: str, data: Mapping[str, Any], known: set[str]) -> None:
+    for k in data:
+        if k not in known:
+            raise ConfigError(f"{prefix}{k}", data[k], f"unknown key (known: {', '.join(sorted(known))})")
+
+
+def _section(key: str, data: Any, klass: type) -> Any:
+    if not isinstance(data, Mapping):
+        raise ConfigError(key, data, "must be a mapping")
+    fields = {f.name: f for f in dataclasses.fields(klass)}
+    _reject_unknown(f"{key}.", data, set(fields))
+    kwargs = {}
+    for name, value in data.items():
+        default = getattr(klass(), name)
+        if isinstance(default, tuple):
+            if not isinstance(value, list | tuple) or len(value) != len(default):
+                raise ConfigError(f"{key}.{name}", value, f"must be a list of {len(default)} numbers")
+            kwargs[name] = tuple(_number(f"{key}.{name}", v) for v in value)
+        else:
+            kwargs[name] = _number(f"{key}.{name}", value)
+    return klass(**kwargs)
+
+
+def _initial(data: Any) -> Initial:
+    if not isinstance(data, Mapping):
+        raise ConfigError("initial", data, "must be a mapping")
+    _reject_unknown("initial.", data, {"robot", "person", "direction"})
+    kwargs: dict[str, Any] = {}
+    if "robot" in data:
+        if not _is_int(data["robot"]):
+            raise ConfigError("initial.robot", data["robot"], "must be a cell number")
+        kwargs["robot"] = data["robot"]
+    if "person" in data:
+        v = data["person"]
+        if v is None or (isinstance(v, str) and v.lower() in ("none", "no person")):
+            kwargs["person"] = None
+        elif _is_int(v):
+            kwargs["person"] = v
+        else:
+            raise ConfigError("initial.person", v, "must be a cell number or 'none'")
+    if "direction" in data:
+        v = data["direction"]
+        if not isinstance(v, str) or v.lower().replace("_", " ") not in DIRECTION_NAMES:
+            raise ConfigError("initial.direction", v, f"must be one of {DIRECTION_NAMES}")
+        kwargs["direction"] = v.lower().replace("_", " ")
+    return Initial(**kwargs)
+
+
+def _prob(key: str, v: float, *, positive: bool = False) -> None:
+    if not 0.0 <= v <= 1.0:
+        raise ConfigError(key, v, "must be a probability in [0, 1]")
+    if positive and v <= 0.0:
+        raise ConfigError(key, v, "must be > 0 (the thesis avoids zero probabilities)")
+
+
+def _check_models(task: Task) -> None:
+    d = task.direction
+    for name in ("keep", "turn", "reverse", "rest_stay"):
+        _prob(f"direction.{name}", getattr(d, name), positive=True)
+    stop = 1.0 - d.keep - 2 * d.turn - d.reverse
+    if stop <= 0.0:
+        raise ConfigError(
+            "direction", dataclasses.asdict(d), "keep + 2 turn + reverse must be < 1 (stopping needs a chance)"
+        )
+    if d.reverse > d.turn or d.reverse > d.keep:
+        raise ConfigError("direction.reverse", d.reverse, "turning back must be the least likely change (3.2.1)")
+    if d.rest_stay >= 1.0:
+        raise ConfigError("direction.rest_stay", d.rest_stay, "must be < 1 (a resting person may start)")
+
+    p = task.position
+    for name in dataclasses.asdict(p):
+        v = getattr(p, name)
+        if v < 0:
+            raise ConfigError(f"position.{name}", v, "must be >= 0")
+    for name in ("leave", "leave_at_edge", "enter"):
+        _prob(f"position.{name}", getattr(p, name))
+    if p.moving_stay + p.moving_ahead <= 0 or p.rest_stay <= 0:
+        raise ConfigError("position", dataclasses.asdict(p), "stay/ahead weights must not all be 0")
+    if p.floor <= 0:
+        raise ConfigError("position.floor", p.floor, "must be > 0 (no cell may be impossible)")
+
+    if not 0.0 < task.robot.move_success <= 1.0:
+        raise ConfigError("robot.move_success", task.robot.move_success, "must be in (0, 1]")
+
+    op = task.obs_position
+    for name in ("correct", "miss", "false_positive"):
+        _prob(f"obs_position.{name}", getattr(op, name), positive=True)
+    if op.correct + op.miss >= 1.0:
+        raise ConfigError("obs_position", dataclasses.asdict(op), "correct + miss must be < 1")
+    if op.near_decay <= 0:
+        raise ConfigError("obs_position.near_decay", op.near_decay, "must be > 0")
+
+    ov = task.obs_velocity
+    for name in ("moving_direction", "moving_turn", "moving_reverse", "rest_not_moving", "absent_not_moving"):
+        _prob(f"obs_velocity.{name}", getattr(ov, name), positive=True)
+    if ov.moving_direction + 2 * ov.moving_turn + ov.moving_reverse >= 1.0:
+        raise ConfigError("obs_velocity", dataclasses.asdict(ov), "direction shares must leave room for 'Not moving'")
+    for name in ("moving_speed", "other_speed"):
+        v = getattr(ov, name)
+        if any(x <= 0 for x in v):
+            raise ConfigError(f"obs_velocity.{name}", list(v), "speed class shares must be > 0")
+    if ov.rest_not_moving >= 1.0 or ov.absent_not_moving >= 1.0:
+        raise ConfigError("obs_velocity", dataclasses.asdict(ov), "'Not moving' shares must be < 1")

@@ -1,0 +1,192 @@
+"""The navigation and speech nodes exchanging real messages over rclpy, in one process.
+
+A small simulator node stands in for the twin: it integrates /cmd_vel with the
+kinematic base model and publishes /odom.
+"""
+
+import json
+import math
+import shutil
+import time
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from geometry_msgs.msg import Twist  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from std_msgs.msg import Bool, String  # noqa: E402
+
+from stack.cells import CellGrid  # noqa: E402
+from stack.nav.base_model import KinematicBase  # noqa: E402
+from stack.nav.follower import Pose2D, Twist2D  # noqa: E402
+from stack.nav.node_navigation import NavigationNode  # noqa: E402
+from stack.nav.node_speech import SpeechNode  # noqa: E402
+
+pytestmark = pytest.mark.ros
+GRID = CellGrid()
+
+
+class SimBase(Node):
+    """Integrates /cmd_vel on a kinematic base and publishes /odom; records traffic."""
+
+    def __init__(self, start_xy):
+        super().__init__("sim_base")
+        self.base = KinematicBase(Pose2D(*start_xy, yaw_rad=0.4))
+        self.cmd = Twist2D()
+        self.cmds: list[Twist] = []
+        self.results: list[dict] = []
+        self.speech: list[dict] = []
+        self.publish_odom = True
+        self.odom_pub = self.create_publisher(Odometry, "/odom", 10)
+        self.action_pub = self.create_publisher(String, "/nav/action", 10)
+        self.stop_pub = self.create_publisher(Bool, "/stop", 10)
+        self.person_cell_pub = self.create_publisher(String, "/perception/person_cell", 10)
+        self.create_subscription(Twist, "/cmd_vel", self.on_cmd, 10)
+        self.create_subscription(String, "/nav/result", self.on_result, 10)
+        self.create_subscription(String, "/speech/done", self.on_speech, 10)
+        self.create_timer(0.05, self.on_timer)
+
+    def on_cmd(self, msg: Twist) -> None:
+        self.cmds.append(msg)
+        self.cmd = Twist2D(msg.linear.x, msg.linear.y, msg.angular.z)
+
+    def on_result(self, msg: String) -> None:
+        try:
+            self.results.append(json.loads(msg.data))
+        except ValueError:  # the speech test sends a malformed result on purpose
+            pass
+
+    def on_speech(self, msg: String) -> None:
+        self.speech.append(json.loads(msg.data))
+
+    def on_timer(self) -> None:
+        pose = self.base.step(self.cmd, 0.05)
+        if not self.publish_odom:
+            return
+        odom = Odometry()
+        odom.header.frame_id = "map"
+        odom.pose.pose.position.x, odom.pose.pose.position.y = pose.x_m, pose.y_m
+        odom.pose.pose.orientation.z = math.sin(pose.yaw_rad / 2)
+        odom.pose.pose.orientation.w = math.cos(pose.yaw_rad / 2)
+        self.odom_pub.publish(odom)
+
+
+@pytest.fixture
+def ros():
+    rclpy.init()
+    executor = SingleThreadedExecutor()
+    yield executor
+    executor.shutdown()
+    rclpy.shutdown()
+
+
+def spin_until(executor, predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+        if predicate():
+            return True
+    return False
+
+
+def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
+    sim = SimBase(GRID.center(3))
+    nav = NavigationNode(
+        parameter_overrides=[Parameter("control_rate_hz", value=20.0)],
+    )
+    for node in (sim, nav):
+        ros.add_node(node)
+    try:
+        assert spin_until(ros, lambda: nav.pose is not None, 5.0), "no odometry reached the node"
+        # a bad action: warned about, reported, and the node keeps working
+        sim.action_pub.publish(String(data="Upwards"))
+        assert spin_until(ros, lambda: len(sim.results) == 1, 3.0)
+        assert sim.results[0]["result"] == "refused"
+        assert sim.results[0]["error_name"] == "INVALID_ACTION"
+        # East from cell 3 is cell 1; East again leaves the map and is refused
+        sim.action_pub.publish(String(data="East"))
+        assert spin_until(ros, lambda: len(sim.results) == 2, 15.0), "no result for East"
+        result = sim.results[1]
+        assert result["result"] == "succeeded", result
+        assert (result["from_cell"], result["target_cell"], result["cell"]) == (3, 1, 1)
+        pose = sim.base.pose
+        assert math.dist((pose.x_m, pose.y_m), GRID.center(1)) < 0.1
+        n_cmds = len(sim.cmds)
+        sim.action_pub.publish(String(data="East"))
+        assert spin_until(ros, lambda: len(sim.results) == 3, 3.0)
+        assert sim.results[2]["result"] == "refused"
+        assert sim.results[2]["error_name"] == "ACTION_LEAVES_MAP"
+        assert all(c.linear.x == c.linear.y == 0.0 for c in sim.cmds[n_cmds:])
+        # every command within the configured limits
+        cfg = nav.config
+        assert max(abs(c.linear.x) for c in sim.cmds) <= cfg.max_vx_mps + 1e-9
+        assert max(abs(c.linear.y) for c in sim.cmds) <= cfg.max_vy_mps + 1e-9
+        # stale pose: odometry stops, so the node commands zero while the task continues
+        sim.publish_odom = False
+        sim.action_pub.publish(String(data="North"))
+        spin_until(ros, lambda: False, 1.5)
+        assert sim.cmds and sim.cmds[-1].linear.x == 0.0 and sim.cmds[-1].linear.y == 0.0
+        # /stop cancels it with a result
+        sim.stop_pub.publish(Bool(data=True))
+        assert spin_until(ros, lambda: len(sim.results) == 4, 3.0)
+        assert sim.results[3]["result"] == "canceled"
+    finally:
+        for node in (sim, nav):
+            ros.remove_node(node)
+            node.destroy_node()
+
+
+@pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="needs espeak-ng")
+def test_speech_node_warns_in_a_restricted_cell_with_the_person_near(ros, tmp_path):
+    sim = SimBase(GRID.center(1))
+    speech = SpeechNode(parameter_overrides=[Parameter("out_dir", value=str(tmp_path))])
+    result_pub = sim.create_publisher(String, "/nav/result", 10)
+    for node in (sim, speech):
+        ros.add_node(node)
+    try:
+        spin_until(ros, lambda: False, 0.3)  # discovery
+        sim.person_cell_pub.publish(String(data="No person"))
+        sim.person_cell_pub.publish(String(data="3"))
+        assert spin_until(ros, lambda: speech.person_cell == 3, 3.0)
+        # arriving in cell 7 (not restricted): silence; cell 1 with the person in 3: warn
+        result_pub.publish(String(data=json.dumps({"result": "succeeded", "cell": 7})))
+        result_pub.publish(String(data="not json"))
+        result_pub.publish(String(data=json.dumps({"result": "succeeded", "cell": 1})))
+        assert spin_until(ros, lambda: len(sim.speech) >= 1, 10.0), "no speech report"
+        done = sim.speech[0]
+        assert done["kind"] == "finished" and done["voice"] == "en"
+        assert done["text"] == speech.config.warning
+        assert len(list(tmp_path.glob("*.wav"))) == 1
+        assert (tmp_path / "speech_log.tsv").read_text().count("\n") == 2
+    finally:
+        for node in (sim, speech):
+            ros.remove_node(node)
+            node.destroy_node()
+
+
+def test_navigation_node_reads_amcl_pose_and_a_map_file(ros, tmp_path):
+    from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: PLC0415
+
+    from stack.cells import ConfigError  # noqa: PLC0415
+    from stack.nav.occupancy import OccupancyMap, save_map_yaml  # noqa: PLC0415
+
+    map_yaml = save_map_yaml(OccupancyMap.empty(7.0, 4.0, 0.05, (-0.5, -0.5)), tmp_path / "m.yaml")
+    nav = NavigationNode(
+        parameter_overrides=[
+            Parameter("pose_source", value="amcl"),
+            Parameter("map_yaml", value=str(map_yaml)),
+        ]
+    )
+    try:
+        subs = {s.topic_name: s.msg_type for s in nav.subscriptions}
+        assert subs["/amcl_pose"] is PoseWithCovarianceStamped
+        assert "/odom" not in subs and "/map" not in subs
+        assert nav.follower.map.shape == (80, 140)
+    finally:
+        nav.destroy_node()
+    with pytest.raises(ConfigError, match="pose_source: 'gps' is invalid"):
+        NavigationNode(parameter_overrides=[Parameter("pose_source", value="gps")])
