@@ -1,0 +1,432 @@
+"""Configuration of the digital twin: frozen dataclasses validated from YAML mappings.
+
+Every component has its own dataclass with the units in the field names. ``from_dict``
+checks each key and value and raises :class:`stack.cells.ConfigError` naming the key,
+the value and the broken rule, so that a typo in ``config/twin-scene.yaml`` fails at
+start-up and not as a strange scene.
+
+Frames: the world frame of the MuJoCo scene IS the map frame of ``stack.cells`` (x east,
+y north, z up, metres). The room is laid around the cell region read from the task
+file's ``grid`` section, so moving ``grid.origin_m`` moves the whole room with it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import yaml
+
+from stack.cells import CellGrid, ConfigError
+
+Rule = tuple[Callable[[Any], bool], str]
+
+
+def _positive(v: Any) -> bool:
+    return v > 0
+
+
+def _non_negative(v: Any) -> bool:
+    return v >= 0
+
+
+def _unit_rgb(v: Any) -> bool:
+    return len(v) == 3 and all(0.0 <= c <= 1.0 for c in v)
+
+
+POSITIVE: Rule = (_positive, "must be > 0")
+NON_NEGATIVE: Rule = (_non_negative, "must be >= 0")
+RGB: Rule = (_unit_rgb, "must be three numbers in [0, 1]")
+
+
+class _FromDict:
+    """Mixin: build a frozen dataclass from a mapping, validating every key and value.
+
+    Subclasses list per-field rules in ``_rules`` (predicate, rule text) and may add
+    cross-field checks in ``_check``.
+    """
+
+    _rules: ClassVar[dict[str, Rule]] = {}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "") -> Any:
+        """Build from a mapping (a YAML section); missing keys keep their defaults.
+
+        Args:
+            data: the section; None means all defaults.
+            key: the dotted path of this section, used in error messages.
+
+        Returns:
+            The validated, frozen configuration.
+
+        Raises:
+            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
+        """
+        data = {} if data is None else data
+        if not isinstance(data, Mapping):
+            raise ConfigError(key or cls.__name__, data, "must be a mapping")
+        hints = typing.get_type_hints(cls)
+        fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        kwargs: dict[str, Any] = {}
+        for k, v in data.items():
+            path = f"{key}.{k}" if key else str(k)
+            if k not in fields:
+                raise ConfigError(path, v, f"unknown key (known: {sorted(fields)})")
+            kwargs[k] = _coerce(path, v, hints[k])
+        obj = cls(**kwargs)
+        obj._validate(key)  # type: ignore[attr-defined]
+        return obj
+
+    def _validate(self, key: str) -> None:
+        for name, (check, rule) in self._rules.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            if not check(value):
+                raise ConfigError(f"{key}.{name}" if key else name, value, rule)
+        self._check(key)
+
+    def _check(self, key: str) -> None:
+        """Cross-field rules; override in subclasses."""
+
+
+def _coerce(path: str, value: Any, hint: Any) -> Any:
+    """Convert a YAML value to the annotated type or raise ConfigError."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(path, value, inner[0])
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(path, value, "must be a number")
+        if not math.isfinite(value):
+            raise ConfigError(path, value, "must be finite")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(path, value, "must be an integer")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(path, value, "must be true or false")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(path, value, "must be a string")
+        return value
+    if origin is tuple:
+        if not isinstance(value, Sequence) or isinstance(value, str):
+            raise ConfigError(path, value, "must be a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(f"{path}[{i}]", v, args[0]) for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(path, value, f"must have {len(args)} elements")
+        return tuple(
+            _coerce(f"{path}[{i}]", v, a) for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    if hint is CellGrid:
+        return CellGrid.from_mapping(value, path)
+    if isinstance(hint, type) and issubclass(hint, _FromDict):
+        return hint.from_dict(value, path)
+    raise TypeError(f"{path}: no coercion for {hint!r}")  # a bug in this module, not the YAML
+
+
+@dataclass(frozen=True)
+class RoomConfig(_FromDict):
+    """The LRM room laid around the cell region.
+
+    The margins are measured from the region's edges to the inside faces of the walls.
+    The ceiling camera hangs on the west (short) wall, so ``margin_west_m`` must leave
+    room for its distance behind the region (FEASIBILITY mount "A": >= 3 m).
+    """
+
+    margin_west_m: float = 3.5
+    margin_east_m: float = 2.0
+    margin_south_m: float = 2.2
+    margin_north_m: float = 2.2
+    wall_height_m: float = 3.0
+    wall_thickness_m: float = 0.12
+    door_width_m: float = 0.9
+    door_height_m: float = 2.1
+    # door centre in the north wall, measured east of the region's east edge [m]
+    door_offset_east_m: float = 1.0
+    floor_tile_m: float = 0.6
+    furniture: bool = True
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "margin_west_m": POSITIVE,
+        "margin_east_m": POSITIVE,
+        "margin_south_m": POSITIVE,
+        "margin_north_m": POSITIVE,
+        "wall_height_m": (lambda v: 2.2 < v <= 6.0, "must be in (2.2, 6] m"),
+        "wall_thickness_m": (lambda v: 0.02 <= v <= 0.5, "must be in [0.02, 0.5] m"),
+        "door_width_m": (lambda v: 0.6 <= v <= 2.0, "must be in [0.6, 2.0] m"),
+        "door_height_m": (lambda v: 1.9 <= v <= 2.2, "must be in [1.9, 2.2] m"),
+        "floor_tile_m": POSITIVE,
+    }
+
+
+@dataclass(frozen=True)
+class CameraConfig(_FromDict):
+    """The ceiling AXIS P1344, mount "A" of FEASIBILITY.md.
+
+    It hangs on the west wall behind the region's west end, on the region's long axis,
+    looking east and tilted down. ``fovy_deg`` must stay within what the 3-8 mm
+    varifocal lens gives (horizontal 34-80 deg; vertical about 22-54 deg at 16:10).
+    """
+
+    width_px: int = 640
+    height_px: int = 400
+    fovy_deg: float = 40.0
+    tilt_deg: float = 22.0  # below horizontal; keeps a head at the far end in view
+    height_m: float = 2.75
+    distance_behind_m: float = 3.3  # from the region's west edge, along -x
+    lateral_offset_m: float = 0.0  # along +y from the region's mid-line
+    rate_hz: float = 10.0
+    antialias_samples: int = 4
+    shadows: bool = True  # only the key light casts shadows (they dominate render time)
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "width_px": (lambda v: 16 <= v <= 1280, "must be in [16, 1280] (P1344 maximum)"),
+        "height_px": (lambda v: 16 <= v <= 800, "must be in [16, 800] (P1344 maximum)"),
+        "fovy_deg": (lambda v: 20.0 <= v <= 56.0, "must be in [20, 56] deg (3-8 mm lens)"),
+        "tilt_deg": (lambda v: 0.0 <= v <= 89.0, "must be in [0, 89] deg"),
+        "height_m": POSITIVE,
+        "distance_behind_m": POSITIVE,
+        "rate_hz": POSITIVE,
+        "antialias_samples": (lambda v: v in (0, 1, 2, 4, 8, 16), "must be 0, 1, 2, 4, 8 or 16"),
+    }
+
+
+@dataclass(frozen=True)
+class LidarConfig(_FromDict):
+    """The planar laser scanner on the robot, simulated with mujoco.mj_multiRay."""
+
+    beams: int = 720
+    fov_deg: float = 270.0  # centred on the robot's forward axis
+    range_min_m: float = 0.05
+    range_max_m: float = 10.0
+    noise_std_m: float = 0.01  # Gaussian range noise
+    rate_hz: float = 10.0
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "beams": (lambda v: 2 <= v <= 10000, "must be in [2, 10000]"),
+        "fov_deg": (lambda v: 0.0 < v <= 360.0, "must be in (0, 360] deg"),
+        "range_min_m": NON_NEGATIVE,
+        "range_max_m": POSITIVE,
+        "noise_std_m": NON_NEGATIVE,
+        "rate_hz": POSITIVE,
+    }
+
+    def _check(self, key: str) -> None:
+        if self.range_max_m <= self.range_min_m:
+            raise ConfigError(f"{key}.range_max_m", self.range_max_m, "must exceed range_min_m")
+
+
+@dataclass(frozen=True)
+class RobotConfig(_FromDict):
+    """The MBot's holonomic base: start pose, limits and actuator gains."""
+
+    start_cell: int = 7  # the thesis's rest position (section 4.2)
+    start_yaw_rad: float = 0.0
+    max_linear_mps: float = 0.5
+    max_angular_radps: float = 1.2
+    max_linear_accel_mps2: float = 1.0
+    max_angular_accel_radps2: float = 3.0
+    linear_gain_ns_per_m: float = 2000.0  # velocity actuator kv on the slides
+    angular_gain_nms_per_rad: float = 100.0  # kv on the yaw hinge
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "start_cell": POSITIVE,
+        "max_linear_mps": POSITIVE,
+        "max_angular_radps": POSITIVE,
+        "max_linear_accel_mps2": POSITIVE,
+        "max_angular_accel_radps2": POSITIVE,
+        "linear_gain_ns_per_m": POSITIVE,
+        "angular_gain_nms_per_rad": POSITIVE,
+    }
+
+
+@dataclass(frozen=True)
+class OdometryConfig(_FromDict):
+    """Wheel odometry: the true body-frame velocity plus Gaussian noise, integrated."""
+
+    linear_noise_std_mps: float = 0.01
+    angular_noise_std_radps: float = 0.01
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "linear_noise_std_mps": NON_NEGATIVE,
+        "angular_noise_std_radps": NON_NEGATIVE,
+    }
+
+
+@dataclass(frozen=True)
+class Waypoint(_FromDict):
+    """One point of the person's script: walk here at ``speed_mps``, then wait ``pause_s``.
+
+    The first waypoint is where the person starts; its speed is unused.
+    """
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    speed_mps: float = 1.0
+    pause_s: float = 0.0
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "speed_mps": (lambda v: 0.1 <= v <= 1.4, "must be in [0.1, 1.4] m/s (walking speeds)"),
+        "pause_s": NON_NEGATIVE,
+    }
+
+
+@dataclass(frozen=True)
+class PersonConfig(_FromDict):
+    """The person: body sizes, clothing colours and a scripted trajectory.
+
+    With no waypoints the person enters through the door, walks through the region
+    (cells 12, 7 and 1 of the default grid) with pauses, and leaves through the door.
+    """
+
+    present: bool = True
+    height_m: float = 1.75
+    waypoints: tuple[Waypoint, ...] = ()
+    shirt_rgb: tuple[float, float, float] = (0.70, 0.12, 0.12)
+    trousers_rgb: tuple[float, float, float] = (0.12, 0.16, 0.35)
+    skin_rgb: tuple[float, float, float] = (0.87, 0.68, 0.55)
+    hair_rgb: tuple[float, float, float] = (0.15, 0.09, 0.05)
+    shoes_rgb: tuple[float, float, float] = (0.08, 0.08, 0.08)
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "height_m": (lambda v: 1.4 <= v <= 2.1, "must be in [1.4, 2.1] m"),
+        "shirt_rgb": RGB,
+        "trousers_rgb": RGB,
+        "skin_rgb": RGB,
+        "hair_rgb": RGB,
+        "shoes_rgb": RGB,
+    }
+
+
+@dataclass(frozen=True)
+class MapConfig(_FromDict):
+    """The occupancy map made from the twin's static geometry.
+
+    A cell is occupied where any static geom occupies some height in
+    [z_min_m, z_max_m]: by default everything the robot (1.25 m tall) could hit, so
+    desks show as their whole footprint while the lidar sees only their legs.
+    """
+
+    resolution_m: float = 0.05
+    z_min_m: float = 0.02
+    z_max_m: float = 1.3
+    occupied_thresh: float = 0.65
+    free_thresh: float = 0.196
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "resolution_m": (lambda v: 0.005 <= v <= 1.0, "must be in [0.005, 1] m"),
+        "occupied_thresh": (lambda v: 0.0 < v < 1.0, "must be in (0, 1)"),
+        "free_thresh": (lambda v: 0.0 < v < 1.0, "must be in (0, 1)"),
+    }
+
+    def _check(self, key: str) -> None:
+        if self.z_max_m <= self.z_min_m:
+            raise ConfigError(f"{key}.z_max_m", self.z_max_m, "must exceed z_min_m")
+        if self.free_thresh >= self.occupied_thresh:
+            raise ConfigError(f"{key}.free_thresh", self.free_thresh, "must be < occupied_thresh")
+
+
+@dataclass(frozen=True)
+class TwinConfig(_FromDict):
+    """Everything the twin needs. ``grid`` is the shared cell geometry (stack.cells)."""
+
+    grid: CellGrid = field(default_factory=CellGrid)
+    room: RoomConfig = field(default_factory=RoomConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    person: PersonConfig = field(default_factory=PersonConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+    timestep_s: float = 0.002
+    control_period_s: float = 0.02  # one Twin.step
+
+    _rules: ClassVar[dict[str, Rule]] = {
+        "timestep_s": (lambda v: 1e-4 <= v <= 0.01, "must be in [0.0001, 0.01] s"),
+        "control_period_s": POSITIVE,
+    }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "") -> TwinConfig:
+        """Build from a mapping with optional sections ``grid``, ``room``, ``camera``, ...
+
+        Args:
+            data: the mapping (the ``twin`` section of a YAML file, or the whole file).
+            key: the dotted path of this section, used in error messages.
+
+        Returns:
+            The validated configuration.
+
+        Raises:
+            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
+        """
+        return super().from_dict(data, key)
+
+    def _check(self, key: str) -> None:
+        prefix = f"{key}." if key else ""
+        steps = self.control_period_s / self.timestep_s
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            raise ConfigError(
+                f"{prefix}control_period_s",
+                self.control_period_s,
+                "must be a multiple of timestep_s",
+            )
+        if self.robot.start_cell not in self.grid.cells:
+            raise ConfigError(
+                f"{prefix}robot.start_cell", self.robot.start_cell, "not a cell of the grid"
+            )
+        if self.camera.distance_behind_m >= self.room.margin_west_m:
+            raise ConfigError(
+                f"{prefix}camera.distance_behind_m",
+                self.camera.distance_behind_m,
+                f"must be less than room.margin_west_m ({self.room.margin_west_m})",
+            )
+        if self.camera.height_m >= self.room.wall_height_m:
+            raise ConfigError(
+                f"{prefix}camera.height_m", self.camera.height_m, "must be below the wall height"
+            )
+
+
+def load_twin_config(path: str | Path, task_path: str | Path | None = None) -> TwinConfig:
+    """Read a twin YAML file; take ``grid`` from a task file when one is given.
+
+    Args:
+        path: YAML file whose top level (or ``twin`` section) holds TwinConfig's keys.
+        task_path: optional task file (e.g. config/task-r1.yaml); its ``grid`` section
+            overrides any ``grid`` in ``path``. A missing task file is ignored so that
+            the default ``CellGrid()`` applies.
+
+    Returns:
+        The validated configuration.
+
+    Raises:
+        ConfigError: any invalid key or value.
+        OSError: ``path`` cannot be read.
+    """
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    if isinstance(data, Mapping) and "twin" in data:
+        data = data["twin"]
+    if not isinstance(data, Mapping):
+        raise ConfigError(str(path), data, "must hold a mapping")
+    data = dict(data)
+    if task_path is not None and Path(task_path).exists():
+        task = yaml.safe_load(Path(task_path).read_text()) or {}
+        if isinstance(task, Mapping) and "grid" in task:
+            data["grid"] = task["grid"]
+    return TwinConfig.from_dict(data)

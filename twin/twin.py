@@ -1,0 +1,438 @@
+"""The digital twin's pure Python API (no rclpy).
+
+``Twin(config, seed)`` builds the scene, then ``step(command)`` advances physics by one
+control period under a body-frame velocity command, and the sensors are read on demand:
+``render_camera()``, ``scan()``, ``odometry()``; ``ground_truth()`` tells what really
+happened. Same config and seed, same run: MuJoCo is deterministic on one machine, the
+person's script is a pure function of time, and all noise comes from one
+``np.random.Generator`` drawn in a fixed order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from twin.config import TwinConfig
+from twin.occupancy import OccupancyMap, occupancy_from_model
+from twin.person import PersonPose, PersonScript, default_waypoints
+from twin.scene import (
+    CAMERA_NAME,
+    LIDAR_SITE,
+    PERSON_PREFIX,
+    PERSON_SEGMENTS,
+    ROBOT_BODY,
+    ROBOT_PREFIX,
+    SceneLayout,
+    build_spec,
+)
+from twin.sensors import (
+    OPTICAL_FROM_MUJOCO_CAMERA,
+    CameraInfo,
+    CameraPose,
+    LaserScan,
+    Lidar,
+    camera_info_of,
+)
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    """A body-frame velocity command, as geometry_msgs/Twist (x forward, y left).
+
+    Attributes:
+        vx_mps, vy_mps: linear velocity [m/s].
+        wz_radps: yaw rate [rad/s].
+    """
+
+    vx_mps: float = 0.0
+    vy_mps: float = 0.0
+    wz_radps: float = 0.0
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """A planar pose in the map frame: x, y [m], yaw [rad] (0 = east, CCW)."""
+
+    x_m: float
+    y_m: float
+    yaw_rad: float
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Wheel odometry, as nav_msgs/Odometry.
+
+    The odom frame coincides with the map frame at time 0 (the robot starts at its true
+    pose), so a perfect odometry would read the ground truth; noise makes it drift.
+
+    Attributes:
+        time_s: simulation time [s].
+        pose: integrated pose in the odom frame.
+        vx_mps, vy_mps, wz_radps: measured body-frame velocity.
+    """
+
+    time_s: float
+    pose: Pose2D
+    vx_mps: float
+    vy_mps: float
+    wz_radps: float
+
+
+@dataclass(frozen=True)
+class PersonTruth:
+    """The person's true state.
+
+    Attributes:
+        pose: pelvis on the floor and heading.
+        velocity_mps: (vx, vy) in the map frame.
+        cell: the cell holding the pelvis, None outside the region.
+        in_room: False once the person has left through the door.
+        feet_m: (2, 3) ankle positions (left, right) [m].
+    """
+
+    pose: Pose2D
+    velocity_mps: tuple[float, float]
+    cell: int | None
+    in_room: bool
+    feet_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """What really is, for evaluation.
+
+    Attributes:
+        time_s: simulation time [s].
+        robot: the robot's pose (read from its body, not the joints).
+        robot_velocity: body-frame (vx, vy, wz) [m/s, m/s, rad/s].
+        robot_cell: the cell under the robot's centre, None outside the region.
+        person: the person's state, None when the scene has no person.
+    """
+
+    time_s: float
+    robot: Pose2D
+    robot_velocity: tuple[float, float, float]
+    robot_cell: int | None
+    person: PersonTruth | None
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def _segment_quat(u: np.ndarray) -> np.ndarray:
+    """Unit quaternion turning +z onto the unit vector u."""
+    w = 1.0 + u[2]
+    if w < 1e-9:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    q = np.array([w, -u[1], u[0], 0.0])
+    return q / np.linalg.norm(q)
+
+
+class Twin:
+    """The headless digital twin: the LRM room, the MBot, the ceiling camera, a person.
+
+    Args:
+        config: the configuration; None for the defaults.
+        seed: seed of the noise generator (or a Generator to draw from).
+
+    Raises:
+        ConfigError: the configuration cannot be built into a scene.
+    """
+
+    def __init__(self, config: TwinConfig | None = None, seed: int | np.random.Generator = 0):
+        self.config = config if config is not None else TwinConfig()
+        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        spec, self.layout = build_spec(self.config)
+        self.spec = spec
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._robot_body = m.body(ROBOT_BODY).id
+        self._lidar_site = m.site(LIDAR_SITE).id
+        self._camera = m.camera(CAMERA_NAME).id
+        jx, jy, jyaw = (m.joint(ROBOT_PREFIX + n) for n in ("x", "y", "yaw"))
+        self._qadr = (jx.qposadr[0], jy.qposadr[0], jyaw.qposadr[0])
+        self._dadr = (jx.dofadr[0], jy.dofadr[0], jyaw.dofadr[0])
+        self._act = tuple(m.actuator(ROBOT_PREFIX + n).id for n in ("vx", "vy", "wz"))
+        rc = self.config.robot
+        for a, kv in zip(
+            self._act,
+            (rc.linear_gain_ns_per_m, rc.linear_gain_ns_per_m, rc.angular_gain_nms_per_rad),
+            strict=True,
+        ):
+            # a velocity actuator is force = kv * (ctrl - qvel)
+            m.actuator_gainprm[a, 0] = kv
+            m.actuator_biasprm[a, 2] = -kv
+        self._n_substeps = round(self.config.control_period_s / self.config.timestep_s)
+        self.lidar = Lidar(self.config.lidar, self._robot_body)
+        self.camera_info: CameraInfo = camera_info_of(self.config.camera)
+        self._renderer: mujoco.Renderer | None = None
+        self.person: PersonScript | None = None
+        self._mocap: dict[str, int] = {}
+        if self.config.person.present:
+            wps = self.config.person.waypoints or self._default_waypoints(self.layout)
+            self.person = PersonScript(dataclasses.replace(self.config.person, waypoints=wps))
+            self._mocap = {s: m.body(PERSON_PREFIX + s).mocapid[0] for s in PERSON_SEGMENTS}
+        self.reset()
+
+    def _default_waypoints(self, layout: SceneLayout):
+        return default_waypoints(self.config.grid, layout.door_center_m, layout.room[3])
+
+    # -- lifecycle ----------------------------------------------------------
+    def reset(self) -> None:
+        """Put the robot at its start cell, the person at the script's start, time at 0."""
+        mujoco.mj_resetData(self.model, self.data)
+        x, y = self.config.grid.center(self.config.robot.start_cell)
+        yaw = self.config.robot.start_yaw_rad
+        for adr, v in zip(self._qadr, (x, y, yaw), strict=True):
+            self.data.qpos[adr] = v
+        self._cmd = np.zeros(3)  # the rate-limited command actually applied (body frame)
+        self._odom = np.array([x, y, yaw])
+        self._odom_vel = np.zeros(3)
+        self._place_person()
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_robot_pose(self, pose: Pose2D) -> None:
+        """Teleport the robot (at rest) to ``pose``; odometry restarts from there.
+
+        Args:
+            pose: the new pose in the map frame.
+        """
+        for adr, v in zip(self._qadr, (pose.x_m, pose.y_m, pose.yaw_rad), strict=True):
+            self.data.qpos[adr] = v
+        self.data.qvel[list(self._dadr)] = 0.0
+        self._cmd = np.zeros(3)
+        self._odom = np.array([pose.x_m, pose.y_m, pose.yaw_rad])
+        self._odom_vel = np.zeros(3)
+        mujoco.mj_forward(self.model, self.data)
+
+    def close(self) -> None:
+        """Free the renderer's GL context."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> Twin:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+    # -- stepping -----------------------------------------------------------
+    def step(self, command: VelocityCommand | None = None) -> None:
+        """Advance one control period (``config.control_period_s``) under ``command``.
+
+        The command is clipped to the velocity limits and rate-limited by the
+        acceleration limits, then held for the period. Because the slides move along
+        world x and y, the body-frame command is turned into the world frame at every
+        physics step with the current yaw.
+
+        Args:
+            command: body-frame velocity; None stops the base.
+        """
+        command = command or VelocityCommand()
+        rc = self.config.robot
+        dt = self.config.control_period_s
+        want = np.array([command.vx_mps, command.vy_mps, command.wz_radps], float)
+        lin = np.hypot(want[0], want[1])
+        if lin > rc.max_linear_mps:
+            want[:2] *= rc.max_linear_mps / lin
+        want[2] = np.clip(want[2], -rc.max_angular_radps, rc.max_angular_radps)
+        delta = want - self._cmd
+        dlin = np.hypot(delta[0], delta[1])
+        if dlin > rc.max_linear_accel_mps2 * dt:
+            delta[:2] *= rc.max_linear_accel_mps2 * dt / dlin
+        delta[2] = np.clip(
+            delta[2], -rc.max_angular_accel_radps2 * dt, rc.max_angular_accel_radps2 * dt
+        )
+        self._cmd = self._cmd + delta
+
+        before = self._robot_pose_array()
+        for _ in range(self._n_substeps):
+            yaw = self.data.qpos[self._qadr[2]]
+            c, s = math.cos(yaw), math.sin(yaw)
+            ctrl = self.data.ctrl
+            ctrl[self._act[0]] = c * self._cmd[0] - s * self._cmd[1]
+            ctrl[self._act[1]] = s * self._cmd[0] + c * self._cmd[1]
+            ctrl[self._act[2]] = self._cmd[2]
+            mujoco.mj_step(self.model, self.data)
+        # the person is kinematic and touches nothing, so moving it once per control
+        # period is enough (and 5x cheaper than at every physics step); mj_kinematics
+        # brings the moved mocap bodies into the positions the sensors read
+        self._place_person()
+        mujoco.mj_kinematics(self.model, self.data)
+        self._integrate_odometry(before, self._robot_pose_array(), dt)
+
+    def run(self, duration_s: float, command: VelocityCommand | None = None) -> None:
+        """Step for ``duration_s`` (rounded to control periods) under a fixed command."""
+        for _ in range(max(0, round(duration_s / self.config.control_period_s))):
+            self.step(command)
+
+    def _robot_pose_array(self) -> np.ndarray:
+        # read the pose from the body (FEASIBILITY/issue 3: never from the slide values)
+        pos = self.data.xpos[self._robot_body]
+        mat = self.data.xmat[self._robot_body]
+        return np.array([pos[0], pos[1], math.atan2(mat[3], mat[0])])
+
+    def _integrate_odometry(self, before: np.ndarray, after: np.ndarray, dt: float) -> None:
+        dyaw = _wrap(after[2] - before[2])
+        mid = before[2] + dyaw / 2
+        c, s = math.cos(mid), math.sin(mid)
+        dx, dy = after[0] - before[0], after[1] - before[1]
+        # the true body-frame velocity over the period, then the wheel-encoder noise
+        v = np.array([(c * dx + s * dy) / dt, (-s * dx + c * dy) / dt, dyaw / dt])
+        oc = self.config.odometry
+        noise = self.rng.normal(0.0, 1.0, 3) * (
+            oc.linear_noise_std_mps,
+            oc.linear_noise_std_mps,
+            oc.angular_noise_std_radps,
+        )
+        v = v + noise
+        oyaw = self._odom[2] + v[2] * dt / 2
+        oc_, os_ = math.cos(oyaw), math.sin(oyaw)
+        self._odom[0] += (oc_ * v[0] - os_ * v[1]) * dt
+        self._odom[1] += (os_ * v[0] + oc_ * v[1]) * dt
+        self._odom[2] = _wrap(self._odom[2] + v[2] * dt)
+        self._odom_vel = v
+
+    def _place_person(self) -> None:
+        if self.person is None:
+            return
+        p = self.person.pose(float(self.data.time))
+        mp, mq = self.data.mocap_pos, self.data.mocap_quat
+        t = self._mocap["torso"]
+        mp[t] = (p.position_m[0], p.position_m[1], -p.pelvis_drop_m)
+        mq[t] = (math.cos(p.heading_rad / 2), 0.0, 0.0, math.sin(p.heading_rad / 2))
+        for k, side in enumerate(("l", "r")):
+            for name, a, b in (
+                ("thigh", p.hips_m[k], p.knees_m[k]),
+                ("shin", p.knees_m[k], p.ankles_m[k]),
+                ("arm", p.shoulders_m[k], p.hands_m[k]),
+            ):
+                i = self._mocap[f"{name}_{side}"]
+                seg = a - b  # +z of the segment body points from the far end to the near
+                mp[i] = (a + b) / 2
+                mq[i] = _segment_quat(seg / np.linalg.norm(seg))
+            f = self._mocap[f"foot_{side}"]
+            mp[f] = p.ankles_m[k]
+            mq[f] = mq[t]
+
+    # -- sensors ------------------------------------------------------------
+    def render_camera(self) -> np.ndarray:
+        """Render the ceiling camera's view.
+
+        Returns:
+            (height, width, 3) uint8 RGB image.
+        """
+        if self._renderer is None:
+            c = self.config.camera
+            self._renderer = mujoco.Renderer(self.model, c.height_px, c.width_px)
+        self._renderer.update_scene(self.data, camera=self._camera)
+        return self._renderer.render().copy()
+
+    def render_segmentation(self) -> np.ndarray:
+        """Render which geom each ceiling-camera pixel sees (ground truth for perception).
+
+        Returns:
+            (height, width) int32 geom ids, -1 where no geom is seen.
+        """
+        if self._renderer is None:
+            self.render_camera()
+        r = self._renderer
+        assert r is not None
+        r.enable_segmentation_rendering()
+        try:
+            r.update_scene(self.data, camera=self._camera)
+            seg = r.render()
+        finally:
+            r.disable_segmentation_rendering()
+        ids = seg[..., 0].astype(np.int32)
+        ids[seg[..., 1] != mujoco.mjtObj.mjOBJ_GEOM] = -1
+        return ids
+
+    def person_geom_ids(self) -> np.ndarray:
+        """Ids of the person's geoms (empty without a person)."""
+        m = self.model
+        names = [m.geom(i).name for i in range(m.ngeom)]
+        return np.array([i for i, n in enumerate(names) if n.startswith(PERSON_PREFIX)], int)
+
+    def scan(self) -> LaserScan:
+        """One lidar scan from the robot's current pose (range noise from the twin's rng)."""
+        origin = self.data.site_xpos[self._lidar_site].copy()
+        yaw = self._robot_pose_array()[2]
+        return self.lidar.scan(self.model, self.data, origin, yaw, self.rng)
+
+    def odometry(self) -> Odometry:
+        """The integrated wheel odometry (odom frame = map frame at time 0)."""
+        o, v = self._odom, self._odom_vel
+        return Odometry(self.time_s, Pose2D(*map(float, o)), float(v[0]), float(v[1]), float(v[2]))
+
+    def ground_truth(self) -> GroundTruth:
+        """The true state of robot and person."""
+        x, y, yaw = self._robot_pose_array()
+        d = self._dadr
+        vw = self.data.qvel[list(d)]
+        c, s = math.cos(yaw), math.sin(yaw)
+        vel = (float(c * vw[0] + s * vw[1]), float(-s * vw[0] + c * vw[1]), float(vw[2]))
+        grid = self.config.grid
+        person = None
+        if self.person is not None:
+            p: PersonPose = self.person.pose(self.time_s)
+            px, py = p.position_m
+            person = PersonTruth(
+                pose=Pose2D(px, py, p.heading_rad),
+                velocity_mps=p.velocity_mps,
+                cell=grid.cell_at(px, py),
+                in_room=self.layout.in_room(px, py),
+                feet_m=p.ankles_m.copy(),
+            )
+        return GroundTruth(
+            time_s=self.time_s,
+            robot=Pose2D(float(x), float(y), float(yaw)),
+            robot_velocity=vel,
+            robot_cell=grid.cell_at(x, y),
+            person=person,
+        )
+
+    def camera_pose(self) -> CameraPose:
+        """The ceiling camera's optical frame in the map frame."""
+        pos = self.data.cam_xpos[self._camera].copy()
+        rot = self.data.cam_xmat[self._camera].reshape(3, 3) @ OPTICAL_FROM_MUJOCO_CAMERA
+        return CameraPose(pos, rot)
+
+    # -- map ----------------------------------------------------------------
+    def occupancy_map(self) -> OccupancyMap:
+        """The room's occupancy grid, made from the static geometry (config.map)."""
+        mc = self.config.map
+        return occupancy_from_model(
+            self.model,
+            self.data,
+            self.layout.room,
+            mc.resolution_m,
+            (mc.z_min_m, mc.z_max_m),
+            occupied_thresh=mc.occupied_thresh,
+            free_thresh=mc.free_thresh,
+        )
+
+    def save_map(self, directory: str | Path, name: str = "lrm") -> tuple[Path, Path]:
+        """Write the occupancy map as ``name.pgm`` + ``name.yaml`` (map_server format).
+
+        Args:
+            directory: output directory (created if absent).
+            name: file stem.
+
+        Returns:
+            (pgm_path, yaml_path).
+        """
+        return self.occupancy_map().save(directory, name)
