@@ -1,0 +1,325 @@
+"""The camera side of perception: frames in, the person's cell and direction out.
+
+Per frame: HOG boxes (:mod:`stack.perception.hog`), each box's foot pixel
+(figure 4.9), its floor position through the homography (eqs. 4.4-4.7), its cell
+(:class:`stack.cells.CellGrid`), and the movement direction compared frame by
+frame (:mod:`stack.perception.direction`). With several boxes, the one nearest the
+person's last position is kept (else the strongest).
+
+The two-missed-frames rule (thesis 4.5): a person not detected in two consecutive
+frames means no person, direction "Not moving", and the laser is ignored. One
+missed frame keeps the last position and direction.
+
+Bad input never invents a position: a bad frame counts as a missed frame and its
+state carries a warning; after two of them the status is ``UNKNOWN`` (the camera
+cannot tell), which the observation combiner reports as "No person". A frame whose
+stamp is not newer than the last one (a frozen camera) is not processed again.
+Without a calibration, boxes are still reported but the status is ``UNKNOWN``.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from stack.cells import CellGrid, Direction
+from stack.perception._config import from_mapping, require
+from stack.perception.direction import DirectionConfig, DirectionEstimator
+from stack.perception.errors import BadFrameError
+from stack.perception.hog import (
+    FootConfig,
+    Foreground,
+    HogConfig,
+    HogPeopleDetector,
+    PersonBox,
+    foot_point,
+    validate_frame,
+)
+from stack.perception.homography import FloorHomography
+
+
+class PersonStatus(enum.Enum):
+    """What the camera says about the person."""
+
+    PERSON = "person"  # seen (or missed in one frame only)
+    NO_PERSON = "no person"  # not detected in `missed_frames_no_person` consecutive frames
+    UNKNOWN = "unknown"  # the camera cannot tell: bad frames or no calibration
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Attributes:
+    hog: detector parameters.
+    foot: box shrink and foot refinement.
+    direction: movement direction threshold and window.
+    missed_frames_no_person: consecutive frames without a detection that mean
+        "no person" (thesis: 2).
+    association_gate_m: a box farther than this from the last position is a
+        different person (or a false positive) [m].
+    black_max_level: frames whose brightest pixel is at or below this are black.
+    use_foreground: run background subtraction to refine the foot row.
+    track_roi_margin_frac: while a person is tracked, search only their last box
+        grown by this fraction of its size on every side (0: always the full
+        configured area); nothing found there falls back to the full search.
+    full_search_period_frames: with the tracking window, search the full area every
+        this many frames anyway (another person, a wrong track).
+    """
+
+    hog: HogConfig = field(default_factory=HogConfig)
+    foot: FootConfig = field(default_factory=FootConfig)
+    direction: DirectionConfig = field(default_factory=DirectionConfig)
+    missed_frames_no_person: int = 2
+    association_gate_m: float = 1.0
+    black_max_level: float = 3.0
+    use_foreground: bool = False
+    track_roi_margin_frac: float = 0.5
+    full_search_period_frames: int = 10
+
+    def __post_init__(self) -> None:
+        require(self.missed_frames_no_person >= 1, "missed_frames_no_person",
+                self.missed_frames_no_person, "must be >= 1")  # fmt: skip
+        require(self.association_gate_m > 0.0, "association_gate_m", self.association_gate_m,
+                "must be > 0")  # fmt: skip
+        require(0.0 <= self.black_max_level < 255.0, "black_max_level", self.black_max_level,
+                "must be in [0, 255)")  # fmt: skip
+        require(self.track_roi_margin_frac >= 0.0, "track_roi_margin_frac",
+                self.track_roi_margin_frac, "must be >= 0")  # fmt: skip
+        require(self.full_search_period_frames >= 1, "full_search_period_frames",
+                self.full_search_period_frames, "must be >= 1")  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "camera") -> CameraConfig:
+        """Validate a mapping (optional hog/foot/direction sub-sections); raises ConfigError."""
+        return from_mapping(cls, data, key)
+
+
+@dataclass(frozen=True)
+class CameraPersonState:
+    """The camera's view of the person after one frame.
+
+    Attributes:
+        stamp_s: the frame's time [s].
+        status: person / no person / unknown.
+        position_m: (x', y') on the floor map [m]; None unless status is PERSON.
+        cell: the cell containing ``position_m``; None outside the region or no person.
+        direction: movement direction; NOT_MOVING unless a person is seen moving.
+        foot_px: (u, v) of the chosen box's foot point [px].
+        box: the chosen detection.
+        boxes: every detection of the frame, for display.
+        missed_frames: consecutive frames without a usable detection.
+        warning: why the frame was not usable, if it was not.
+    """
+
+    stamp_s: float
+    status: PersonStatus
+    position_m: tuple[float, float] | None = None
+    cell: int | None = None
+    direction: Direction = Direction.NOT_MOVING
+    foot_px: tuple[float, float] | None = None
+    box: PersonBox | None = None
+    boxes: tuple[PersonBox, ...] = ()
+    missed_frames: int = 0
+    warning: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (labels as strings) for messages and logs."""
+        return {
+            "stamp_s": self.stamp_s,
+            "status": self.status.value,
+            "position_m": None if self.position_m is None else list(self.position_m),
+            "cell": self.cell,
+            "direction": self.direction.label,
+            "foot_px": None if self.foot_px is None else list(self.foot_px),
+            "boxes": [[b.x, b.y, b.width, b.height, round(b.weight, 3)] for b in self.boxes],
+            "missed_frames": self.missed_frames,
+            "warning": self.warning,
+        }
+
+
+class CameraPeopleTracker:
+    """Frames in, :class:`CameraPersonState` out, applying the two-missed-frames rule.
+
+    Args:
+        config: the camera pipeline's parameters.
+        grid: the cell geometry shared with the planner.
+        homography: the image-to-floor mapping; None when the calibration is missing
+            (states are then UNKNOWN, with the boxes still reported).
+        detector: a detector to reuse (built from ``config.hog`` when None).
+    """
+
+    def __init__(
+        self,
+        config: CameraConfig,
+        grid: CellGrid,
+        homography: FloorHomography | None,
+        detector: HogPeopleDetector | None = None,
+    ):
+        self.config = config
+        self.grid = grid
+        self.homography = homography
+        self.detector = detector if detector is not None else HogPeopleDetector(config.hog)
+        self._foreground = Foreground() if config.use_foreground else None
+        self._direction = DirectionEstimator(config.direction)
+        self._state = CameraPersonState(stamp_s=-math.inf, status=PersonStatus.NO_PERSON)
+        self._missed = 0
+        self._since_full = 0
+
+    @property
+    def state(self) -> CameraPersonState:
+        """The state after the latest processed frame."""
+        return self._state
+
+    def process_frame(self, image: Any, stamp_s: float) -> CameraPersonState:
+        """Detect, place and track the person in one frame.
+
+        Args:
+            image: 8-bit grey or BGR frame.
+            stamp_s: its capture time [s].
+
+        Returns:
+            The new state; for a repeated (frozen) stamp the previous state with a
+            warning; for a bad frame a missed-frame state with a warning.
+        """
+        if stamp_s <= self._state.stamp_s:
+            return replace(
+                self._state, warning=f"frozen frame: stamp {stamp_s} repeats or goes back"
+            )
+        try:
+            image = validate_frame(image, self.config.black_max_level)
+        except BadFrameError as err:
+            return self._missed_frame(stamp_s, (), bad=str(err))
+        mask = self._foreground.apply(image) if self._foreground is not None else None
+        boxes = ()
+        window = self._tracking_window(image.shape)
+        if window is not None:
+            boxes = self.detector.detect(image, roi_px=window)
+            self._since_full += 1
+        if not boxes:  # no track, nothing in the window, or time for a full search
+            boxes = self.detector.detect(image)
+            self._since_full = 0
+        return self.update(boxes, stamp_s, image_size_px=(image.shape[1], image.shape[0]),
+                           foreground=mask)  # fmt: skip
+
+    def update(
+        self,
+        boxes: tuple[PersonBox, ...],
+        stamp_s: float,
+        image_size_px: tuple[int, int] | None = None,
+        foreground: np.ndarray | None = None,
+    ) -> CameraPersonState:
+        """Track the person from one frame's detections (the logic after HOG).
+
+        Args:
+            boxes: the frame's detections in pixels.
+            stamp_s: the frame's time [s]; must increase.
+            image_size_px: (width, height) of the frame; when the calibration was
+                made at another resolution the foot pixels are rescaled.
+            foreground: optional boolean mask for the foot refinement.
+
+        Returns:
+            The new state.
+        """
+        if stamp_s <= self._state.stamp_s:
+            return replace(
+                self._state, warning=f"frozen frame: stamp {stamp_s} repeats or goes back"
+            )
+        boxes = tuple(boxes)
+        if self.homography is None:
+            self._missed = 0
+            self._direction.reset()
+            self._state = CameraPersonState(
+                stamp_s=stamp_s, status=PersonStatus.UNKNOWN, boxes=boxes,
+                warning="no floor calibration: person position unknown",
+            )  # fmt: skip
+            return self._state
+        candidates = []
+        for box in boxes:
+            u, v = foot_point(box, self.config.foot, foreground)
+            pos = self._to_map(u, v, image_size_px)
+            if pos is not None:
+                candidates.append((box, (u, v), pos))
+        chosen = self._choose(candidates)
+        if chosen is None:
+            return self._missed_frame(stamp_s, boxes, bad=None)
+        box, foot, pos = chosen
+        self._missed = 0
+        direction = self._direction.update(stamp_s, pos)
+        self._state = CameraPersonState(
+            stamp_s=stamp_s,
+            status=PersonStatus.PERSON,
+            position_m=pos,
+            cell=self.grid.cell_at(*pos),
+            direction=direction,
+            foot_px=foot,
+            box=box,
+            boxes=boxes,
+        )
+        return self._state
+
+    # -- internals ----------------------------------------------------------
+    def _tracking_window(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+        """The search window around the tracked person's last box, or None for a full search."""
+        cfg, state = self.config, self._state
+        if (
+            cfg.track_roi_margin_frac <= 0.0
+            or state.status is not PersonStatus.PERSON
+            or state.box is None
+            or state.missed_frames > 0
+            or self._since_full + 1 >= cfg.full_search_period_frames
+        ):
+            return None
+        b, m = state.box, cfg.track_roi_margin_frac
+        x0, y0 = b.x - m * b.width, b.y - m * b.height
+        return (round(x0), round(y0), round(b.width * (1 + 2 * m)), round(b.height * (1 + 2 * m)))
+
+    def _to_map(
+        self, u: float, v: float, image_size_px: tuple[int, int] | None
+    ) -> tuple[float, float] | None:
+        assert self.homography is not None
+        cal_size = self.homography.image_size_px
+        if image_size_px is not None and cal_size is not None and image_size_px != cal_size:
+            u *= cal_size[0] / image_size_px[0]
+            v *= cal_size[1] / image_size_px[1]
+        return self.homography.image_to_map(u, v)
+
+    def _choose(self, candidates: list) -> tuple | None:
+        if not candidates:
+            return None
+        last = self._state.position_m if self._state.status is PersonStatus.PERSON else None
+        if last is None:
+            return candidates[0]  # boxes come strongest first
+        dist = [math.dist(c[2], last) for c in candidates]
+        i = int(np.argmin(dist))
+        if dist[i] <= self.config.association_gate_m:
+            return candidates[i]
+        # Nothing near the tracked person: a jump means a new person; direction restarts.
+        self._direction.reset()
+        return candidates[0]
+
+    def _missed_frame(
+        self, stamp_s: float, boxes: tuple[PersonBox, ...], bad: str | None
+    ) -> CameraPersonState:
+        self._missed += 1
+        prev = self._state
+        if (
+            self._missed < self.config.missed_frames_no_person
+            and prev.status is PersonStatus.PERSON
+        ):
+            # One miss: keep the person where they were (thesis 4.5).
+            self._state = replace(
+                prev, stamp_s=stamp_s, boxes=boxes, missed_frames=self._missed, warning=bad
+            )
+            return self._state
+        self._direction.reset()
+        status = PersonStatus.UNKNOWN if bad is not None else PersonStatus.NO_PERSON
+        if self._missed < self.config.missed_frames_no_person:
+            status = prev.status if bad is None else PersonStatus.UNKNOWN
+        self._state = CameraPersonState(
+            stamp_s=stamp_s, status=status, boxes=boxes, missed_frames=self._missed, warning=bad
+        )
+        return self._state

@@ -1,0 +1,142 @@
+"""The camera people node: ceiling-camera frames in, the person's cell and direction out.
+
+Subscribes (names are parameters):
+    ``/camera/image_raw`` sensor_msgs/Image (bgr8, rgb8, mono8, bgra8, rgba8).
+
+Publishes:
+    ``/perception/person`` std_msgs/String: JSON of :class:`CameraPersonState` per frame
+        {stamp_s, status ("person" | "no person" | "unknown"), position_m, cell,
+        direction, foot_px, boxes [[x, y, w, h, weight]], missed_frames, warning}; also
+        published by a watchdog as "unknown" when frames stop arriving.
+    ``/perception/person_position`` geometry_msgs/PointStamped: the person's map
+        position (frame ``map_frame``), only while a person is seen.
+    ``/perception/person_cell`` std_msgs/String: the cell number or "No person".
+    ``/perception/person_direction`` std_msgs/String: "North" ... "Not moving".
+
+Parameters: ``config_file`` (YAML with optional ``grid`` and ``camera`` sections),
+``calibration_file`` (see :mod:`stack.perception.homography`; missing: every state is
+"unknown" and a warning is logged), ``image_topic``, ``map_frame``,
+``frame_timeout_s``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import rclpy
+from geometry_msgs.msg import PointStamped
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+from std_msgs.msg import String
+
+from stack.cells import ConfigError
+from stack.perception._config import load_config_file
+from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus
+from stack.perception.errors import BadFrameError, CalibrationError
+from stack.perception.homography import load_calibration
+from stack.perception.messages import image_from_msg, stamp_to_s
+from stack.perception.observation import NO_PERSON
+
+
+class CameraPeopleNode(Node):
+    """HOG people detection, floor position, cell and direction for each frame."""
+
+    def __init__(self, **kwargs):
+        super().__init__("camera_people", **kwargs)
+        p = self.declare_parameter
+        config_file = p("config_file", "").value
+        calibration_file = p("calibration_file", "").value
+        image_topic = p("image_topic", "/camera/image_raw").value
+        self.map_frame = p("map_frame", "map").value
+        self.frame_timeout_s = float(p("frame_timeout_s", 2.0).value)
+        if not self.frame_timeout_s > 0:
+            raise ConfigError("frame_timeout_s", self.frame_timeout_s, "must be > 0")
+        grid, sections = load_config_file(config_file)
+        config = CameraConfig.from_dict(sections.get("camera"))
+        homography = None
+        try:
+            homography = load_calibration(calibration_file).homography if calibration_file else None
+        except CalibrationError as err:
+            self.get_logger().error(f"{err}: person positions will be 'unknown'")
+        if homography is None and not calibration_file:
+            self.get_logger().error("no calibration_file: person positions will be 'unknown'")
+        self.tracker = CameraPeopleTracker(config, grid, homography)
+        self.pub_state = self.create_publisher(String, "/perception/person", 10)
+        self.pub_position = self.create_publisher(PointStamped, "/perception/person_position", 10)
+        self.pub_cell = self.create_publisher(String, "/perception/person_cell", 10)
+        self.pub_direction = self.create_publisher(String, "/perception/person_direction", 10)
+        self.create_subscription(Image, image_topic, self.on_image, qos_profile_sensor_data)
+        self._last_frame_s = self._now_s()
+        self.create_timer(self.frame_timeout_s / 2.0, self.on_watchdog)
+
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_image(self, msg: Image) -> None:
+        self._last_frame_s = self._now_s()
+        stamp = stamp_to_s(msg.header.stamp)
+        if stamp == 0.0:  # unstamped publisher: use the arrival time
+            stamp = self._last_frame_s
+        try:
+            image = image_from_msg(msg)
+        except BadFrameError as err:
+            image = None
+            self.get_logger().warning(f"bad frame: {err}", throttle_duration_sec=5.0)
+        state = self.tracker.process_frame(image, stamp)
+        if state.warning:
+            self.get_logger().warning(state.warning, throttle_duration_sec=5.0)
+        self.publish(state, msg.header.stamp)
+
+    def on_watchdog(self) -> None:
+        silent_s = self._now_s() - self._last_frame_s
+        if silent_s <= self.frame_timeout_s:
+            return
+        self.get_logger().warning(
+            f"no camera frame for {silent_s:.1f} s", throttle_duration_sec=10.0
+        )
+        state = self.tracker.state
+        out = {
+            **state.to_dict(),
+            "status": PersonStatus.UNKNOWN.value,
+            "position_m": None,
+            "cell": None,
+            "direction": "Not moving",
+            "boxes": [],
+            "warning": f"no camera frame for {silent_s:.1f} s",
+        }
+        self.pub_state.publish(String(data=json.dumps(out)))
+        self.pub_cell.publish(String(data=NO_PERSON))
+        self.pub_direction.publish(String(data="Not moving"))
+
+    def publish(self, state, stamp_msg) -> None:
+        self.pub_state.publish(String(data=json.dumps(state.to_dict())))
+        seen = state.status is PersonStatus.PERSON and state.position_m is not None
+        self.pub_cell.publish(String(data=str(state.cell) if seen and state.cell else NO_PERSON))
+        self.pub_direction.publish(String(data=state.direction.label))
+        if seen and all(math.isfinite(v) for v in state.position_m):
+            pt = PointStamped()
+            pt.header.stamp = stamp_msg
+            pt.header.frame_id = self.map_frame
+            pt.point.x, pt.point.y = state.position_m
+            self.pub_position.publish(pt)
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = CameraPeopleNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""The legs node: laser scans and the robot's pose in, tracked people and speeds out.
+
+Subscribes (names are parameters):
+    ``/scan`` sensor_msgs/LaserScan.
+    ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame (the twin's odom
+        frame is the map frame); scans are transformed with the latest pose.
+    ``/map`` nav_msgs/OccupancyGrid (transient local): segments on its obstacles
+        (chair and table legs) are ignored.
+
+Publishes:
+    ``/perception/legs`` std_msgs/String: JSON {stamp_s, valid_beams, segments,
+        on_obstacles, legs, people, tracks [{id, position_m, velocity_mps, speed_mps,
+        speed_class, hits, age_s, confirmed}]} per scan.
+    ``/perception/leg_people`` geometry_msgs/PoseArray: confirmed tracks' positions
+        (frame ``map_frame``), e.g. for navigation's person avoidance.
+
+Parameters: ``config_file`` (YAML with optional ``legs``, ``tracker`` and
+``observations`` sections), ``scan_topic``, ``odom_topic``, ``map_topic``,
+``map_frame``, ``laser_x_m``, ``laser_y_m``, ``laser_yaw_rad`` (the laser's mount on the
+robot), ``max_pose_age_s`` (older poses make the scan unusable).
+"""
+
+from __future__ import annotations
+
+import json
+
+import rclpy
+from geometry_msgs.msg import Pose, PoseArray
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import LaserScan
+from std_msgs.msg import String
+
+from stack.perception._config import load_config_file
+from stack.perception.errors import BadScanError
+from stack.perception.legs import LegConfig, Pose2D, detect_legs
+from stack.perception.messages import (
+    legs_to_dict,
+    pose_from_msg,
+    scan_from_msg,
+    stamp_to_s,
+    static_map_from_msg,
+)
+from stack.perception.observation import CombinerConfig
+from stack.perception.tracker import LegTracker, TrackerConfig
+
+
+class LegsNode(Node):
+    """Leg detection and constant-velocity tracking in the map frame."""
+
+    def __init__(self, **kwargs):
+        super().__init__("legs", **kwargs)
+        p = self.declare_parameter
+        config_file = p("config_file", "").value
+        scan_topic = p("scan_topic", "/scan").value
+        odom_topic = p("odom_topic", "/odom").value
+        map_topic = p("map_topic", "/map").value
+        self.map_frame = p("map_frame", "map").value
+        self.laser_mount = Pose2D(
+            float(p("laser_x_m", 0.0).value),
+            float(p("laser_y_m", 0.0).value),
+            float(p("laser_yaw_rad", 0.0).value),
+        )
+        self.max_pose_age_s = float(p("max_pose_age_s", 0.5).value)
+        _, sections = load_config_file(config_file)
+        self.leg_config = LegConfig.from_dict(sections.get("legs"))
+        self.thresholds = CombinerConfig.from_dict(
+            sections.get("observations")
+        ).speed_thresholds_mps
+        self.tracker = LegTracker(TrackerConfig.from_dict(sections.get("tracker")))
+        self.static_map = None
+        self.pose: Pose2D | None = None
+        self.pose_stamp_s = 0.0
+        self.pub_legs = self.create_publisher(String, "/perception/legs", 10)
+        self.pub_people = self.create_publisher(PoseArray, "/perception/leg_people", 10)
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        self.create_subscription(OccupancyGrid, map_topic, self.on_map, latched)
+        self.create_subscription(Odometry, odom_topic, self.on_odom, 20)
+        self.create_subscription(LaserScan, scan_topic, self.on_scan, qos_profile_sensor_data)
+
+    def on_map(self, msg: OccupancyGrid) -> None:
+        try:
+            self.static_map = static_map_from_msg(msg)
+        except (ValueError, TypeError) as err:
+            self.get_logger().warning(f"map ignored: {err}")
+
+    def on_odom(self, msg: Odometry) -> None:
+        try:
+            self.pose = pose_from_msg(msg.pose.pose)
+            self.pose_stamp_s = stamp_to_s(msg.header.stamp)
+        except ValueError as err:
+            self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
+
+    def on_scan(self, msg: LaserScan) -> None:
+        log = self.get_logger()
+        if self.pose is None:
+            log.warning("scan ignored: no robot pose yet", throttle_duration_sec=5.0)
+            return
+        try:
+            scan = scan_from_msg(msg)
+            if abs(scan.stamp_s - self.pose_stamp_s) > self.max_pose_age_s:
+                raise BadScanError(
+                    f"pose is {abs(scan.stamp_s - self.pose_stamp_s):.2f} s away from the scan"
+                )
+            laser_pose = self.pose.compose(self.laser_mount)
+            det = detect_legs(scan, self.leg_config, laser_pose, self.static_map)
+            tracks = self.tracker.update(scan.stamp_s, [q.position_m for q in det.people])
+        except BadScanError as err:
+            log.warning(f"scan ignored: {err}", throttle_duration_sec=5.0)
+            return
+        self.pub_legs.publish(String(data=json.dumps(legs_to_dict(det, tracks, self.thresholds))))
+        people = PoseArray()
+        people.header.stamp = msg.header.stamp
+        people.header.frame_id = self.map_frame
+        for t in tracks:
+            if t.confirmed:
+                pose = Pose()
+                pose.position.x, pose.position.y = t.position_m
+                pose.orientation.w = 1.0
+                people.poses.append(pose)
+        self.pub_people.publish(people)
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = LegsNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,132 @@
+"""The observations node: one combined observation per decision step for the planner.
+
+Subscribes (names are parameters):
+    ``/perception/person`` std_msgs/String: the camera people node's JSON.
+    ``/perception/legs`` std_msgs/String: the legs node's JSON (tracks with speeds).
+    ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame.
+    ``/observations/request`` std_msgs/Empty: publish an observation now (the planner
+        asks when the robot has finished its action).
+
+Publishes (every ``decision_period_s`` and on request):
+    ``/observations`` std_msgs/String: JSON {stamp_s, robot, person, velocity,
+        person_position_m, speed_mps} with the planner's labels, e.g.
+        {"robot": "7", "person": "9", "velocity": "East higher"}.
+    ``/observations/robot``, ``/observations/person``, ``/observations/velocity``
+        std_msgs/String: the three labels on their own.
+    ``/observations/direction``, ``/observations/speed`` std_msgs/String: the two
+        components of the velocity, as the thesis published them ("East", "higher";
+        "Not moving", "Not moving").
+
+Freshness is judged on this node's clock at reception, so publishers' stamps need
+not share its clock. Parameters: ``config_file`` (optional ``grid`` and
+``observations`` sections), ``decision_period_s`` (0: only on request), topic names.
+"""
+
+from __future__ import annotations
+
+import json
+
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from std_msgs.msg import Empty, String
+
+from stack.cells import ConfigError
+from stack.perception._config import load_config_file
+from stack.perception.legs import Pose2D
+from stack.perception.messages import camera_state_from_json, pose_from_msg, tracks_from_dict
+from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
+
+
+class ObservationsNode(Node):
+    """Joins camera, laser and pose into the planner's observation."""
+
+    def __init__(self, **kwargs):
+        super().__init__("observations", **kwargs)
+        p = self.declare_parameter
+        config_file = p("config_file", "").value
+        period_s = float(p("decision_period_s", 1.0).value)
+        topics = {
+            name: p(f"{name}_topic", default).value
+            for name, default in (
+                ("person", "/perception/person"),
+                ("legs", "/perception/legs"),
+                ("odom", "/odom"),
+                ("request", "/observations/request"),
+                ("observations", "/observations"),
+            )
+        }
+        if period_s < 0:
+            raise ConfigError("decision_period_s", period_s, "must be >= 0")
+        grid, sections = load_config_file(config_file)
+        self.combiner = ObservationCombiner(
+            grid, CombinerConfig.from_dict(sections.get("observations"))
+        )
+        self.camera = None
+        self.tracks = ()
+        self.pose: Pose2D | None = None
+        base = topics["observations"]
+        self.pubs = {
+            name: self.create_publisher(String, base if name == "" else f"{base}/{name}", 10)
+            for name in ("", "robot", "person", "velocity", "direction", "speed")
+        }
+        self.create_subscription(String, topics["person"], self.on_person, 10)
+        self.create_subscription(String, topics["legs"], self.on_legs, 10)
+        self.create_subscription(Odometry, topics["odom"], self.on_odom, 20)
+        self.create_subscription(Empty, topics["request"], lambda _msg: self.publish_now(), 10)
+        if period_s > 0:
+            self.create_timer(period_s, self.publish_now)
+
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_person(self, msg: String) -> None:
+        try:
+            self.camera = camera_state_from_json(msg.data, self._now_s())
+        except ValueError as err:
+            self.get_logger().warning(f"person message ignored: {err}", throttle_duration_sec=5.0)
+
+    def on_legs(self, msg: String) -> None:
+        try:
+            self.tracks = tracks_from_dict(json.loads(msg.data), self._now_s())
+        except (ValueError, TypeError) as err:
+            self.get_logger().warning(f"legs message ignored: {err}", throttle_duration_sec=5.0)
+
+    def on_odom(self, msg: Odometry) -> None:
+        try:
+            self.pose = pose_from_msg(msg.pose.pose)
+        except ValueError as err:
+            self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
+
+    def publish_now(self) -> None:
+        pose, self.pose = self.pose, None  # a pose is used once; none new: same cell
+        obs = self.combiner.combine(self._now_s(), self.camera, self.tracks, pose)
+        labels = {
+            "": obs.to_json(),
+            "robot": obs.robot_label,
+            "person": obs.person_label,
+            "velocity": obs.velocity_label,
+            "direction": obs.direction.label,
+            "speed": NOT_MOVING if obs.speed is None else obs.speed.label,
+        }
+        for name, text in labels.items():
+            self.pubs[name].publish(String(data=text))
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ObservationsNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,125 @@
+"""The planner's observation: labels, and the combination rules of thesis 4.5."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from stack.cells import CellGrid, ConfigError, Direction
+from stack.perception.camera import CameraPersonState, PersonStatus
+from stack.perception.legs import Pose2D
+from stack.perception.observation import (
+    CombinerConfig,
+    Observation,
+    ObservationCombiner,
+    SpeedClass,
+)
+from stack.perception.tracker import TrackEstimate
+
+GRID = CellGrid()
+
+
+def person(xy, direction, stamp_s=10.0, status=PersonStatus.PERSON):
+    return CameraPersonState(
+        stamp_s=stamp_s, status=status, position_m=xy, cell=GRID.cell_at(*xy), direction=direction
+    )
+
+
+def track(xy, speed_mps, last_update_s=10.0, confirmed=True):
+    return TrackEstimate(1, xy, (speed_mps, 0.0), speed_mps, 5, last_update_s, confirmed)
+
+
+@pytest.mark.parametrize(
+    ("direction", "speed", "label"),
+    [
+        (Direction.EAST, SpeedClass.FAST, "East higher"),
+        (Direction.WEST, SpeedClass.MEDIUM, "West 0.2-0.7"),
+        (Direction.SOUTH, SpeedClass.SLOW, "South 0-0.2"),
+        (Direction.NORTH, SpeedClass.SLOW, "North 0-0.2"),
+        (Direction.NOT_MOVING, None, "Not moving"),
+    ],
+)
+def test_velocity_labels_are_the_thesis_alphabet(direction, speed, label):
+    obs = Observation(1.0, 7, direction, speed, 5)
+    assert obs.velocity_label == label
+    assert obs.person_label == "7" and obs.robot_label == "5"
+    back = Observation.from_labels(1.0, "5", "7", label)
+    assert back == obs
+    assert Observation.from_dict(json.loads(obs.to_json())) == obs
+
+
+def test_no_person_and_out_of_map_labels_and_invariants():
+    obs = Observation(1.0, None, Direction.NOT_MOVING, None, None)
+    assert (obs.person_label, obs.velocity_label, obs.robot_label) == (
+        "No person", "Not moving", "Out of the map",
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="no person"):
+        Observation(1.0, None, Direction.EAST, SpeedClass.FAST, 3)
+    with pytest.raises(ValueError, match="speed"):
+        Observation(1.0, 4, Direction.EAST, None, 3)
+    with pytest.raises(ValueError, match="speed"):
+        Observation(1.0, 4, Direction.NOT_MOVING, SpeedClass.SLOW, 3)
+    with pytest.raises(ValueError):
+        Observation.from_labels(1.0, "3", "4", "Eastward fast")
+    with pytest.raises(ValueError):
+        Observation.from_labels(1.0, "3", "somewhere", "Not moving")
+
+
+def test_no_person_from_the_camera_ignores_the_laser():
+    comb = ObservationCombiner(GRID)
+    fast_leg = track(GRID.center(4), 1.5)
+    for status in (PersonStatus.NO_PERSON, PersonStatus.UNKNOWN):
+        cam = CameraPersonState(stamp_s=10.0, status=status)
+        obs = comb.combine(10.0, cam, [fast_leg], Pose2D(*GRID.center(7)))
+        assert obs.person_label == "No person" and obs.velocity_label == "Not moving"
+        assert obs.robot_cell == 7
+    assert comb.combine(10.0, None, [fast_leg]).person_cell is None
+
+
+def test_speed_comes_from_the_track_at_the_camera_person():
+    comb = ObservationCombiner(GRID)
+    xy = GRID.center(4)
+    cam = person(xy, Direction.EAST)
+    near_fast = track((xy[0] + 0.3, xy[1]), 1.1)
+    far_slow = track(GRID.center(11), 0.4)
+    obs = comb.combine(10.2, cam, [far_slow, near_fast], Pose2D(*GRID.center(3)))
+    assert obs.velocity_label == "East higher" and obs.person_cell == 4 and obs.robot_cell == 3
+    assert obs.speed_mps == pytest.approx(1.1)
+    medium = comb.combine(10.2, cam, [track(xy, 0.5)])
+    assert medium.velocity_label == "East 0.2-0.7"
+    assert medium.robot_cell == 3  # no new pose: the robot stayed where it was
+
+
+def test_camera_person_without_laser_data_is_slow():
+    comb = ObservationCombiner(GRID)
+    xy = GRID.center(9)
+    cam = person(xy, Direction.WEST)
+    assert comb.combine(10.0, cam, []).velocity_label == "West 0-0.2"
+    far = track(GRID.center(2), 1.5)  # someone (something) else
+    assert comb.combine(10.0, cam, [far]).velocity_label == "West 0-0.2"
+    stale = track(xy, 1.5, last_update_s=5.0)
+    assert comb.combine(10.0, cam, [stale]).velocity_label == "West 0-0.2"
+    unconfirmed = track(xy, 1.5, confirmed=False)
+    assert comb.combine(10.0, cam, [unconfirmed]).velocity_label == "West 0-0.2"
+
+
+def test_not_moving_camera_wins_over_laser_speed_and_outside_is_no_person():
+    comb = ObservationCombiner(GRID)
+    xy = GRID.center(6)
+    obs = comb.combine(10.0, person(xy, Direction.NOT_MOVING), [track(xy, 0.9)])
+    assert obs.velocity_label == "Not moving" and obs.person_cell == 6
+    outside = comb.combine(10.0, person((-1.0, 1.0), Direction.EAST), [track((-1.0, 1.0), 1.0)])
+    assert outside.person_label == "No person" and outside.velocity_label == "Not moving"
+    old = comb.combine(20.0, person(xy, Direction.EAST, stamp_s=10.0), [])
+    assert old.person_label == "No person"
+
+
+def test_combiner_config_validation():
+    assert CombinerConfig.from_dict({"speed_thresholds_mps": [0.3, 0.8]}).speed_thresholds_mps == (
+        0.3, 0.8,
+    )  # fmt: skip
+    with pytest.raises(ConfigError, match=r"observations\.speed_thresholds_mps"):
+        CombinerConfig.from_dict({"speed_thresholds_mps": [0.8, 0.3]})
+    with pytest.raises(ConfigError, match="list of 2"):
+        CombinerConfig.from_dict({"speed_thresholds_mps": [0.8]})
