@@ -96,7 +96,9 @@ class CellGrid:
         flat = [c for row in rows for c in row]
         if sorted(flat) != list(range(1, len(flat) + 1)):
             raise ConfigError(
-                "grid.numbering", [list(r) for r in rows], f"must number the cells 1..{len(flat)} once each"
+                "grid.numbering",
+                [list(r) for r in rows],
+                f"must number the cells 1..{len(flat)} once each",
             )
         for i, v in enumerate(self.cell_size_m):
             if not v > 0:
@@ -202,12 +204,18 @@ class CellGrid:
             if not isinstance(numbering, Sequence) or not all(
                 isinstance(r, Sequence) and not isinstance(r, str) for r in numbering
             ):
-                raise ConfigError(f"{key}.numbering", numbering, "must be a list of rows of cell numbers")
-            numbering = tuple(tuple(_positive_int(f"{key}.numbering", c) for c in r) for r in numbering)
+                raise ConfigError(
+                    f"{key}.numbering", numbering, "must be a list of rows of cell numbers"
+                )
+            numbering = tuple(
+                tuple(_positive_int(f"{key}.numbering", c) for c in r) for r in numbering
+            )
             if rows is not None and _positive_int(f"{key}.rows", rows) != len(numbering):
                 raise ConfigError(f"{key}.rows", rows, f"numbering has {len(numbering)} rows")
             if cols is not None and _positive_int(f"{key}.columns", cols) != len(numbering[0]):
-                raise ConfigError(f"{key}.columns", cols, f"numbering has {len(numbering[0])} columns")
+                raise ConfigError(
+                    f"{key}.columns", cols, f"numbering has {len(numbering[0])} columns"
+                )
         size = _pair(f"{key}.cell_size_m", data.get("cell_size_m", (1.0, 1.5)))
         origin = _pair(f"{key}.origin_m", data.get("origin_m", (0.0, 0.0)))
         return cls(numbering=numbering, cell_size_m=size, origin_m=origin)

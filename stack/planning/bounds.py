@@ -130,7 +130,9 @@ def plan_alphas(pomdp: POMDP, plans: list[list[int]], stay_action: int) -> np.nd
     require_discounted(pomdp)
     S = pomdp.n_states
     eye = sp.identity(S, format="csc")
-    stay = spla.spsolve((eye - pomdp.discount * pomdp.T[stay_action]).tocsc(), pomdp.R[:, stay_action])
+    stay = spla.spsolve(
+        (eye - pomdp.discount * pomdp.T[stay_action]).tocsc(), pomdp.R[:, stay_action]
+    )
     out = []
     for plan in plans:
         v = stay

@@ -335,7 +335,13 @@ def _position_transition(task: Task) -> np.ndarray:
         for d in Direction:
             w = np.zeros(p + 1)
 
-            def to(target: int | None, weight: float, edge_leaves: bool = False) -> None:
+            def to(
+                target: int | None,
+                weight: float,
+                edge_leaves: bool = False,
+                w: np.ndarray = w,
+                i: int = i,
+            ) -> None:
                 if target is not None:
                     w[g.cells.index(target)] += weight
                 elif edge_leaves:
@@ -381,7 +387,9 @@ def _position_observation(task: Task) -> np.ndarray:
     p = g.n_cells
     O = np.zeros((p + 1, p + 1))
     for i, cell in enumerate(g.cells):
-        w = np.array([0.0 if c == cell else m.near_decay ** (g.chebyshev(cell, c) - 1) for c in g.cells])
+        w = np.array(
+            [0.0 if c == cell else m.near_decay ** (g.chebyshev(cell, c) - 1) for c in g.cells]
+        )
         O[i, :p] = (1.0 - m.correct - m.miss) * w / w.sum()
         O[i, i] = m.correct
         O[i, p] = m.miss

@@ -119,12 +119,12 @@ def sample_beliefs(
     attempts = 0
     while len(out) < n_beliefs and attempts < 50 * n_beliefs:
         b = starts[attempts % len(starts)]
-        s = _draw(np.arange(S), b, rng)
+        s = draw(np.arange(S), b, rng)
         for _ in range(horizon):
             attempts += 1
             a = int(rng.integers(A)) if rng.random() < explore else int(np.argmax(b @ Q))
-            s = _draw_row(T[a], s, rng)
-            z = _draw_row(O[a], s, rng)
+            s = draw_row(T[a], s, rng)
+            z = draw_row(O[a], s, rng)
             b = belief_ops.update(pomdp, b, a, z)
             add(b)
             if len(out) >= n_beliefs:
@@ -132,14 +132,16 @@ def sample_beliefs(
     return np.vstack(out)
 
 
-def _draw(values: np.ndarray, p: np.ndarray, rng: np.random.Generator) -> int:
+def draw(values: np.ndarray, p: np.ndarray, rng: np.random.Generator) -> int:
+    """One of ``values`` drawn with (unnormalised) probabilities ``p``."""
     c = np.cumsum(p)
     return int(values[min(np.searchsorted(c, rng.random() * c[-1], side="right"), len(c) - 1)])
 
 
-def _draw_row(M, i: int, rng: np.random.Generator) -> int:
+def draw_row(M, i: int, rng: np.random.Generator) -> int:
+    """A column index drawn from row ``i`` of a CSR matrix of probabilities."""
     lo, hi = M.indptr[i], M.indptr[i + 1]
-    return _draw(M.indices[lo:hi], M.data[lo:hi], rng)
+    return draw(M.indices[lo:hi], M.data[lo:hi], rng)
 
 
 @dataclass

@@ -68,7 +68,9 @@ class AlphaPolicy:
         """Write the policy as a compressed ``.npz`` (alphas, actions, JSON metadata)."""
         path = Path(path)
         if path.suffix != ".npz":
-            path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+            path = (
+                path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
+            )
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(
             path, alphas=self.alphas, actions=self.actions, meta=np.array(json.dumps(self.meta))

@@ -57,12 +57,18 @@ class POMDP:
         if S == 0 or A == 0 or Z == 0:
             raise ModelError(f"need at least one state, action and observation, got {S}, {A}, {Z}")
         if len(self.T) != A or len(self.O) != A:
-            raise ModelError(f"T and O need one matrix per action ({A}), got {len(self.T)}, {len(self.O)}")
+            raise ModelError(
+                f"T and O need one matrix per action ({A}), got {len(self.T)}, {len(self.O)}"
+            )
         for a in range(A):
             if self.T[a].shape != (S, S):
-                raise ModelError(f"T[{self.actions[a]}] has shape {self.T[a].shape}, expected {(S, S)}")
+                raise ModelError(
+                    f"T[{self.actions[a]}] has shape {self.T[a].shape}, expected {(S, S)}"
+                )
             if self.O[a].shape != (S, Z):
-                raise ModelError(f"O[{self.actions[a]}] has shape {self.O[a].shape}, expected {(S, Z)}")
+                raise ModelError(
+                    f"O[{self.actions[a]}] has shape {self.O[a].shape}, expected {(S, Z)}"
+                )
         if self.R.shape != (S, A):
             raise ModelError(f"R has shape {self.R.shape}, expected {(S, A)}")
         if self.b0.shape != (S,):
@@ -102,9 +108,7 @@ class POMDP:
         """True when O[a] is the same matrix for every action (the task model's case)."""
         if "obs_same" not in self._cache:
             O0 = self.O[0]
-            self._cache["obs_same"] = all(
-                O is O0 or (O != O0).nnz == 0 for O in self.O[1:]
-            )
+            self._cache["obs_same"] = all(O is O0 or (O != O0).nnz == 0 for O in self.O[1:])
         return self._cache["obs_same"]
 
     def TT(self, a: int) -> sp.csr_matrix:
@@ -123,8 +127,11 @@ class POMDP:
 
     def index(self, kind: str, name: str | int) -> int:
         """Index of a state/action/observation given its name (or an index, checked)."""
-        names: Sequence[str] = {"state": self.states, "action": self.actions,
-                                "observation": self.observations}[kind]
+        names: Sequence[str] = {
+            "state": self.states,
+            "action": self.actions,
+            "observation": self.observations,
+        }[kind]
         if isinstance(name, int | np.integer):
             if not 0 <= int(name) < len(names):
                 raise KeyError(f"{kind} index {name} out of range 0..{len(names) - 1}")

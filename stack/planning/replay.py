@@ -304,13 +304,23 @@ def replay_table(
     return TableResult(table, steps, quotes, beliefs)
 
 
-def policy_chooser(policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True):
+def policy_chooser(
+    policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True, tie_tolerance: float = 1e-3
+):
     """A ``choose`` function for :func:`replay_table` from an alpha-vector policy.
 
     With ``lookahead`` the action maximises the one-step lookahead value under the
     policy's vectors (a greedy policy on the value function, as Symbolic Perseus's
     non-stationary tracer does); otherwise it is the best vector's action.
+
+    Actions whose values lie within ``tie_tolerance`` (relative) of the best are
+    equally good for this approximate value function (typically two equally short
+    routes). Among them "Do nothing" wins (section 3.2.3: "The robot should move as
+    minimum as possible and only when necessary"), then North, South, East, West, so
+    the choice is deterministic. ``tie_tolerance=0`` is the plain argmax.
     """
+    stay = ACTIONS.index("Do nothing")
+    preference = [stay] + [a for a in range(len(ACTIONS)) if a != stay]
     from stack.planning.pbvi import Backup
 
     backup = Backup(pomdp)
@@ -320,6 +330,8 @@ def policy_chooser(policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True):
             q, _ = backup.action_values(policy.alphas, b)
         else:
             q = policy.action_values(b, pomdp.n_actions)
-        return int(np.argmax(q)), q
+        best = q.max()
+        near = set(np.flatnonzero(q >= best - tie_tolerance * max(abs(best), 1.0)).tolist())
+        return next(a for a in preference if a in near), q
 
     return choose

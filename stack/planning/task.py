@@ -146,20 +146,28 @@ class Task:
     def __post_init__(self) -> None:
         cells = set(self.grid.cells)
         if not self.restricted_cells:
-            raise ConfigError("restricted_cells", list(self.restricted_cells), "needs at least one cell")
+            raise ConfigError(
+                "restricted_cells", list(self.restricted_cells), "needs at least one cell"
+            )
         for c in self.restricted_cells:
             if c not in cells:
-                raise ConfigError("restricted_cells", c, f"is not a cell of the grid (1..{len(cells)})")
+                raise ConfigError(
+                    "restricted_cells", c, f"is not a cell of the grid (1..{len(cells)})"
+                )
         if len(set(self.restricted_cells)) != len(self.restricted_cells):
             raise ConfigError("restricted_cells", list(self.restricted_cells), "lists a cell twice")
         if self.rest_cell not in cells:
-            raise ConfigError("rest_cell", self.rest_cell, f"is not a cell of the grid (1..{len(cells)})")
+            raise ConfigError(
+                "rest_cell", self.rest_cell, f"is not a cell of the grid (1..{len(cells)})"
+            )
         if self.rest_cell in self.restricted_cells:
             raise ConfigError("rest_cell", self.rest_cell, "must not be a restricted cell")
         if not isinstance(self.people, int) or isinstance(self.people, bool) or self.people < 1:
             raise ConfigError("people", self.people, "must be a positive integer")
         if not 0.0 < self.discount < 1.0:
-            raise ConfigError("discount", self.discount, "must be in (0, 1) for an infinite horizon")
+            raise ConfigError(
+                "discount", self.discount, "must be in (0, 1) for an infinite horizon"
+            )
         _check_models(self)
         ini = self.initial
         if ini.robot not in cells:
@@ -167,7 +175,9 @@ class Task:
         if ini.person is not None and ini.person not in cells:
             raise ConfigError("initial.person", ini.person, "is not a cell of the grid (or 'none')")
         if ini.direction not in DIRECTION_NAMES:
-            raise ConfigError("initial.direction", ini.direction, f"must be one of {DIRECTION_NAMES}")
+            raise ConfigError(
+                "initial.direction", ini.direction, f"must be one of {DIRECTION_NAMES}"
+            )
 
     def replace(self, **changes: Any) -> Task:
         return dataclasses.replace(self, **changes)
@@ -275,7 +285,9 @@ def _number(key: str, v: Any) -> float:
 def _reject_unknown(prefix: str, data: Mapping[str, Any], known: set[str]) -> None:
     for k in data:
         if k not in known:
-            raise ConfigError(f"{prefix}{k}", data[k], f"unknown key (known: {', '.join(sorted(known))})")
+            raise ConfigError(
+                f"{prefix}{k}", data[k], f"unknown key (known: {', '.join(sorted(known))})"
+            )
 
 
 def _section(key: str, data: Any, klass: type) -> Any:
@@ -288,7 +300,9 @@ def _section(key: str, data: Any, klass: type) -> Any:
         default = getattr(klass(), name)
         if isinstance(default, tuple):
             if not isinstance(value, list | tuple) or len(value) != len(default):
-                raise ConfigError(f"{key}.{name}", value, f"must be a list of {len(default)} numbers")
+                raise ConfigError(
+                    f"{key}.{name}", value, f"must be a list of {len(default)} numbers"
+                )
             kwargs[name] = tuple(_number(f"{key}.{name}", v) for v in value)
         else:
             kwargs[name] = _number(f"{key}.{name}", value)
@@ -334,12 +348,18 @@ def _check_models(task: Task) -> None:
     stop = 1.0 - d.keep - 2 * d.turn - d.reverse
     if stop <= 0.0:
         raise ConfigError(
-            "direction", dataclasses.asdict(d), "keep + 2 turn + reverse must be < 1 (stopping needs a chance)"
+            "direction",
+            dataclasses.asdict(d),
+            "keep + 2 turn + reverse must be < 1 (stopping needs a chance)",
         )
     if d.reverse > d.turn or d.reverse > d.keep:
-        raise ConfigError("direction.reverse", d.reverse, "turning back must be the least likely change (3.2.1)")
+        raise ConfigError(
+            "direction.reverse", d.reverse, "turning back must be the least likely change (3.2.1)"
+        )
     if d.rest_stay >= 1.0:
-        raise ConfigError("direction.rest_stay", d.rest_stay, "must be < 1 (a resting person may start)")
+        raise ConfigError(
+            "direction.rest_stay", d.rest_stay, "must be < 1 (a resting person may start)"
+        )
 
     p = task.position
     for name in dataclasses.asdict(p):
@@ -365,10 +385,20 @@ def _check_models(task: Task) -> None:
         raise ConfigError("obs_position.near_decay", op.near_decay, "must be > 0")
 
     ov = task.obs_velocity
-    for name in ("moving_direction", "moving_turn", "moving_reverse", "rest_not_moving", "absent_not_moving"):
+    for name in (
+        "moving_direction",
+        "moving_turn",
+        "moving_reverse",
+        "rest_not_moving",
+        "absent_not_moving",
+    ):
         _prob(f"obs_velocity.{name}", getattr(ov, name), positive=True)
     if ov.moving_direction + 2 * ov.moving_turn + ov.moving_reverse >= 1.0:
-        raise ConfigError("obs_velocity", dataclasses.asdict(ov), "direction shares must leave room for 'Not moving'")
+        raise ConfigError(
+            "obs_velocity",
+            dataclasses.asdict(ov),
+            "direction shares must leave room for 'Not moving'",
+        )
     for name in ("moving_speed", "other_speed"):
         v = getattr(ov, name)
         if any(x <= 0 for x in v):

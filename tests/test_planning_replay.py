@@ -1,0 +1,76 @@
+"""Chapter 5 replayed: our planner against tables 5.1-5.4 (solves both task models)."""
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from stack.planning.replay import TABLES
+from vigil.cli import REPLAY_ITERATIONS, main, run_replay
+
+
+def _args():
+    return argparse.Namespace(
+        beliefs=300, iterations=REPLAY_ITERATIONS, time_limit=None, fib_time=0.0, seed=0, quiet=True
+    )
+
+
+@pytest.fixture(scope="module")
+def replay():
+    results, solved = run_replay(list(TABLES), _args())
+    return results, solved
+
+
+def test_tables_are_complete():
+    assert [len(t.steps) for t in TABLES.values()] == [12, 11, 10, 17]
+    assert sum(len(t.quotes) for t in TABLES.values()) == 32
+
+
+def test_replay_agrees_with_the_thesis(replay):
+    results, _ = replay
+    agree = sum(r.agreement for r in results)
+    with_ties = sum(r.agreement_with_ties for r in results)
+    assert agree >= 47, [
+        (r.table.name, s.step, s.thesis_action, s.chosen_action)
+        for r in results
+        for s in r.steps
+        if not s.agrees
+    ]
+    assert with_ties >= agree
+
+
+def test_quoted_beliefs_are_close_to_the_thesis(replay):
+    results, _ = replay
+    errors = np.array([q.ours - q.quote.thesis for r in results for q in r.quotes])
+    assert np.sqrt(np.mean(errors**2)) < 0.1
+    assert np.abs(errors).max() < 0.25
+
+
+def test_the_first_quoted_beliefs(replay):
+    """After step 1 of table 5.1: P(East) = 0.75, P(at 9) = 0.22, P(at 11) = 0.73."""
+    results, _ = replay
+    q = {(x.quote.what, x.quote.values): x.ours for x in results[0].quotes if x.quote.step == 1}
+    assert q[("direction", ("East",))] == pytest.approx(0.75, abs=0.05)
+    assert q[("position", (9,))] == pytest.approx(0.22, abs=0.05)
+    assert q[("position", (11,))] == pytest.approx(0.73, abs=0.05)
+
+
+def test_solved_bounds_are_consistent(replay):
+    _, solved = replay
+    for _model, _pomdp, result in solved.values():
+        assert result.lower_bound <= result.upper_bound
+        values = [s.value_b0 for s in result.history]
+        assert values[-1] >= values[0]
+
+
+def test_cli_replay_json(capsys):
+    code = main(["replay", "--table", "5.2", "--json", "--quiet", "--iterations", "60"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    table = out["5.2"]
+    assert len(table["steps"]) == 11
+    first = table["steps"][0]
+    assert first["thesis_action"] == "South"
+    assert first["observation"] == {"robot": 7, "person": None, "velocity": "Not moving"}
+    assert {"step", "belief", "thesis", "ours"} <= set(table["quoted_beliefs"][0])

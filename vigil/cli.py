@@ -1,0 +1,345 @@
+"""The ``vigil`` command line: one entry point, a subcommand per job.
+
+vigil solve TASK.yaml -o POLICY.npz      solve a task model (progress per iteration)
+vigil export-pomdp TASK.yaml -o F.pomdp  write the task model in Cassandra format
+vigil solve-pomdp F.pomdp --json         solve any .pomdp file, print bounds
+vigil evaluate TASK.yaml --policy P      mean discounted return by simulation
+vigil replay --table all                 chapter 5's tables against our planner
+vigil main --out DIR                     the main job: solve, replay, report
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r2.yaml"}
+
+
+def _solver_args(p: argparse.ArgumentParser, iterations: int = 50) -> None:
+    p.add_argument("--iterations", type=int, default=iterations, help="Perseus iterations")
+    p.add_argument("--beliefs", type=int, default=300, help="sampled belief points")
+    p.add_argument("--time-limit", type=float, default=None, help="seconds")
+    p.add_argument(
+        "--fib-time", type=float, default=0.0, help="seconds for the fast informed bound"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def _solver_config(args: argparse.Namespace):
+    from stack.planning.solve import SolverConfig
+
+    return SolverConfig(
+        beliefs=args.beliefs,
+        iterations=args.iterations,
+        time_limit_s=args.time_limit,
+        fib_time_s=args.fib_time,
+        seed=args.seed,
+    )
+
+
+def _progress(args: argparse.Namespace, stream=sys.stderr):
+    from stack.planning.solve import format_progress
+
+    if getattr(args, "quiet", False):
+        return None
+    return lambda stats: print(format_progress(stats), file=stream, flush=True)
+
+
+def solve_task(task_path: Path, args: argparse.Namespace, progress=None):
+    """Load, build and solve a task file; returns (model, pomdp, result)."""
+    from stack.planning.model import build_model
+    from stack.planning.replay import TABLES
+    from stack.planning.solve import solve, task_seed_alphas
+    from stack.planning.task import load_task
+
+    task = load_task(task_path)
+    model = build_model(task)
+    pomdp = model.flat()
+    # sample beliefs from the task's initial belief and from every chapter 5 start
+    # of the same restricted cells, so that the policy covers the experiments
+    starts = [pomdp.b0]
+    for t in TABLES.values():
+        b = model.initial_belief(t.robot, [(t.person, t.direction)])
+        if not any((b == s).all() for s in starts):
+            starts.append(b)
+    result = solve(pomdp, _solver_config(args), starts, task_seed_alphas(model, pomdp), progress)
+    result.policy.meta["task"] = str(task_path)
+    return model, pomdp, result
+
+
+# -- subcommands ------------------------------------------------------------------------
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    _, _, result = solve_task(Path(args.task), args, _progress(args))
+    path = result.policy.save(args.output)
+    out = result.summary() | {"policy": str(path)}
+    print(json.dumps(out, indent=2) if args.json else _bounds_line(out))
+    return 0
+
+
+def _bounds_line(s: dict) -> str:
+    return (
+        f"lower {s['lower_bound']:.4f}  upper {s['upper_bound']:.4f}  gap {s['gap']:.4f} "
+        f"({100 * s['relative_gap']:.1f}%)  alphas {s['alpha_vectors']}  {s['seconds']:.2f} s"
+        + (f"  -> {s['policy']}" if "policy" in s else "")
+    )
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from stack.planning.model import build_model
+    from stack.planning.pomdp_format import write_pomdp
+    from stack.planning.task import load_task
+
+    pomdp = build_model(load_task(args.task)).flat()
+    write_pomdp(pomdp, args.output)
+    print(
+        f"wrote {args.output}: {pomdp.n_states} states, {pomdp.n_actions} actions, "
+        f"{pomdp.n_observations} observations"
+    )
+    return 0
+
+
+def cmd_solve_pomdp(args: argparse.Namespace) -> int:
+    from stack.planning.pomdp_format import read_pomdp
+    from stack.planning.solve import solve
+
+    pomdp = read_pomdp(args.file)
+    config = _solver_config(args)
+    result = solve(pomdp, config, progress=None if args.json else _progress(args))
+    if args.output:
+        result.policy.save(args.output)
+    out = {
+        "file": str(args.file),
+        "states": pomdp.n_states,
+        "actions": pomdp.n_actions,
+        "observations": pomdp.n_observations,
+    } | result.summary()
+    print(json.dumps(out, indent=2) if args.json else _bounds_line(out))
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from stack.planning.evaluate import evaluate
+    from stack.planning.model import build_model
+    from stack.planning.policy import AlphaPolicy
+    from stack.planning.task import load_task
+
+    pomdp = build_model(load_task(args.task)).flat()
+    policy = AlphaPolicy.load(args.policy, n_states=pomdp.n_states)
+    ev = evaluate(pomdp, policy, episodes=args.episodes, horizon=args.horizon, seed=args.seed)
+    print(
+        json.dumps(ev.summary())
+        if args.json
+        else f"mean discounted return {ev.mean:.3f} +- {ev.ci95:.3f} (95%, {ev.episodes} episodes, "
+        f"horizon {ev.horizon})"
+    )
+    return 0
+
+
+def run_replay(tables: list[str], args: argparse.Namespace, policies: dict | None = None):
+    """Replay the named tables; solves each needed task once. Returns TableResults."""
+    from stack.planning.replay import TABLES, policy_chooser, replay_table
+
+    solved: dict[str, tuple] = dict(policies or {})
+    results = []
+    for name in tables:
+        table = TABLES[name]
+        if table.task not in solved:
+            print(f"solving task {table.task} ...", file=sys.stderr, flush=True)
+            model, pomdp, result = solve_task(TASKS[table.task], args, _progress(args))
+            solved[table.task] = (model, pomdp, result)
+        model, pomdp, result = solved[table.task]
+        results.append(replay_table(model, pomdp, table, policy_chooser(result.policy, pomdp)))
+    return results, solved
+
+
+def replay_markdown(results) -> str:
+    lines = []
+    total = sum(len(r.steps) for r in results)
+    agree = sum(r.agreement for r in results)
+    ties = sum(r.agreement_with_ties for r in results)
+    lines.append(
+        f"Agreement with the thesis's actions: **{agree}/{total}** "
+        f"({ties}/{total} counting ties between equally good moves)\n"
+    )
+    for r in results:
+        t = r.table
+        lines.append(
+            f"## Table {t.name}: {t.title} ({r.agreement}/{len(r.steps)}, "
+            f"{r.agreement_with_ties} with ties)\n"
+        )
+        lines.append(
+            "| step | thesis action | our action | obs robot | obs person | obs velocity | |"
+        )
+        lines.append("|---:|---|---|---:|---|---|---|")
+        for s in r.steps:
+            mark = "=" if s.agrees else ("tie" if s.tie else "**differs**")
+            o = s.observation
+            lines.append(
+                f"| {s.step} | {s.thesis_action} | {s.chosen_action} | {o.robot} | "
+                f"{o.person if o.person is not None else 'No person'} | {o.velocity} | {mark} |"
+            )
+        if r.quotes:
+            lines.append("\n| after step | belief | thesis | ours |")
+            lines.append("|---:|---|---:|---:|")
+            for q in r.quotes:
+                lines.append(
+                    f"| {q.quote.step} | {q.quote.label} | {q.quote.thesis:.2f} | {q.ours:.2f} |"
+                )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def replay_json(results) -> dict:
+    out = {}
+    for r in results:
+        out[r.table.name] = {
+            "agreement": r.agreement,
+            "agreement_with_ties": r.agreement_with_ties,
+            "steps": [
+                {
+                    "step": s.step,
+                    "observation": {
+                        "robot": s.observation.robot,
+                        "person": s.observation.person,
+                        "velocity": s.observation.velocity,
+                    },
+                    "thesis_action": s.thesis_action,
+                    "chosen_action": s.chosen_action,
+                    "agrees": s.agrees,
+                    "tie": s.tie,
+                }
+                for s in r.steps
+            ],
+            "quoted_beliefs": [
+                {
+                    "step": q.quote.step,
+                    "belief": q.quote.label,
+                    "thesis": q.quote.thesis,
+                    "ours": q.ours,
+                }
+                for q in r.quotes
+            ],
+        }
+    return out
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from stack.planning.replay import TABLES
+
+    names = list(TABLES) if args.table == "all" else [args.table]
+    results, _ = run_replay(names, args)
+    if args.json:
+        print(json.dumps(replay_json(results), indent=2))
+    else:
+        print(replay_markdown(results))
+    return 0
+
+
+def cmd_main(args: argparse.Namespace) -> int:
+    """Until the twin scenarios land: solve both task models, replay chapter 5, report."""
+    from stack.planning.evaluate import evaluate
+    from stack.planning.replay import TABLES
+    from vigil.report import plot_replay
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results, solved = run_replay(list(TABLES), args)
+    summary: dict = {"tasks": {}, "replay": {}}
+    for name, (_model, pomdp, result) in solved.items():
+        path = result.policy.save(out / f"policy-{name}.npz")
+        ev = evaluate(pomdp, result.policy, episodes=args.episodes, seed=args.seed)
+        summary["tasks"][name] = result.summary() | {
+            "policy": path.name,
+            "evaluation": ev.summary(),
+        }
+        print(
+            f"task {name}: "
+            + _bounds_line(result.summary())
+            + f"; simulated return {ev.mean:.2f} +- {ev.ci95:.2f}"
+        )
+    (out / "replay.md").write_text("# Chapter 5 replayed\n\n" + replay_markdown(results))
+    summary["replay"] = replay_json(results)
+    summary["agreement"] = sum(r.agreement for r in results)
+    summary["agreement_with_ties"] = sum(r.agreement_with_ties for r in results)
+    summary["steps"] = sum(len(r.steps) for r in results)
+    for r in results:
+        model = solved[r.table.task][0]
+        plot_replay(model, r, out / f"table-{r.table.name}.png")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(
+        f"replay agreement {summary['agreement']}/{summary['steps']} "
+        f"({summary['agreement_with_ties']} counting ties)"
+    )
+    print(f"report written to {out}/ (replay.md, summary.json, table-*.png, policy-*.npz)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="vigil", description="vigil: human-aware planning under uncertainty"
+    )
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("solve", help="solve a task file")
+    p.add_argument("task")
+    p.add_argument("-o", "--output", required=True, help="policy file (.npz)")
+    p.add_argument("--json", action="store_true")
+    _solver_args(p)
+    p.set_defaults(func=cmd_solve)
+
+    p = sub.add_parser("export-pomdp", help="write a task model as a Cassandra .pomdp file")
+    p.add_argument("task")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("solve-pomdp", help="solve a Cassandra .pomdp file")
+    p.add_argument("file")
+    p.add_argument("-o", "--output", help="policy file (.npz)")
+    p.add_argument("--json", action="store_true")
+    _solver_args(p, iterations=1000)
+    p.set_defaults(func=cmd_solve_pomdp)
+
+    p = sub.add_parser("evaluate", help="evaluate a policy by simulation")
+    p.add_argument("task")
+    p.add_argument("--policy", required=True)
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--horizon", type=int, default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("replay", help="replay chapter 5's tables")
+    p.add_argument("--table", choices=["5.1", "5.2", "5.3", "5.4", "all"], default="all")
+    p.add_argument("--json", action="store_true")
+    _solver_args(p, iterations=REPLAY_ITERATIONS)
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
+    p.add_argument("--out", default="runs/main")
+    p.add_argument("--episodes", type=int, default=50)
+    _solver_args(p, iterations=REPLAY_ITERATIONS)
+    p.set_defaults(func=cmd_main)
+    return ap
+
+
+REPLAY_ITERATIONS = 200
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError) as exc:  # config, model and file errors
+        print(f"vigil {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
