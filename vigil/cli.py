@@ -281,6 +281,16 @@ def cmd_main(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_twin_snapshot(args: argparse.Namespace) -> int:
+    """Write the ceiling camera's view and a top view with the lidar scan as PNGs."""
+    from twin.snapshot import snapshot
+
+    paths = snapshot(Path(args.out), Path(args.config) if args.config else None, seed=args.seed)
+    for path in paths:
+        print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="vigil", description="vigil: human-aware planning under uncertainty"
@@ -320,6 +330,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     _solver_args(p, iterations=REPLAY_ITERATIONS)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("twin", help="the digital twin")
+    twin_sub = p.add_subparsers(dest="twin_command", required=True)
+    q = twin_sub.add_parser("snapshot", help="camera view and top view with lidar, as PNG")
+    q.add_argument("--out", default="runs/snapshot")
+    q.add_argument("--config", default=None, help="twin config YAML (default: built-in)")
+    q.add_argument("--seed", type=int, default=0)
+    q.set_defaults(func=cmd_twin_snapshot)
 
     p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
     p.add_argument("--out", default="runs/main")

@@ -305,7 +305,7 @@ def replay_table(
 
 
 def policy_chooser(
-    policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True, tie_tolerance: float = 1e-3
+    policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True, tie_tolerance: float = 0.005
 ):
     """A ``choose`` function for :func:`replay_table` from an alpha-vector policy.
 
