@@ -31,11 +31,9 @@ import json
 import math
 from pathlib import Path
 
-import rclpy
 import yaml
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Int32, String
@@ -55,6 +53,7 @@ from stack.nav.follower import (
 )
 from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, load_map_yaml
 from stack.nav.waypoints import ActionOutcome, CellWaypoints, parse_action
+from stack.ros_main import spin_node
 
 POSE_SOURCES = {"odom": "/odom", "amcl": "/amcl_pose"}
 
@@ -320,19 +319,8 @@ class NavigationNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = NavigationNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            if rclpy.ok():  # leave the base standing still
-                node.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
-            node.destroy_node()
-        rclpy.try_shutdown()
+    # leave the base standing still on the way out
+    spin_node(NavigationNode, args, on_exit=lambda n: n.cmd_pub.publish(twist_to_msg(ZERO_TWIST)))
 
 
 if __name__ == "__main__":

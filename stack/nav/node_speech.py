@@ -25,15 +25,14 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import rclpy
 import yaml
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
 from stack.cells import CellGrid, ConfigError
 from stack.nav.config import SpeechConfig
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent, should_warn
+from stack.ros_main import spin_node
 
 
 def load_speech_config(path: str) -> tuple[CellGrid, SpeechConfig]:
@@ -170,17 +169,7 @@ class SpeechNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SpeechNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(SpeechNode, args)
 
 
 if __name__ == "__main__":

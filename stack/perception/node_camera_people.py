@@ -24,9 +24,7 @@ from __future__ import annotations
 import json
 import math
 
-import rclpy
 from geometry_msgs.msg import PointStamped
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -39,6 +37,7 @@ from stack.perception.errors import BadFrameError, CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.messages import image_from_msg, stamp_to_s
 from stack.perception.observation import NO_PERSON
+from stack.ros_main import spin_node
 
 
 class CameraPeopleNode(Node):
@@ -125,17 +124,7 @@ class CameraPeopleNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = CameraPeopleNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(CameraPeopleNode, args)
 
 
 if __name__ == "__main__":

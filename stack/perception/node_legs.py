@@ -24,10 +24,8 @@ from __future__ import annotations
 
 import json
 
-import rclpy
 from geometry_msgs.msg import Pose, PoseArray
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
@@ -45,6 +43,7 @@ from stack.perception.messages import (
 )
 from stack.perception.observation import CombinerConfig
 from stack.perception.tracker import LegTracker, TrackerConfig
+from stack.ros_main import spin_node
 
 
 class LegsNode(Node):
@@ -128,17 +127,7 @@ class LegsNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = LegsNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(LegsNode, args)
 
 
 if __name__ == "__main__":

@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import json
 
-import rclpy
 from nav_msgs.msg import Odometry
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from std_msgs.msg import Empty, String
 
@@ -37,6 +35,7 @@ from stack.perception._config import load_config_file
 from stack.perception.legs import Pose2D
 from stack.perception.messages import camera_state_from_json, pose_from_msg, tracks_from_dict
 from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
+from stack.ros_main import spin_node
 
 
 class ObservationsNode(Node):
@@ -115,17 +114,7 @@ class ObservationsNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ObservationsNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(ObservationsNode, args)
 
 
 if __name__ == "__main__":
