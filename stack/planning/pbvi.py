@@ -106,18 +106,21 @@ def sample_beliefs(
     seen: set[bytes] = set()
     out: list[np.ndarray] = []
 
-    def add(b: np.ndarray) -> None:
+    def add(b: np.ndarray) -> bool:
         key = np.round(b, 7).tobytes()
-        if key not in seen:
-            seen.add(key)
-            out.append(b)
+        if key in seen:
+            return False
+        seen.add(key)
+        out.append(b)
+        return True
 
     for b in starts:
         add(np.asarray(b, dtype=float))
     T = [pomdp.T[a].tocsr() for a in range(A)]
     O = [pomdp.O[a].tocsr() for a in range(A)]
     attempts = 0
-    while len(out) < n_beliefs and attempts < 50 * n_beliefs:
+    last_new = 0  # small models have fewer reachable beliefs than asked for: stop looking
+    while len(out) < n_beliefs and attempts < 50 * n_beliefs and attempts - last_new < 2000:
         b = starts[attempts % len(starts)]
         s = draw(np.arange(S), b, rng)
         for _ in range(horizon):
@@ -126,7 +129,8 @@ def sample_beliefs(
             s = draw_row(T[a], s, rng)
             z = draw_row(O[a], s, rng)
             b = belief_ops.update(pomdp, b, a, z)
-            add(b)
+            if add(b):
+                last_new = attempts
             if len(out) >= n_beliefs:
                 break
     return np.vstack(out)
