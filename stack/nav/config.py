@@ -232,3 +232,32 @@ class SpeechConfig:
             ConfigError: unknown key, wrong type or a value out of range.
         """
         return _from_dict(cls, data, prefix)
+
+
+def read_node_config(path: str, section: str, klass):
+    """Read the ``grid`` section and one component section of a node's YAML file.
+
+    Both are optional; an empty ``path`` gives the defaults.
+
+    Returns:
+        (CellGrid, klass instance).
+
+    Raises:
+        ConfigError: unreadable file or an invalid value.
+    """
+    from pathlib import Path
+
+    import yaml
+
+    from stack.cells import CellGrid
+
+    if not path:
+        return CellGrid(), klass()
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError("config_file", path, f"cannot be read: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError("config_file", path, "must hold a mapping")
+    grid = CellGrid.from_mapping(data["grid"]) if "grid" in data else CellGrid()
+    return grid, klass.from_dict(data.get(section))

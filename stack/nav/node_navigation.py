@@ -29,9 +29,7 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
-import yaml
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
@@ -39,7 +37,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Int32, String
 
 from stack.cells import CellGrid, ConfigError
-from stack.nav.config import FollowerConfig
+from stack.nav.config import FollowerConfig, read_node_config
 from stack.nav.follower import (
     ZERO_TWIST,
     FollowerState,
@@ -88,16 +86,7 @@ def load_config_file(path: str) -> tuple[CellGrid, FollowerConfig]:
     Raises:
         ConfigError: unreadable file or an invalid value.
     """
-    if not path:
-        return CellGrid(), FollowerConfig()
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError("config_file", path, f"cannot be read: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError("config_file", path, "must hold a mapping")
-    grid = CellGrid.from_mapping(data["grid"]) if "grid" in data else CellGrid()
-    return grid, FollowerConfig.from_dict(data.get("follower"))
+    return read_node_config(path, "follower", FollowerConfig)
 
 
 class NavigationNode(Node):

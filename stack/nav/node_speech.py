@@ -23,14 +23,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
-import yaml
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
-from stack.cells import CellGrid, ConfigError
-from stack.nav.config import SpeechConfig
+from stack.cells import CellGrid
+from stack.nav.config import SpeechConfig, read_node_config
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent, should_warn
 from stack.ros_main import spin_node
 
@@ -41,16 +39,7 @@ def load_speech_config(path: str) -> tuple[CellGrid, SpeechConfig]:
     Raises:
         ConfigError: unreadable file or an invalid value.
     """
-    if not path:
-        return CellGrid(), SpeechConfig()
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError("config_file", path, f"cannot be read: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError("config_file", path, "must hold a mapping")
-    grid = CellGrid.from_mapping(data["grid"]) if "grid" in data else CellGrid()
-    return grid, SpeechConfig.from_dict(data.get("speech"))
+    return read_node_config(path, "speech", SpeechConfig)
 
 
 class SpeechNode(Node):
