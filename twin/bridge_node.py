@@ -6,30 +6,41 @@ Publishes ``/camera/image_raw`` (sensor_msgs/Image, rgb8), ``/camera/camera_info
 under ``/twin/...``; subscribes to ``/cmd_vel`` (geometry_msgs/Twist) and stops the base
 when commands are older than ``cmd_timeout_s`` of simulated time.
 
-Time: one wall-clock timer steps the twin by one control period per tick. With
-``realtime`` true the timer runs at the control rate; otherwise it runs as fast as the
-executor allows (free-running). The lock-step handshake of issue 3 (advance only when
-the stack has consumed the last sensor data) is not implemented yet.
+Time, three modes:
+    lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
+        coordinator of :mod:`stack.lockstep`. Each sensor tick it publishes ``/clock``,
+        waits until every participant has processed it, publishes the sensors, waits
+        until every participant has processed them and everything that followed
+        (detections, observations, the planner's decision, the next ``/cmd_vel``),
+        and only then steps the physics. Results do not depend on the machine's speed.
+    real time (``realtime`` true): one tick per control period of wall-clock time.
+    free-running (both false): ticks as fast as the executor allows.
+
+Ground truth for evaluation also goes out as one JSON record per sensor tick on
+``/twin/truth`` (std_msgs/String): {t, robot [x, y, yaw], robot_cell, person [x, y] |
+null, person_cell, person_velocity [vx, vy] | null}.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import time
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid
 from nav_msgs.msg import Odometry as OdometryMsg
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
-from std_msgs.msg import Int32
+from std_msgs.msg import Int32, String
 
+from stack.lockstep import ACK_TOPIC, Ack, Ledger
+from stack.ros_main import spin_node
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
 from twin.sensors import CameraInfo
@@ -117,20 +128,43 @@ def pose_msg(x: float, y: float, yaw: float, t_s: float) -> PoseStamped:
     return msg
 
 
+def truth_record(gt: GroundTruth) -> dict:
+    """The ``/twin/truth`` JSON record of a ground-truth snapshot."""
+    r, p = gt.robot, gt.person
+    return {
+        "t": round(gt.time_s, 6),
+        "robot": [round(r.x_m, 4), round(r.y_m, 4), round(r.yaw_rad, 4)],
+        "robot_cell": gt.robot_cell,
+        "person": None if p is None else [round(p.pose.x_m, 4), round(p.pose.y_m, 4)],
+        "person_cell": None if p is None else p.cell,
+        "person_velocity": None if p is None else [round(float(v), 4) for v in p.velocity_mps],
+    }
+
+
 class TwinBridge(Node):
-    """Steps a :class:`Twin` on a timer and converts between it and ROS messages.
+    """Steps a :class:`Twin` and converts between it and ROS messages.
 
     Parameters: ``config`` (twin YAML, "" for defaults), ``task`` (task YAML with the
-    grid, "" for none), ``seed``, ``realtime``, ``cmd_timeout_s``.
+    grid, "" for none), ``seed``, ``realtime``, ``cmd_timeout_s``, ``odom_rate_hz``
+    (0: every control period), ``lockstep``, ``participants`` (node names that must
+    be up before the first lock-step tick), ``stall_warn_s`` and ``stall_timeout_s``
+    (wall-clock seconds: when to log a lock-step wait, and when to stop waiting for a
+    participant that lost messages or died).
     """
 
     def __init__(self, twin: Twin | None = None, **kwargs):
         super().__init__("twin_bridge", **kwargs)
-        self.declare_parameter("config", "")
-        self.declare_parameter("task", "")
-        self.declare_parameter("seed", 0)
-        self.declare_parameter("realtime", False)
-        self.declare_parameter("cmd_timeout_s", 0.5)
+        p = self.declare_parameter
+        p("config", "")
+        p("task", "")
+        p("seed", 0)
+        p("realtime", False)
+        p("cmd_timeout_s", 0.5)
+        p("odom_rate_hz", 20.0)
+        self.lockstep = bool(p("lockstep", False).value)
+        participants = list(p("participants", [""]).value)
+        self.stall_warn_s = float(p("stall_warn_s", 5.0).value)
+        self.stall_timeout_s = float(p("stall_timeout_s", 30.0).value)
         if twin is None:
             path = self.get_parameter("config").value
             task = self.get_parameter("task").value or None
@@ -141,10 +175,17 @@ class TwinBridge(Node):
         cfg = twin.config
         self._cmd = VelocityCommand()
         self._cmd_time_s = -math.inf
-        self._next_camera_s = 0.0
-        self._next_scan_s = 0.0
-        self._camera_period_s = 1.0 / cfg.camera.rate_hz
-        self._scan_period_s = 1.0 / cfg.lidar.rate_hz
+        odom_hz = float(self.get_parameter("odom_rate_hz").value)
+        self._periods = {
+            "odom": cfg.control_period_s if odom_hz <= 0 else 1.0 / odom_hz,
+            "scan": 1.0 / cfg.lidar.rate_hz,
+            "camera": 1.0 / cfg.camera.rate_hz,
+        }
+        self._next = dict.fromkeys(self._periods, 0.0)
+        self.ledger = Ledger(tuple(n for n in participants if n))
+        self._phase = "start"  # lock-step: start -> clock -> sensors -> step -> clock ...
+        self._wait_since = self._wall_s()
+        self._last_warn = self._wall_s()
 
         latched = QoSProfile(
             depth=1,
@@ -157,38 +198,132 @@ class TwinBridge(Node):
         self.pub_odom = self.create_publisher(OdometryMsg, "/odom", 10)
         self.pub_map = self.create_publisher(OccupancyGrid, "/map", latched)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_truth = self.create_publisher(String, "/twin/truth", 10)
         self.pub_robot = self.create_publisher(PoseStamped, "/twin/robot_pose", 10)
         self.pub_person = self.create_publisher(PoseStamped, "/twin/person_pose", 10)
         self.pub_person_vel = self.create_publisher(TwistStamped, "/twin/person_velocity", 10)
         self.pub_person_cell = self.create_publisher(Int32, "/twin/person_cell", 10)
         self.pub_robot_cell = self.create_publisher(Int32, "/twin/robot_cell", 10)
         self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, 10)
-        self.pub_map.publish(map_msg(twin.occupancy_map(), twin.time_s))
-        period = cfg.control_period_s if self.get_parameter("realtime").value else 0.001
-        self.timer = self.create_timer(period, self._tick)
+        if self.lockstep:
+            self.ledger.subscribe("/cmd_vel")
+            self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
+        self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
+        realtime = self.get_parameter("realtime").value
+        period = cfg.control_period_s if realtime and not self.lockstep else 0.001
+        self.timer = self.create_timer(period, self._lockstep_poll if self.lockstep else self._tick)
+
+    @staticmethod
+    def _wall_s() -> float:
+        return time.monotonic()
+
+    def _publish(self, pub, msg) -> None:
+        pub.publish(msg)
+        self.ledger.sent(pub.topic_name)
 
     def _on_cmd_vel(self, msg: Twist) -> None:
         self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
         self._cmd_time_s = self.twin.time_s
+        if self.lockstep:
+            self.ledger.received("/cmd_vel")
 
-    def _tick(self) -> None:
+    def _on_ack(self, msg: String) -> None:
+        try:
+            self.ledger.update(Ack.from_json(msg.data), self._wall_s())
+        except ValueError as err:
+            self.get_logger().warning(f"lock-step ack ignored: {err}", throttle_duration_sec=5.0)
+        for event in self.ledger.events:
+            self.get_logger().warning(f"lock-step: {event}")
+        self.ledger.events.clear()
+
+    # -- lock-step ----------------------------------------------------------------------
+    def _own_matched(self) -> dict[str, int]:
+        pubs = (self.pub_clock, self.pub_odom, self.pub_scan, self.pub_image, self.pub_truth)
+        return {p.topic_name: p.get_subscription_count() for p in pubs}
+
+    def _lockstep_poll(self) -> None:
+        now = self._wall_s()
+        if self._phase == "start":
+            waiting = self.ledger.missing() + self.ledger.unmatched(self._own_matched())
+            waiting += self.ledger.pending()
+            if waiting:
+                self._warn_if_slow(now, "waiting for " + ", ".join(waiting), forgive=False)
+                return
+            self.get_logger().info(
+                f"lock-step: {len(self.ledger.members)} participants up "
+                f"({', '.join(sorted(self.ledger.members))}); starting"
+            )
+            self._begin_tick(now)
+            return
+        pending = self.ledger.pending()
+        if pending:
+            self._warn_if_slow(now, "waiting: " + ", ".join(pending), forgive=True)
+            return
+        self._wait_since = now
+        if self._phase == "clock":
+            self._publish_sensors()
+            self._phase = "sensors"
+        else:  # sensors processed and everything they caused: step to the next tick
+            self._begin_tick(now)
+
+    def _begin_tick(self, now: float) -> None:
+        """Step the physics to the next sensor time and publish the clock."""
+        tw = self.twin
+        first = self._phase == "start"
+        if not first:
+            t_next = min(self._next.values())
+            while tw.time_s + 1e-9 < t_next:
+                self._step_physics()
+        self._publish(self.pub_clock, Clock(clock=stamp_of(tw.time_s)))
+        self._phase = "clock"
+        self._wait_since = now
+
+    def _warn_if_slow(self, now: float, what: str, forgive: bool) -> None:
+        waited = now - self._wait_since
+        if waited > self.stall_warn_s and now - self._last_warn > self.stall_warn_s:
+            self._last_warn = now
+            t = self.twin.time_s
+            self.get_logger().warning(f"lock-step: {waited:.0f} s at t={t:.2f}: {what}")
+        if forgive and waited > self.stall_timeout_s:
+            names = self.ledger.stalled_members()
+            for line in self.ledger.forgive(names, now, self.stall_timeout_s):
+                self.get_logger().error(f"lock-step: {line}")
+            self._wait_since = now
+
+    # -- stepping -------------------------------------------------------------------------
+    def _step_physics(self) -> None:
         tw = self.twin
         stale = tw.time_s - self._cmd_time_s > self.cmd_timeout_s
         tw.step(None if stale else self._cmd)
+
+    def _tick(self) -> None:
+        """Real time and free-running: one control period, then what is due."""
+        self._step_physics()
+        self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s)))
+        self._publish_sensors()
+
+    def _due(self, name: str, t: float) -> bool:
+        if t + 1e-9 < self._next[name]:
+            return False
+        while self._next[name] <= t + 1e-9:
+            self._next[name] += self._periods[name]
+        return True
+
+    def _publish_sensors(self) -> None:
+        tw = self.twin
         t = tw.time_s
-        self.pub_clock.publish(Clock(clock=stamp_of(t)))
-        self.pub_odom.publish(odometry_msg(tw.odometry()))
-        self._publish_truth(tw.ground_truth())
-        if t + 1e-9 >= self._next_scan_s:
-            self._next_scan_s += self._scan_period_s
-            self.pub_scan.publish(scan_msg(tw.scan()))
-        if t + 1e-9 >= self._next_camera_s:
-            self._next_camera_s += self._camera_period_s
-            self.pub_image.publish(image_msg(tw.render_camera(), t, tw.camera_info.frame_id))
-            self.pub_info.publish(camera_info_msg(tw.camera_info, t))
+        if self._due("odom", t):
+            self._publish(self.pub_odom, odometry_msg(tw.odometry()))
+            self._publish_truth(tw.ground_truth())
+        if self._due("scan", t):
+            self._publish(self.pub_scan, scan_msg(tw.scan()))
+        if self._due("camera", t):
+            self._publish(self.pub_image, image_msg(tw.render_camera(), t, tw.camera_info.frame_id))
+            self._publish(self.pub_info, camera_info_msg(tw.camera_info, t))
 
     def _publish_truth(self, gt: GroundTruth) -> None:
         t = gt.time_s
+        self._publish(self.pub_truth, String(data=json.dumps(truth_record(gt))))
         self.pub_robot.publish(pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
         self.pub_robot_cell.publish(Int32(data=gt.robot_cell or -1))
         if gt.person is not None:
@@ -208,15 +343,7 @@ class TwinBridge(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the bridge until interrupted."""
-    rclpy.init(args=args)
-    node = TwinBridge()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_node(TwinBridge, args)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,8 @@ Publishes:
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``follower`` sections),
 ``pose_source`` (odom | amcl), ``pose_topic`` (empty: the source's default),
 ``map_yaml``, ``control_rate_hz``, ``progress_rate_hz``, ``free_map_margin_m`` (the free
-map used when there is no map), ``map_frame``.
+map used when there is no map), ``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`:
+the control loop then runs on simulated clock ticks).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from stack.nav.follower import (
 )
 from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, load_map_yaml
 from stack.nav.waypoints import ActionOutcome, CellWaypoints, parse_action
+from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 POSE_SOURCES = {"odom": "/odom", "amcl": "/amcl_pose"}
@@ -143,25 +145,26 @@ class NavigationNode(Node):
         self._ticks = 0
         self._progress_every = max(1, round(rate_hz / progress_hz))
 
-        self.cmd_pub = self.create_publisher(Twist, topics["cmd_vel"], 10)
-        self.progress_pub = self.create_publisher(String, topics["progress"], 10)
-        self.result_pub = self.create_publisher(String, topics["result"], 10)
-        self.create_subscription(String, topics["action"], self.on_action, 10)
-        self.create_subscription(Int32, topics["action_id"], self.on_action_id, 10)
-        self.create_subscription(PoseStamped, topics["goal"], self.on_goal, 10)
-        self.create_subscription(PoseArray, topics["people"], self.on_people, 10)
-        self.create_subscription(Bool, topics["stop"], self.on_stop, 10)
+        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        self.cmd_pub = ls.publisher(Twist, topics["cmd_vel"], 10)
+        self.progress_pub = ls.publisher(String, topics["progress"], 10)
+        self.result_pub = ls.publisher(String, topics["result"], 10)
+        ls.subscription(String, topics["action"], self.on_action, 10)
+        ls.subscription(Int32, topics["action_id"], self.on_action_id, 10)
+        ls.subscription(PoseStamped, topics["goal"], self.on_goal, 10)
+        ls.subscription(PoseArray, topics["people"], self.on_people, 10)
+        ls.subscription(Bool, topics["stop"], self.on_stop, 10)
         pose_topic = pose_topic or POSE_SOURCES[source]
         pose_type = Odometry if source == "odom" else PoseWithCovarianceStamped
-        self.create_subscription(pose_type, pose_topic, self.on_pose, 10)
+        ls.subscription(pose_type, pose_topic, self.on_pose, 10)
         if not map_yaml:
             latched = QoSProfile(
                 depth=1,
                 durability=DurabilityPolicy.TRANSIENT_LOCAL,
                 reliability=ReliabilityPolicy.RELIABLE,
             )
-            self.create_subscription(OccupancyGrid, topics["map"], self.on_map, latched)
-        self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
+            ls.subscription(OccupancyGrid, topics["map"], self.on_map, latched)
+        ls.timer(1.0 / rate_hz, self.on_timer)
         self.get_logger().info(
             f"navigation: pose from {pose_topic} ({source}), map "
             f"{map_yaml or topics['map']}, {rate_hz:g} Hz"
@@ -169,7 +172,7 @@ class NavigationNode(Node):
 
     # -- inputs --------------------------------------------------------------
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self.lockstep.now_s()
 
     def on_pose(self, msg) -> None:
         pose = msg.pose.pose

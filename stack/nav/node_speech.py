@@ -16,7 +16,7 @@ Publishes:
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``speech`` sections),
 ``voice`` (overrides the file: "en", "pt"), ``out_dir`` (the run folder: WAV + log there
-instead of the sound card), ``poll_rate_hz``.
+instead of the sound card), ``poll_rate_hz``, ``lockstep`` (see :mod:`stack.ros_lockstep`).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from std_msgs.msg import Bool, String
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent, should_warn
+from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 
@@ -75,11 +76,12 @@ class SpeechNode(Node):
             self.speaker_error = str(exc)
             self.get_logger().error(f"speech disabled: {exc}")
         self._failed_id = 0
-        self.done_pub = self.create_publisher(String, topics["done"], 10)
-        self.speaking_pub = self.create_publisher(Bool, topics["speaking"], 10)
-        self.create_subscription(String, topics["result"], self.on_result, 10)
-        self.create_subscription(String, topics["person_cell"], self.on_person_cell, 10)
-        self.create_subscription(String, topics["say"], self.on_say, 10)
+        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        self.done_pub = ls.publisher(String, topics["done"], 10)
+        self.speaking_pub = ls.publisher(Bool, topics["speaking"], 10)
+        ls.subscription(String, topics["result"], self.on_result, 10)
+        ls.subscription(String, topics["person_cell"], self.on_person_cell, 10)
+        ls.subscription(String, topics["say"], self.on_say, 10)
         self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
         self.get_logger().info(
             f"speech: voice {config.voice!r}, policy {config.policy}, "
@@ -87,7 +89,7 @@ class SpeechNode(Node):
         )
 
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self.lockstep.now_s()
 
     def on_person_cell(self, msg: String) -> None:
         text = msg.data.strip()

@@ -14,7 +14,8 @@ Publishes:
     ``/perception/person_direction`` std_msgs/String: "North" ... "Not moving".
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``camera`` sections),
-``calibration_file`` (see :mod:`stack.perception.homography`; missing: every state is
+``lockstep`` (see :mod:`stack.ros_lockstep`), ``calibration_file`` (see
+:mod:`stack.perception.homography`; missing: every state is
 "unknown" and a warning is logged), ``image_topic``, ``map_frame``,
 ``frame_timeout_s``.
 """
@@ -37,6 +38,7 @@ from stack.perception.errors import BadFrameError, CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.messages import image_from_msg, stamp_to_s
 from stack.perception.observation import NO_PERSON
+from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 
@@ -53,6 +55,7 @@ class CameraPeopleNode(Node):
         self.frame_timeout_s = float(p("frame_timeout_s", 2.0).value)
         if not self.frame_timeout_s > 0:
             raise ConfigError("frame_timeout_s", self.frame_timeout_s, "must be > 0")
+        self.lockstep = Participant(self, p("lockstep", False).value)
         grid, sections = load_config_file(config_file)
         config = CameraConfig.from_dict(sections.get("camera"))
         homography = None
@@ -63,16 +66,17 @@ class CameraPeopleNode(Node):
         if homography is None and not calibration_file:
             self.get_logger().error("no calibration_file: person positions will be 'unknown'")
         self.tracker = CameraPeopleTracker(config, grid, homography)
-        self.pub_state = self.create_publisher(String, "/perception/person", 10)
-        self.pub_position = self.create_publisher(PointStamped, "/perception/person_position", 10)
-        self.pub_cell = self.create_publisher(String, "/perception/person_cell", 10)
-        self.pub_direction = self.create_publisher(String, "/perception/person_direction", 10)
-        self.create_subscription(Image, image_topic, self.on_image, qos_profile_sensor_data)
+        ls = self.lockstep
+        self.pub_state = ls.publisher(String, "/perception/person", 10)
+        self.pub_position = ls.publisher(PointStamped, "/perception/person_position", 10)
+        self.pub_cell = ls.publisher(String, "/perception/person_cell", 10)
+        self.pub_direction = ls.publisher(String, "/perception/person_direction", 10)
+        ls.subscription(Image, image_topic, self.on_image, qos_profile_sensor_data)
         self._last_frame_s = self._now_s()
-        self.create_timer(self.frame_timeout_s / 2.0, self.on_watchdog)
+        ls.timer(self.frame_timeout_s / 2.0, self.on_watchdog)
 
     def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self.lockstep.now_s()
 
     def on_image(self, msg: Image) -> None:
         self._last_frame_s = self._now_s()

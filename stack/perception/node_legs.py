@@ -16,7 +16,8 @@ Publishes:
 
 Parameters: ``config_file`` (YAML with optional ``legs``, ``tracker`` and
 ``observations`` sections), ``scan_topic``, ``odom_topic``, ``map_topic``,
-``map_frame``, ``laser_x_m``, ``laser_y_m``, ``laser_yaw_rad`` (the laser's mount on the
+``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`), ``laser_x_m``,
+``laser_y_m``, ``laser_yaw_rad`` (the laser's mount on the
 robot), ``max_pose_age_s`` (older poses make the scan unusable).
 """
 
@@ -43,6 +44,7 @@ from stack.perception.messages import (
 )
 from stack.perception.observation import CombinerConfig
 from stack.perception.tracker import LegTracker, TrackerConfig
+from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 
@@ -72,16 +74,18 @@ class LegsNode(Node):
         self.static_map = None
         self.pose: Pose2D | None = None
         self.pose_stamp_s = 0.0
-        self.pub_legs = self.create_publisher(String, "/perception/legs", 10)
-        self.pub_people = self.create_publisher(PoseArray, "/perception/leg_people", 10)
+        self._waiting_scan: tuple[float, LaserScan] | None = None
+        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        self.pub_legs = ls.publisher(String, "/perception/legs", 10)
+        self.pub_people = ls.publisher(PoseArray, "/perception/leg_people", 10)
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
-        self.create_subscription(OccupancyGrid, map_topic, self.on_map, latched)
-        self.create_subscription(Odometry, odom_topic, self.on_odom, 20)
-        self.create_subscription(LaserScan, scan_topic, self.on_scan, qos_profile_sensor_data)
+        ls.subscription(OccupancyGrid, map_topic, self.on_map, latched)
+        ls.subscription(Odometry, odom_topic, self.on_odom, 20)
+        ls.subscription(LaserScan, scan_topic, self.on_scan, qos_profile_sensor_data)
 
     def on_map(self, msg: OccupancyGrid) -> None:
         try:
@@ -95,8 +99,23 @@ class LegsNode(Node):
             self.pose_stamp_s = stamp_to_s(msg.header.stamp)
         except ValueError as err:
             self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
+            return
+        if self._waiting_scan is not None and self.pose_stamp_s >= self._waiting_scan[0]:
+            self.process_scan(self._waiting_scan[1])
 
     def on_scan(self, msg: LaserScan) -> None:
+        """Transform with the pose of the scan's instant: a scan that arrives before
+        that pose waits for it (at most one scan waits; a newer one replaces it)."""
+        stamp = stamp_to_s(msg.header.stamp)
+        if self.pose is not None and self.pose_stamp_s + 1e-6 < stamp:
+            if self._waiting_scan is not None:
+                self.process_scan(self._waiting_scan[1])  # its pose never came: use the last
+            self._waiting_scan = (stamp - 1e-6, msg)
+            return
+        self.process_scan(msg)
+
+    def process_scan(self, msg: LaserScan) -> None:
+        self._waiting_scan = None
         log = self.get_logger()
         if self.pose is None:
             log.warning("scan ignored: no robot pose yet", throttle_duration_sec=5.0)

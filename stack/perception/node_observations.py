@@ -19,7 +19,8 @@ Publishes (every ``decision_period_s`` and on request):
 
 Freshness is judged on this node's clock at reception, so publishers' stamps need
 not share its clock. Parameters: ``config_file`` (optional ``grid`` and
-``observations`` sections), ``decision_period_s`` (0: only on request), topic names.
+``observations`` sections), ``lockstep`` (see :mod:`stack.ros_lockstep`),
+``decision_period_s`` (0: only on request), topic names.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from stack.perception._config import load_config_file
 from stack.perception.legs import Pose2D
 from stack.perception.messages import camera_state_from_json, pose_from_msg, tracks_from_dict
 from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
+from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 
@@ -65,20 +67,21 @@ class ObservationsNode(Node):
         self.camera = None
         self.tracks = ()
         self.pose: Pose2D | None = None
+        ls = self.lockstep = Participant(self, p("lockstep", False).value)
         base = topics["observations"]
         self.pubs = {
-            name: self.create_publisher(String, base if name == "" else f"{base}/{name}", 10)
+            name: ls.publisher(String, base if name == "" else f"{base}/{name}", 10)
             for name in ("", "robot", "person", "velocity", "direction", "speed")
         }
-        self.create_subscription(String, topics["person"], self.on_person, 10)
-        self.create_subscription(String, topics["legs"], self.on_legs, 10)
-        self.create_subscription(Odometry, topics["odom"], self.on_odom, 20)
-        self.create_subscription(Empty, topics["request"], lambda _msg: self.publish_now(), 10)
+        ls.subscription(String, topics["person"], self.on_person, 10)
+        ls.subscription(String, topics["legs"], self.on_legs, 10)
+        ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
+        ls.subscription(Empty, topics["request"], lambda _msg: self.publish_now(), 10)
         if period_s > 0:
-            self.create_timer(period_s, self.publish_now)
+            ls.timer(period_s, self.publish_now)
 
     def _now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self.lockstep.now_s()
 
     def on_person(self, msg: String) -> None:
         try:

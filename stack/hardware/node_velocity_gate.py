@@ -1,0 +1,191 @@
+"""The velocity gate node: navigation's commands in, capped and armed commands to the base.
+
+In hardware mode the navigation node publishes on ``/nav/cmd_vel`` and only this node
+talks to the robot's base driver. It forwards a command only while an operator has
+armed it, caps the planar speed and the yaw rate, and sends zeros when commands stop
+arriving (see :mod:`stack.hardware.velocity_gate`).
+
+Arming: ``ros2 param set /velocity_gate armed true`` or publish true on ``/arm``; false
+(either way) disarms and sends a zero at once. The ``armed`` parameter always shows the
+gate's state, whichever way it was set.
+
+Subscribes (names are parameters):
+    ``/nav/cmd_vel`` geometry_msgs/Twist (``input_topic``): the commands to gate.
+    ``/arm`` std_msgs/Bool (``arm_topic``).
+
+Publishes:
+    ``/cmd_vel`` geometry_msgs/Twist (``output_topic``): each accepted command (capped) as
+        it arrives; zeros at once when disarmed, on a non-finite command and when
+        commands go stale, then zeros at 2 Hz while not armed or stale.
+    ``/safety/state`` std_msgs/String (``state_topic``): JSON {armed, reason,
+        max_linear_mps, max_angular_radps}; on every change of armed or of moving/zero,
+        and at 2 Hz.
+
+Parameters: ``config_file`` (YAML with a ``velocity_gate:`` section, keys as
+:class:`GateConfig`); each key of that section is also a read-only parameter
+(``max_linear_mps``, ``max_angular_radps``, ``cmd_timeout_s``, ``require_arming``) whose
+value overrides the file's; ``armed`` (default false; true when ``require_arming`` is
+false), ``rate_hz`` (20, the stale check), the topics above.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+from geometry_msgs.msg import Twist
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Bool, String
+
+from stack.cells import ConfigError
+from stack.hardware._config import coerce, read_section
+from stack.hardware.velocity_gate import CAPPED, OK, ZERO, GateConfig, VelocityGate
+from stack.ros_main import spin_node
+
+REPEAT_PERIOD_S = 0.5  # zeros and state while idle: 2 Hz
+
+
+def twist_msg(cmd: tuple[float, float, float]) -> Twist:
+    msg = Twist()
+    msg.linear.x, msg.linear.y, msg.angular.z = (float(v) for v in cmd)
+    return msg
+
+
+class VelocityGateNode(Node):
+    """Arms, caps and times out the base's velocity commands."""
+
+    def __init__(self, **kwargs):
+        super().__init__("velocity_gate", **kwargs)
+        p = self.declare_parameter
+        config_file = p("config_file", "").value
+        section = read_section(config_file, "velocity_gate")
+        read_only = ParameterDescriptor(read_only=True)
+        values = {}
+        for f in dataclasses.fields(GateConfig):
+            start = coerce(f"velocity_gate.{f.name}", section.get(f.name, f.default), f.default)
+            values[f.name] = p(f.name, start, read_only).value
+        self.config = GateConfig.from_dict(values)
+        rate_hz = p("rate_hz", 20.0).value
+        if not rate_hz > 0:
+            raise ConfigError("rate_hz", rate_hz, "must be > 0")
+        topics = {
+            name: p(f"{name}_topic", default).value
+            for name, default in (
+                ("input", "/nav/cmd_vel"),
+                ("output", "/cmd_vel"),
+                ("arm", "/arm"),
+                ("state", "/safety/state"),
+            )
+        }
+        self.gate = VelocityGate(self.config)
+        armed = p("armed", self.gate.armed).value
+        self.cmd_pub = self.create_publisher(Twist, topics["output"], 10)
+        self.state_pub = self.create_publisher(String, topics["state"], 10)
+        self._moving = False  # the last output published was a forwarded command
+        self._last_zero_s = -1e9
+        self._last_state: tuple | None = None
+        self._last_state_s = -1e9
+        self.add_on_set_parameters_callback(self._check_params)
+        self.add_post_set_parameters_callback(self._params_set)
+        self.set_armed(bool(armed))
+        self.create_subscription(Twist, topics["input"], self.on_cmd, 10)
+        self.create_subscription(Bool, topics["arm"], self.on_arm, 10)
+        self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
+        c = self.config
+        self.get_logger().info(
+            f"velocity_gate: {topics['input']} -> {topics['output']}, caps "
+            f"{c.max_linear_mps:g} m/s, {c.max_angular_radps:g} rad/s, timeout "
+            f"{c.cmd_timeout_s:g} s, {'armed' if self.gate.armed else 'NOT armed'}"
+        )
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # -- arming -------------------------------------------------------------------
+    def _check_params(self, params: list[Parameter]) -> SetParametersResult:
+        for param in params:
+            if param.name == "armed" and param.type_ != Parameter.Type.BOOL:
+                return SetParametersResult(successful=False, reason="armed is true or false")
+        return SetParametersResult(successful=True)
+
+    def _params_set(self, params: list[Parameter]) -> None:
+        for param in params:
+            if param.name == "armed":
+                self.set_armed(bool(param.value))
+
+    def on_arm(self, msg: Bool) -> None:
+        # through the parameter, so that `ros2 param get armed` always tells the truth
+        self.set_parameters([Parameter("armed", Parameter.Type.BOOL, bool(msg.data))])
+
+    def set_armed(self, armed: bool) -> None:
+        starting = self._last_state is None
+        if armed == self.gate.armed and not starting:
+            return
+        self.gate.arm(armed, self.now_s())
+        if armed:
+            self.get_logger().warning("ARMED: forwarding velocity commands")
+        elif not starting:
+            self.get_logger().info("disarmed: zero velocity")
+        self.publish_zero()
+        self.publish_state(force=True)
+
+    # -- commands -----------------------------------------------------------------
+    def on_cmd(self, msg: Twist) -> None:
+        out = self.gate.command(msg.linear.x, msg.linear.y, msg.angular.z, self.now_s())
+        reason = self.gate.state.reason
+        if reason in (OK, CAPPED):
+            self.cmd_pub.publish(twist_msg(out))
+            if not self._moving:
+                self._moving = True
+                self.publish_state(force=True)
+            return
+        if reason != "not armed":  # a non-finite command: stop now
+            self.get_logger().warning(
+                f"non-finite command ({msg.linear.x}, {msg.linear.y}, {msg.angular.z}): zero",
+                throttle_duration_sec=5.0,
+            )
+            self.publish_zero()
+            self.publish_state(force=True)
+
+    def on_timer(self) -> None:
+        now = self.now_s()
+        out = self.gate.tick(now)
+        if out == ZERO and self.gate.state.reason not in (OK, CAPPED):
+            if self._moving:
+                self.get_logger().info(f"{self.gate.state.reason}: zero velocity")
+                self.publish_zero()
+                self.publish_state(force=True)
+            elif now - self._last_zero_s >= REPEAT_PERIOD_S:
+                self.publish_zero()
+        self.publish_state()
+
+    def publish_zero(self) -> None:
+        self.cmd_pub.publish(twist_msg(ZERO))
+        self._moving = False
+        self._last_zero_s = self.now_s()
+
+    def publish_state(self, force: bool = False) -> None:
+        now = self.now_s()
+        state = self.gate.state
+        if not force and now - self._last_state_s < REPEAT_PERIOD_S:
+            return
+        self._last_state = (state.armed, state.reason)
+        self._last_state_s = now
+        body = {
+            "armed": state.armed,
+            "reason": state.reason,
+            "max_linear_mps": self.config.max_linear_mps,
+            "max_angular_radps": self.config.max_angular_radps,
+        }
+        self.state_pub.publish(String(data=json.dumps(body)))
+
+
+def main(args=None) -> None:
+    # leave the base standing still on the way out
+    spin_node(VelocityGateNode, args, on_exit=lambda n: n.cmd_pub.publish(twist_msg(ZERO)))
+
+
+if __name__ == "__main__":
+    main()

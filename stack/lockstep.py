@@ -1,0 +1,241 @@
+"""Lock-step time: the twin advances only when the stack has consumed what it sent.
+
+Pure bookkeeping, no rclpy (the ROS side is :mod:`stack.ros_lockstep`).
+
+The protocol counts messages. Every lock-step participant (a stack node) keeps, per
+topic, how many messages it has *received and fully processed* and how many it has
+*sent*, and after each callback publishes both counts in an acknowledgement. A
+callback's sends are counted before its receive is acknowledged, so one
+acknowledgement that shows a message as received also shows every message its
+processing caused. The coordinator (the twin bridge) sums the sends of every topic
+(its own included) and calls the system *quiescent* when each participant that
+subscribes to a topic has received exactly that many. Then nothing is in flight or
+being processed anywhere and the next tick can start: whatever the machine's speed,
+each node sees the same messages in the same state, so a run is repeatable.
+
+Every chain of work starts at the coordinator's publications (its clock and sensor
+messages), so a stale acknowledgement can only under-count receives, never make an
+unfinished system look finished.
+
+Faults: a participant that restarts (new ``incarnation``) or loses messages would
+leave the sums unbalanced forever; :meth:`Ledger.forgive` rebases it after a stall,
+and a participant silent for too long is excused until it speaks again.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+ACK_TOPIC = "/lockstep/ack"
+CATCH_UP_S = 5.0
+
+
+@dataclass
+class Ack:
+    """One participant's counts: what it processed and what it sent, per topic.
+
+    Attributes:
+        node: the participant's name (unique in the system).
+        incarnation: changes when the process restarts.
+        recv: topic -> messages received and processed.
+        sent: topic -> messages published.
+        matched: topic -> subscriptions matched by this participant's publisher.
+    """
+
+    node: str
+    incarnation: str
+    recv: dict[str, int] = field(default_factory=dict)
+    sent: dict[str, int] = field(default_factory=dict)
+    matched: dict[str, int] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "node": self.node,
+                "incarnation": self.incarnation,
+                "recv": self.recv,
+                "sent": self.sent,
+                "matched": self.matched,
+            },
+            sort_keys=True,
+        )
+
+    @classmethod
+    def from_json(cls, text: str) -> Ack:
+        """Parse an acknowledgement.
+
+        Raises:
+            ValueError: not JSON, or a field of the wrong type.
+        """
+        data = json.loads(text)
+        if not isinstance(data, dict) or not isinstance(data.get("node"), str):
+            raise ValueError(f"lock-step ack without a node name: {text[:80]!r}")
+        out = cls(str(data["node"]), str(data.get("incarnation", "")))
+        for name in ("recv", "sent", "matched"):
+            counts = data.get(name, {})
+            if not isinstance(counts, dict) or not all(
+                isinstance(k, str) and isinstance(v, int) and v >= 0 for k, v in counts.items()
+            ):
+                raise ValueError(f"lock-step ack from {out.node}: bad {name} counts")
+            setattr(out, name, dict(counts))
+        return out
+
+
+@dataclass
+class _Member:
+    ack: Ack
+    offset: dict[str, int] = field(default_factory=dict)  # messages it will never see
+    last_heard_s: float = 0.0
+    excused: bool = False
+    rebased_s: float = -1e9  # when its counts were last rebased (wall clock)
+
+
+class Ledger:
+    """The coordinator's view of every participant's counts.
+
+    Args:
+        expected: participants that must be present before the first tick.
+    """
+
+    def __init__(self, expected: tuple[str, ...] = ()):
+        self.expected = tuple(expected)
+        self.members: dict[str, _Member] = {}
+        self.own_sent: dict[str, int] = defaultdict(int)
+        self.own_recv: dict[str, int] = defaultdict(int)
+        self.own_subscribes: set[str] = set()
+        self.retired_sent: dict[str, int] = defaultdict(int)
+        self.events: list[str] = []  # restarts, excuses: for the log
+
+    # -- the coordinator's own traffic ----------------------------------------------
+    def sent(self, topic: str, n: int = 1) -> None:
+        self.own_sent[topic] += n
+
+    def received(self, topic: str) -> None:
+        self.own_recv[topic] += 1
+
+    def subscribe(self, topic: str) -> None:
+        """The coordinator itself consumes ``topic`` (e.g. /cmd_vel)."""
+        self.own_subscribes.add(topic)
+
+    # -- participants ---------------------------------------------------------------
+    def update(self, ack: Ack, now_s: float) -> None:
+        """Record a participant's latest counts (a restart is noticed and rebased)."""
+        member = self.members.get(ack.node)
+        if member is None:
+            self.members[ack.node] = _Member(ack, last_heard_s=now_s)
+            return
+        if member.ack.incarnation != ack.incarnation:
+            for topic, n in member.ack.sent.items():
+                self.retired_sent[topic] += n
+            self.events.append(f"{ack.node} restarted")
+            member.ack = ack
+            member.offset = {}
+            member.excused = False
+            member.last_heard_s = now_s
+            self._rebase(member)
+            return
+        member.ack = ack
+        member.last_heard_s = now_s
+        if member.excused:
+            member.excused = False
+            self._rebase(member)
+            self.events.append(f"{ack.node} is back")
+
+    def total_sent(self, topic: str) -> int:
+        total = self.own_sent.get(topic, 0) + self.retired_sent.get(topic, 0)
+        return total + sum(m.ack.sent.get(topic, 0) for m in self.members.values())
+
+    def _expected_recv(self, member: _Member, topic: str) -> int:
+        return self.total_sent(topic) - member.offset.get(topic, 0)
+
+    def _rebase(self, member: _Member) -> None:
+        """Forgive what ``member`` missed: count it as balanced as of now."""
+        member.rebased_s = member.last_heard_s
+        for topic in member.ack.recv:
+            member.offset[topic] = self.total_sent(topic) - member.ack.recv[topic]
+
+    def missing(self) -> list[str]:
+        """Expected participants not heard from yet."""
+        return [n for n in self.expected if n not in self.members]
+
+    def unmatched(self, own_matched: dict[str, int]) -> list[str]:
+        """Publishers whose subscriptions are not all matched yet.
+
+        Args:
+            own_matched: the coordinator's publishers' subscription counts.
+        """
+        subscribers: dict[str, int] = defaultdict(int)
+        for m in self.members.values():
+            for topic in m.ack.recv:
+                subscribers[topic] += 1
+        out = []
+        publishers = [("coordinator", own_matched)] + [
+            (name, m.ack.matched) for name, m in self.members.items()
+        ]
+        for name, matched in publishers:
+            for topic, count in matched.items():
+                if count < subscribers.get(topic, 0):
+                    out.append(f"{name} -> {topic} ({count}/{subscribers[topic]} subscribers)")
+        return out
+
+    def pending(self) -> list[str]:
+        """What keeps the system from being quiescent ([] when it is).
+
+        A participant that received more than the known sends is ahead of a sender's
+        acknowledgement (pending too), unless it was rebased in the last
+        ``CATCH_UP_S``: then it is still receiving what was in flight at the rebase.
+        """
+        out = []
+        for name, m in sorted(self.members.items()):
+            if m.excused:
+                continue
+            for topic, got in sorted(m.ack.recv.items()):
+                want = self._expected_recv(m, topic)
+                if got > want and m.last_heard_s - m.rebased_s < CATCH_UP_S:
+                    m.offset[topic] = self.total_sent(topic) - got
+                elif got != want:
+                    out.append(f"{name} {topic} {got}/{want}")
+        for topic in sorted(self.own_subscribes):
+            got, want = self.own_recv.get(topic, 0), self.total_sent(topic)
+            if got < want:
+                out.append(f"coordinator {topic} {got}/{want}")
+        return out
+
+    def quiescent(self) -> bool:
+        return not self.pending()
+
+    def stalled_members(self) -> list[str]:
+        """Participants named in :meth:`pending`."""
+        names = {p.split(" ", 1)[0] for p in self.pending()}
+        return sorted(n for n in names if n in self.members)
+
+    def forgive(self, names: list[str], now_s: float, silent_after_s: float) -> list[str]:
+        """Give up waiting for ``names``: rebase them; excuse those silent too long.
+
+        Returns:
+            What was done, one line per participant, for the log.
+        """
+        out = []
+        for name in names:
+            m = self.members.get(name)
+            if m is None:
+                continue
+            if now_s - m.last_heard_s > silent_after_s:
+                m.excused = True
+                out.append(f"{name} silent for {now_s - m.last_heard_s:.1f} s: excused")
+            else:
+                self._rebase(m)
+                out.append(f"{name} lost messages: counts rebased")
+        self.events.extend(out)
+        return out
+
+    def snapshot(self) -> dict[str, Any]:
+        """Counts for a status message or a log."""
+        return {
+            "members": sorted(self.members),
+            "excused": sorted(n for n, m in self.members.items() if m.excused),
+            "pending": self.pending(),
+        }

@@ -1,0 +1,236 @@
+"""The planner at run time: a policy, a belief, and one decision per step (section 4.3).
+
+Pure (no rclpy): :mod:`stack.planning.node_planner` adapts it to ROS.
+
+A step is: choose an action from the current belief, let the robot carry it out,
+read the observations (robot cell, person cell, person velocity), update the belief.
+The agent's whole state (belief, step, phase, last action) is a small JSON document
+that is written atomically after every change, so a restarted planner resumes where
+it stopped instead of from the initial belief.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stack.planning import belief as belief_ops
+from stack.planning.model import ACTIONS, DIRECTIONS, OUT_OF_MAP, VELOCITIES, FactoredModel
+from stack.planning.policy import AlphaPolicy
+from stack.planning.pomdp import POMDP
+from stack.planning.replay import policy_chooser
+
+
+class ObservationError(ValueError):
+    """An observation the planner cannot use (unknown label), named in the message."""
+
+
+class StateFileError(ValueError):
+    """A planner state file that does not belong to this model or is unreadable."""
+
+
+@dataclass(frozen=True)
+class Observed:
+    """One step's observations as labels (as the thesis's tables print them)."""
+
+    robot: str  # "1".."12" or "Out of the map"
+    person: str  # "1".."12" or "No person"
+    velocity: str  # "Not moving" or "East higher", ...
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Observed:
+        """Parse the observations node's JSON object.
+
+        Raises:
+            ObservationError: a missing key or a label of the wrong type.
+        """
+        if not isinstance(data, dict):
+            raise ObservationError(f"observation must be an object, got {type(data).__name__}")
+        try:
+            return cls(str(data["robot"]), str(data["person"]), str(data["velocity"]))
+        except KeyError as err:
+            raise ObservationError(f"observation without {err.args[0]!r}: {data}") from None
+
+    def to_dict(self) -> dict[str, str]:
+        return {"robot": self.robot, "person": self.person, "velocity": self.velocity}
+
+
+def _cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
+    if label == none_label:
+        return None
+    if label.isdigit() and int(label) in cells:
+        return int(label)
+    raise ObservationError(
+        f"unknown {what} {label!r}: a cell {cells[0]}..{cells[-1]} or {none_label!r}"
+    )
+
+
+def model_fingerprint(pomdp: POMDP) -> str:
+    """A short hash of the model's reward and initial belief sizes (state file check)."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(pomdp.R).tobytes())
+    h.update(str((pomdp.n_states, pomdp.n_actions, pomdp.n_observations)).encode())
+    return h.hexdigest()[:16]
+
+
+class PlannerAgent:
+    """Belief tracking and action choice for one deployment.
+
+    Args:
+        model, pomdp: the factored and flat task model.
+        policy: alpha vectors for ``pomdp``.
+        initial_belief: the belief before the first step (default: the task's).
+        tie_tolerance: actions within this fraction of the best are ties; ties prefer
+            "Do nothing" (see :func:`stack.planning.replay.policy_chooser`).
+    """
+
+    def __init__(
+        self,
+        model: FactoredModel,
+        pomdp: POMDP,
+        policy: AlphaPolicy,
+        initial_belief: np.ndarray | None = None,
+        tie_tolerance: float = 0.005,
+    ):
+        self.model, self.pomdp, self.policy = model, pomdp, policy
+        self._choose = policy_chooser(policy, pomdp, lookahead=True, tie_tolerance=tie_tolerance)
+        b0 = pomdp.b0 if initial_belief is None else np.asarray(initial_belief, float)
+        if b0.shape != (pomdp.n_states,) or not np.isclose(b0.sum(), 1.0):
+            raise ValueError(f"initial belief must be {pomdp.n_states} probabilities summing to 1")
+        self.belief = b0.copy()
+        self.step = 0  # steps completed (observed)
+        self.phase = "start"  # start | acting | observing | done
+        self.action: int | None = None  # the action of the step under way
+        self.values: list[float] = []
+        self.fingerprint = model_fingerprint(pomdp)
+
+    # -- deciding --------------------------------------------------------------------
+    def decide(self) -> int:
+        """Choose the next action from the current belief; the step is now under way."""
+        a, q = self._choose(self.belief)
+        self.action, self.values = int(a), [float(v) for v in q]
+        self.phase = "acting"
+        return self.action
+
+    def observe(self, observed: Observed) -> dict[str, Any]:
+        """Update the belief with the observations that followed the current action.
+
+        An observation the model gives zero probability (e.g. the person seen two cells
+        from where it could be) does not stop the robot: the belief restarts from what
+        was observed, and the record says so.
+
+        Returns:
+            The step's record (see :meth:`record`).
+
+        Raises:
+            ObservationError: a label the model does not know; the belief is unchanged.
+            RuntimeError: no action is under way.
+        """
+        if self.action is None:
+            raise RuntimeError("observe() without an action under way; call decide() first")
+        z, robot, person, direction = self._observation_index(observed)
+        note = None
+        try:
+            self.belief = belief_ops.update(self.pomdp, self.belief, self.action, z)
+        except belief_ops.ZeroProbabilityObservation:
+            note = "observation impossible under the model: belief restarted from it"
+            self.belief = self.model.initial_belief(
+                robot, [(person, direction)] * self.model.people
+            )
+        self.step += 1
+        record = self.record(observed, note)
+        self.phase = "observing"  # until the next decide()
+        return record
+
+    def _observation_index(self, o: Observed) -> tuple[int, int | None, int | None, str]:
+        cells = self.model.task.grid.cells
+        robot = _cell(o.robot, OUT_OF_MAP, "robot cell", cells)
+        person = _cell(o.person, "No person", "person cell", cells)
+        if o.velocity not in VELOCITIES:
+            raise ObservationError(f"unknown velocity {o.velocity!r}; known: {VELOCITIES}")
+        direction = o.velocity.split(" ")[0] if o.velocity != "Not moving" else "Not moving"
+        z = self.model.observation_index(robot, [(person, o.velocity)] * self.model.people)
+        return z, robot, person, direction
+
+    # -- what the node publishes ------------------------------------------------------
+    def marginals(self) -> dict[str, dict[str, float]]:
+        """The belief per variable: robot cell, and each person's cell and direction."""
+        t = self.belief.reshape(self.model.state_shape)
+        n = self.model.n_cells
+        axes = range(t.ndim)
+        out = {"robot": self._labelled(t.sum(axis=tuple(a for a in axes if a != 0)), "robot")}
+        for i in range(self.model.people):
+            suffix = "" if self.model.people == 1 else f"_{i + 1}"
+            pa, da = 1 + 2 * i, 2 + 2 * i
+            out["person" + suffix] = self._labelled(
+                t.sum(axis=tuple(a for a in axes if a != pa)), "person"
+            )
+            d = t.sum(axis=tuple(a for a in axes if a != da))
+            out["direction" + suffix] = {DIRECTIONS[k]: round(float(d[k]), 6) for k in range(5)}
+        assert len(out["robot"]) == n + 1
+        return out
+
+    def _labelled(self, p: np.ndarray, what: str) -> dict[str, float]:
+        label = self.model.robot_label if what == "robot" else self.model.position_label
+        return {label(i): round(float(v), 6) for i, v in enumerate(p)}
+
+    def record(self, observed: Observed | None, note: str | None = None) -> dict[str, Any]:
+        """The step's record: step, action, observations, belief after them, values."""
+        return {
+            "step": self.step,
+            "action": ACTIONS[self.action] if self.action is not None else None,
+            "observation": observed.to_dict() if observed else None,
+            "belief": self.marginals(),
+            "values": [round(v, 4) for v in self.values],
+            "note": note,
+        }
+
+    # -- persistence ------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        return {
+            "fingerprint": self.fingerprint,
+            "step": self.step,
+            "phase": self.phase,
+            "action": self.action,
+            "values": self.values,
+            "belief": [float(v) for v in self.belief],
+        }
+
+    def save(self, path: str | Path) -> None:
+        """Write the state atomically (a crash mid-write leaves the old file intact)."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.state()))
+        os.replace(tmp, path)
+
+    def restore(self, path: str | Path) -> bool:
+        """Resume from a state file; False when there is none.
+
+        Raises:
+            StateFileError: unreadable, or written for another model.
+        """
+        path = Path(path)
+        if not path.exists():
+            return False
+        try:
+            data = json.loads(path.read_text())
+            belief = np.asarray(data["belief"], float)
+            step, phase, action = int(data["step"]), str(data["phase"]), data["action"]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise StateFileError(f"{path}: unreadable planner state ({err})") from None
+        if data.get("fingerprint") != self.fingerprint:
+            raise StateFileError(f"{path}: planner state of another model")
+        if belief.shape != (self.pomdp.n_states,) or not np.isclose(belief.sum(), 1.0):
+            raise StateFileError(f"{path}: the belief is not a distribution over the states")
+        if phase not in ("start", "acting", "observing", "done"):
+            raise StateFileError(f"{path}: unknown phase {phase!r}")
+        self.belief, self.step, self.phase = belief, step, phase
+        self.action = None if action is None else int(action)
+        self.values = [float(v) for v in data.get("values", [])]
+        return True

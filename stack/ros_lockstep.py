@@ -1,0 +1,164 @@
+"""A node's side of lock-step time (see :mod:`stack.lockstep` for the protocol).
+
+Kept apart from the algorithm packages: only node files import it.
+
+A node builds one :class:`Participant` and creates its publishers and subscriptions
+through it. Disabled (real time, the robot), they are the plain rclpy objects.
+Enabled, every subscription callback is followed by an acknowledgement of the counts,
+subscriptions are made reliable (a lost message would stall the twin), and the node's
+time is the coordinator's ``/clock`` as this participant last processed it, so a
+callback reads the same time whatever the machine's speed::
+
+    self.lockstep = Participant(self, enabled=p("lockstep", False).value)
+    self.pub = self.lockstep.publisher(String, "/out", 10)
+    self.lockstep.subscription(String, "/in", self.on_in, 10)
+    ... self.lockstep.now_s() ...
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_msgs.msg import String
+
+from stack.lockstep import ACK_TOPIC, Ack
+
+HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
+
+
+def _reliable(qos: QoSProfile | int) -> QoSProfile | int:
+    if isinstance(qos, int):
+        return qos  # a depth: rclpy makes it reliable
+    return QoSProfile(
+        depth=max(qos.depth, 10),
+        history=qos.history,
+        durability=qos.durability,
+        reliability=ReliabilityPolicy.RELIABLE,
+    )
+
+
+class _CountingPublisher:
+    """A publisher that counts what it sends (same ``publish`` as rclpy's)."""
+
+    def __init__(self, participant: Participant, publisher):
+        self._participant = participant
+        self._pub = publisher
+        self.topic_name = publisher.topic_name
+
+    def publish(self, msg: Any) -> None:
+        self._pub.publish(msg)
+        self._participant.sent[self.topic_name] += 1
+        if not self._participant.in_callback:  # a timer's send: tell the coordinator now
+            self._participant.ack()
+
+    def get_subscription_count(self) -> int:
+        return self._pub.get_subscription_count()
+
+
+class Participant:
+    """Counts a node's traffic and acknowledges it to the lock-step coordinator.
+
+    Args:
+        node: the node.
+        enabled: lock-step on; off gives plain publishers and subscriptions.
+        clock_topic: the coordinator's clock (subscribed when enabled).
+    """
+
+    def __init__(self, node: Node, enabled: bool, clock_topic: str = "/clock"):
+        self.node = node
+        self.enabled = bool(enabled)
+        self.recv: dict[str, int] = defaultdict(int)
+        self.sent: dict[str, int] = defaultdict(int)
+        self._publishers: list[_CountingPublisher] = []
+        self._clock_s: float | None = None
+        self._on_clock: list[Callable[[float], None]] = []
+        self.incarnation = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.in_callback = False
+        if not self.enabled:
+            return
+        self._ack_pub = node.create_publisher(String, ACK_TOPIC, 50)
+        self.subscription(ClockMsg, clock_topic, self._clock_cb, 10)
+        wall = Clock(clock_type=ClockType.STEADY_TIME)
+        node.create_timer(HEARTBEAT_S, self.ack, clock=wall)
+
+    # -- time -------------------------------------------------------------------------
+    def now_s(self) -> float:
+        """Lock-step: the last processed ``/clock``; otherwise the node's clock."""
+        if self.enabled:
+            return self._clock_s if self._clock_s is not None else 0.0
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def on_clock(self, callback: Callable[[float], None]) -> None:
+        """Call ``callback(t_s)`` on every lock-step clock tick (a timer's stand-in)."""
+        self._on_clock.append(callback)
+
+    def timer(self, period_s: float, callback: Callable[[], None]) -> None:
+        """A periodic callback: on lock-step clock ticks (simulated time) when enabled,
+        else an rclpy timer on the node's clock."""
+        if not self.enabled:
+            self.node.create_timer(period_s, callback)
+            return
+        due = {"next": None}
+
+        def on_tick(t_s: float) -> None:
+            if due["next"] is None:
+                due["next"] = t_s
+            if t_s + 1e-9 >= due["next"]:
+                while due["next"] <= t_s + 1e-9:
+                    due["next"] += period_s
+                callback()
+
+        self._on_clock.append(on_tick)
+
+    def _clock_cb(self, msg: ClockMsg) -> None:
+        self._clock_s = msg.clock.sec + msg.clock.nanosec * 1e-9
+        for cb in self._on_clock:
+            cb(self._clock_s)
+
+    # -- traffic ----------------------------------------------------------------------
+    def publisher(self, msg_type, topic: str, qos: QoSProfile | int):
+        pub = self.node.create_publisher(msg_type, topic, qos)
+        if not self.enabled:
+            return pub
+        counting = _CountingPublisher(self, pub)
+        self._publishers.append(counting)
+        return counting
+
+    def subscription(self, msg_type, topic: str, callback: Callable, qos: QoSProfile | int):
+        if not self.enabled:
+            return self.node.create_subscription(msg_type, topic, callback, qos)
+        holder: dict[str, str] = {}
+
+        def counted(msg) -> None:
+            self.in_callback = True
+            try:
+                callback(msg)
+            finally:
+                self.in_callback = False
+                self.recv[holder["topic"]] += 1
+                self.ack()
+
+        sub = self.node.create_subscription(msg_type, topic, counted, _reliable(qos))
+        holder["topic"] = sub.topic_name
+        self.recv[sub.topic_name] += 0  # declare the subscription in every ack
+        return sub
+
+    def ack(self) -> None:
+        if not self.enabled:
+            return
+        ack = Ack(
+            self.node.get_name(),
+            self.incarnation,
+            dict(self.recv),
+            dict(self.sent),
+            {p.topic_name: p.get_subscription_count() for p in self._publishers},
+        )
+        self._ack_pub.publish(String(data=ack.to_json()))

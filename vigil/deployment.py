@@ -1,0 +1,242 @@
+"""One validated YAML file per deployment: ``config/twin.yaml``, ``config/hardware.yaml``.
+
+The file says where the stack runs (``mode: twin`` or ``mode: hardware``), which task
+and policy it plans with, and how each node is set up. Paths are relative to the
+file. Every key is checked; an unknown key, a wrong type or a twin-only setting in
+hardware mode is a :class:`stack.cells.ConfigError` naming the key.
+
+Sections (all optional except ``mode`` and ``task``)::
+
+    mode: twin | hardware
+    task: task-r2.yaml            # the POMDP (grid, rewards, initial state)
+    policy: ""                    # alpha vectors (.npz); "": solved on first use, cached
+    lockstep: true                # twin only: advance only when the stack has caught up
+    ros: {domain_id: null, localhost_only: true}
+    twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 20.0}
+    perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
+    navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0}
+    speech: {voice: en}
+    planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
+    nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
+    topics: {scan: /scan, odom: /odom, cmd_vel: /cmd_vel}
+    hardware: {camera_stream: {...}, velocity_gate: {...}, armed: false}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from stack.cells import ConfigError
+from stack.perception._config import from_mapping
+
+MODES = ("twin", "hardware")
+TWIN_ONLY = ("twin", "lockstep")
+
+
+@dataclass(frozen=True)
+class RosSection:
+    domain_id: int = -1  # -1: keep ROS_DOMAIN_ID of the environment
+    localhost_only: bool = True
+
+    def __post_init__(self) -> None:
+        if not -1 <= self.domain_id <= 232:
+            raise ConfigError("domain_id", self.domain_id, "must be in [0, 232] (or -1)")
+
+
+@dataclass(frozen=True)
+class TwinSection:
+    scene: str = "twin-scene.yaml"
+    seed: int = 0
+    realtime: bool = False
+    odom_rate_hz: float = 20.0
+    stall_timeout_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        if not self.odom_rate_hz > 0:
+            raise ConfigError("odom_rate_hz", self.odom_rate_hz, "must be > 0")
+
+
+@dataclass(frozen=True)
+class PerceptionSection:
+    config: str = ""
+    calibration: str = ""
+
+
+@dataclass(frozen=True)
+class NavigationSection:
+    config: str = ""
+    pose_source: str = "odom"
+    pose_topic: str = ""
+    control_rate_hz: float = 20.0
+
+    def __post_init__(self) -> None:
+        if self.pose_source not in ("odom", "amcl"):
+            raise ConfigError("pose_source", self.pose_source, "must be odom or amcl")
+
+
+@dataclass(frozen=True)
+class SpeechSection:
+    voice: str = "en"
+
+
+@dataclass(frozen=True)
+class PlannerSection:
+    max_steps: int = 0
+    start_delay_s: float = 1.0
+    nav_timeout_s: float = 60.0
+    obs_timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 0:
+            raise ConfigError("max_steps", self.max_steps, "must be >= 0 (0: no end)")
+        for name in ("nav_timeout_s", "obs_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(name, getattr(self, name), "must be > 0")
+
+
+@dataclass(frozen=True)
+class NodesSection:
+    restart: bool = True
+    max_restarts: int = 3
+    stop_timeout_s: float = 5.0
+
+
+@dataclass(frozen=True)
+class TopicsSection:
+    scan: str = "/scan"
+    odom: str = "/odom"
+    cmd_vel: str = "/cmd_vel"
+
+
+@dataclass(frozen=True)
+class Deployment:
+    """A validated deployment file (paths resolved to absolute)."""
+
+    mode: str
+    task: Path
+    policy: Path | None
+    lockstep: bool
+    ros: RosSection
+    twin: TwinSection
+    perception: PerceptionSection
+    navigation: NavigationSection
+    speech: SpeechSection
+    planner: PlannerSection
+    nodes: NodesSection
+    topics: TopicsSection
+    hardware: dict[str, Any] = field(default_factory=dict)
+    source: Path | None = None
+
+    def resolve(self, path: str) -> Path | None:
+        """A path of the file, relative to the file's folder ("" -> None)."""
+        if not path:
+            return None
+        p = Path(path)
+        return p if p.is_absolute() or self.source is None else self.source.parent / p
+
+    def with_changes(self, **changes: Any) -> Deployment:
+        return replace(self, **changes)
+
+
+_SECTIONS = {
+    "ros": RosSection,
+    "twin": TwinSection,
+    "perception": PerceptionSection,
+    "navigation": NavigationSection,
+    "speech": SpeechSection,
+    "planner": PlannerSection,
+    "nodes": NodesSection,
+    "topics": TopicsSection,
+}
+_KEYS = {"mode", "task", "policy", "lockstep", "hardware", *_SECTIONS}
+
+
+def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
+    """Validate a deployment mapping.
+
+    Raises:
+        ConfigError: naming the key, the value and the rule.
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError("<file>", type(data).__name__, "must hold a mapping")
+    for k in data:
+        if k not in _KEYS:
+            raise ConfigError(str(k), data[k], f"unknown key (known: {sorted(_KEYS)})")
+    mode = data.get("mode")
+    if mode not in MODES:
+        raise ConfigError("mode", mode, f"must be one of {MODES}")
+    if mode == "hardware":
+        for k in TWIN_ONLY:
+            if k in data and data[k]:
+                raise ConfigError(k, data[k], "a twin-only setting: hardware mode refuses it")
+    if mode == "twin" and data.get("hardware"):
+        raise ConfigError("hardware", "...", "a hardware-only section: twin mode refuses it")
+    task = data.get("task")
+    if not isinstance(task, str) or not task:
+        raise ConfigError("task", task, "must name the task file")
+    policy = data.get("policy", "") or ""
+    if not isinstance(policy, str):
+        raise ConfigError("policy", policy, "must be a path or empty")
+    lockstep = data.get("lockstep", mode == "twin")
+    if not isinstance(lockstep, bool):
+        raise ConfigError("lockstep", lockstep, "must be true or false")
+    hardware = data.get("hardware") or {}
+    if not isinstance(hardware, Mapping):
+        raise ConfigError("hardware", hardware, "must be a mapping")
+    sections = {name: from_mapping(cls, data.get(name), name) for name, cls in _SECTIONS.items()}
+    dep = Deployment(
+        mode=mode,
+        task=Path(task),
+        policy=Path(policy) if policy else None,
+        lockstep=lockstep,
+        hardware=dict(hardware),
+        source=source,
+        **sections,
+    )
+    resolved = dep.with_changes(
+        task=dep.resolve(task), policy=dep.resolve(policy) if policy else None
+    )
+    if not resolved.task.exists():
+        raise ConfigError("task", str(resolved.task), "file not found")
+    if mode == "hardware":
+        _check_hardware(resolved)
+    return resolved
+
+
+def _check_hardware(dep: Deployment) -> None:
+    from stack.hardware.camera_stream import StreamConfig
+    from stack.hardware.velocity_gate import GateConfig
+
+    known = {"camera_stream", "velocity_gate", "armed"}
+    for k in dep.hardware:
+        if k not in known:
+            raise ConfigError(
+                f"hardware.{k}", dep.hardware[k], f"unknown key (known: {sorted(known)})"
+            )
+    StreamConfig.from_dict(dep.hardware.get("camera_stream"))
+    GateConfig.from_dict(dep.hardware.get("velocity_gate"))
+    if not isinstance(dep.hardware.get("armed", False), bool):
+        raise ConfigError("hardware.armed", dep.hardware["armed"], "must be true or false")
+    if not dep.perception.calibration:
+        raise ConfigError(
+            "perception.calibration", "", "hardware mode needs the camera's calibration file"
+        )
+
+
+def load_deployment(path: str | Path) -> Deployment:
+    """Read and validate a deployment file.
+
+    Raises:
+        ConfigError: an invalid key or value; OSError: the file cannot be read.
+    """
+    path = Path(path).resolve()
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ConfigError(str(path), "", f"not valid YAML: {err}") from None
+    return parse_deployment(data, path)

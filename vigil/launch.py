@@ -1,0 +1,161 @@
+"""Start a set of node processes, watch them, restart or stop them, and say what happened.
+
+ROS 2 has no ``ros2 launch`` here, so this is the launcher: each node is a process
+(``python -m <module> --ros-args --params-file <file>``) with its output in
+``<log_dir>/<name>.log``. :meth:`Launcher.poll` notices a process that exited: a node
+marked ``restart`` is started again (up to ``max_restarts`` times), any other exit
+stops everything and :attr:`Launcher.stopped_because` names the node. :meth:`stop`
+sends SIGINT to every process group (the nodes leave cleanly: zero velocity, files
+closed), then SIGTERM, then SIGKILL to what is left.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class ProcessSpec:
+    """One node process.
+
+    Attributes:
+        name: the node's name (also the log file's).
+        module: the Python module with ``main()``.
+        params_file: the ROS parameters file (``--ros-args --params-file``).
+        restart: start it again when it exits while the system runs.
+        env: extra environment variables.
+    """
+
+    name: str
+    module: str
+    params_file: Path | None = None
+    restart: bool = True
+    env: dict[str, str] = field(default_factory=dict)
+
+    def argv(self) -> list[str]:
+        args = [sys.executable, "-u", "-m", self.module]
+        if self.params_file is not None:
+            args += ["--ros-args", "--params-file", str(self.params_file)]
+        return args
+
+
+@dataclass
+class _Running:
+    spec: ProcessSpec
+    proc: subprocess.Popen
+    log: object
+    restarts: int = 0
+
+
+class Launcher:
+    """Runs the processes of one system.
+
+    Args:
+        specs: the processes, started in this order.
+        log_dir: where each process's output goes.
+        env: environment for all of them (on top of this process's).
+        max_restarts: restarts allowed per process.
+        say: where status lines go.
+    """
+
+    def __init__(
+        self,
+        specs: list[ProcessSpec],
+        log_dir: Path,
+        env: dict[str, str] | None = None,
+        max_restarts: int = 3,
+        say: Callable[[str], None] = print,
+    ):
+        self.specs = list(specs)
+        self.log_dir = Path(log_dir)
+        self.env = {**os.environ, **(env or {})}
+        self.max_restarts = max_restarts
+        self.say = say
+        self.running: dict[str, _Running] = {}
+        self.stopped_because: str | None = None
+        self.exit_codes: dict[str, int | None] = {}
+
+    def _spawn(self, spec: ProcessSpec, restarts: int = 0) -> None:
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log = open(self.log_dir / f"{spec.name}.log", "a")
+        if restarts:
+            log.write(f"\n--- restart {restarts} ---\n")
+            log.flush()
+        proc = subprocess.Popen(
+            spec.argv(),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env={**self.env, **spec.env},
+            start_new_session=True,  # its own process group: Ctrl-C reaches us first
+        )
+        self.running[spec.name] = _Running(spec, proc, log, restarts)
+
+    def start(self) -> None:
+        for spec in self.specs:
+            self._spawn(spec)
+            self.say(f"[launch] started {spec.name} (pid {self.running[spec.name].proc.pid})")
+
+    def pids(self) -> dict[str, int]:
+        return {name: r.proc.pid for name, r in self.running.items()}
+
+    def poll(self) -> bool:
+        """Handle exited processes; False once the system has stopped."""
+        if self.stopped_because is not None:
+            return False
+        for name, r in list(self.running.items()):
+            rc = r.proc.poll()
+            if rc is None:
+                continue
+            r.log.close()
+            if r.spec.restart and r.restarts < self.max_restarts:
+                self.say(
+                    f"[launch] {name} exited (code {rc}); restarting "
+                    f"({r.restarts + 1}/{self.max_restarts})"
+                )
+                self._spawn(r.spec, r.restarts + 1)
+                continue
+            self.exit_codes[name] = rc
+            del self.running[name]
+            self.stopped_because = f"{name} exited (code {rc})"
+            self.say(f"[launch] {self.stopped_because}: stopping the system")
+            self.stop()
+            return False
+        return True
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
+        """Send ``sig`` to one node (fault injection); the launcher restarts it."""
+        r = self.running[name]
+        os.killpg(r.proc.pid, sig)
+
+    def stop(self, timeout_s: float = 5.0) -> dict[str, int | None]:
+        """Stop every process: SIGINT, then SIGTERM, then SIGKILL; returns exit codes."""
+        for sig, wait_s in (
+            (signal.SIGINT, timeout_s),
+            (signal.SIGTERM, 2.0),
+            (signal.SIGKILL, 2.0),
+        ):
+            alive = [r for r in self.running.values() if r.proc.poll() is None]
+            if not alive:
+                break
+            for r in alive:
+                try:
+                    os.killpg(r.proc.pid, sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + wait_s
+            while time.monotonic() < deadline and any(r.proc.poll() is None for r in alive):
+                time.sleep(0.05)
+        for name, r in self.running.items():
+            self.exit_codes[name] = r.proc.poll()
+            r.log.close()
+        self.running.clear()
+        if self.stopped_because is None:
+            self.stopped_because = "stopped"
+        return dict(self.exit_codes)
