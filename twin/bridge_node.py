@@ -39,6 +39,7 @@ from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
 
+from stack.cells import ConfigError
 from stack.lockstep import ACK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
 from twin.config import TwinConfig, load_twin_config
@@ -141,6 +142,25 @@ def truth_record(gt: GroundTruth) -> dict:
     }
 
 
+def parse_outages(text: str) -> list[tuple[str, float, float]]:
+    """Parse ``sensor_outages``: a JSON list of [sensor, t0_s, t1_s].
+
+    Raises:
+        ConfigError: not such a list, or an unknown sensor.
+    """
+    try:
+        items = json.loads(text or "[]")
+        out = [(str(s), float(t0), float(t1)) for s, t0, t1 in items]
+    except (ValueError, TypeError) as err:
+        raise ConfigError(
+            "sensor_outages", text, f"must be [[sensor, t0, t1], ...]: {err}"
+        ) from None
+    for s, t0, t1 in out:
+        if s not in ("camera", "lidar") or t1 < t0:
+            raise ConfigError("sensor_outages", [s, t0, t1], "sensor camera|lidar, t1 >= t0")
+    return out
+
+
 class TwinBridge(Node):
     """Steps a :class:`Twin` and converts between it and ROS messages.
 
@@ -149,7 +169,9 @@ class TwinBridge(Node):
     (0: every control period), ``lockstep``, ``participants`` (node names that must
     be up before the first lock-step tick), ``stall_warn_s`` and ``stall_timeout_s``
     (wall-clock seconds: when to log a lock-step wait, and when to stop waiting for a
-    participant that lost messages or died).
+    participant that lost messages or died), ``sensor_outages`` (JSON list of
+    [sensor, t0_s, t1_s] with sensor "camera" or "lidar": nothing is published from it
+    in that simulated interval, a fault for tests and scenarios).
     """
 
     def __init__(self, twin: Twin | None = None, **kwargs):
@@ -165,6 +187,7 @@ class TwinBridge(Node):
         participants = list(p("participants", [""]).value)
         self.stall_warn_s = float(p("stall_warn_s", 5.0).value)
         self.stall_timeout_s = float(p("stall_timeout_s", 30.0).value)
+        self.outages = parse_outages(p("sensor_outages", "[]").value)
         if twin is None:
             path = self.get_parameter("config").value
             task = self.get_parameter("task").value or None
@@ -315,11 +338,14 @@ class TwinBridge(Node):
         if self._due("odom", t):
             self._publish(self.pub_odom, odometry_msg(tw.odometry()))
             self._publish_truth(tw.ground_truth())
-        if self._due("scan", t):
+        if self._due("scan", t) and not self._out("lidar", t):
             self._publish(self.pub_scan, scan_msg(tw.scan()))
-        if self._due("camera", t):
+        if self._due("camera", t) and not self._out("camera", t):
             self._publish(self.pub_image, image_msg(tw.render_camera(), t, tw.camera_info.frame_id))
             self._publish(self.pub_info, camera_info_msg(tw.camera_info, t))
+
+    def _out(self, sensor: str, t: float) -> bool:
+        return any(s == sensor and t0 <= t < t1 for s, t0, t1 in self.outages)
 
     def _publish_truth(self, gt: GroundTruth) -> None:
         t = gt.time_s

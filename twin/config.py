@@ -315,6 +315,18 @@ class PersonConfig(_FromDict):
 
 
 @dataclass(frozen=True)
+class Obstacle(_FromDict):
+    """A box standing on the floor (e.g. a crate left on a cell's waypoint)."""
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    half_size_m: float = 0.35
+    height_m: float = 0.8
+
+    _rules: ClassVar[dict[str, Rule]] = {"half_size_m": POSITIVE, "height_m": POSITIVE}
+
+
+@dataclass(frozen=True)
 class MapConfig(_FromDict):
     """The occupancy map made from the twin's static geometry.
 
@@ -354,6 +366,7 @@ class TwinConfig(_FromDict):
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     person: PersonConfig = field(default_factory=PersonConfig)
     map: MapConfig = field(default_factory=MapConfig)
+    obstacles: tuple[Obstacle, ...] = ()
     timestep_s: float = 0.002
     control_period_s: float = 0.02  # one Twin.step
 

@@ -147,6 +147,14 @@ def build_spec(config: TwinConfig) -> tuple[mujoco.MjSpec, SceneLayout]:
     _add_room(spec, config, layout)
     if config.room.furniture:
         _add_furniture(spec, layout)
+    for i, ob in enumerate(config.obstacles):
+        spec.worldbody.add_geom(
+            name=f"obstacle_{i}",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[ob.x_m, ob.y_m, ob.height_m / 2],
+            size=[ob.half_size_m, ob.half_size_m, ob.height_m / 2],
+            material="trim",
+        )
     _add_robot(spec)
     _add_camera(spec, config, layout)
     if config.person.present:

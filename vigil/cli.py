@@ -6,6 +6,9 @@ vigil solve-pomdp F.pomdp --json         solve any .pomdp file, print bounds
 vigil evaluate TASK.yaml --policy P      mean discounted return by simulation
 vigil replay --table all                 chapter 5's tables against our planner
 vigil main --out DIR                     the main job: solve, replay, report
+vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
+vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
+vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
 """
 
 from __future__ import annotations
@@ -339,6 +342,32 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seed", type=int, default=0)
     q.set_defaults(func=cmd_twin_snapshot)
 
+    p = sub.add_parser("run", help="run a scenario through the ROS stack and write its report")
+    p.add_argument("scenario", help="scenario file, e.g. scenarios/5.2.2.yaml")
+    p.add_argument("--config", default=None, help="deployment file (default config/twin.yaml)")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--out", default=None, help="run folder (default runs/<scenario>)")
+    p.add_argument(
+        "--observations",
+        choices=("twin", "table"),
+        default="twin",
+        help="twin: the whole stack; table: the thesis table's observations",
+    )
+    p.add_argument("--timeout", type=float, default=1800.0, help="wall-clock seconds")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("launch", help="start the whole system from a deployment file")
+    p.add_argument("config", help="config/twin.yaml or config/hardware.yaml")
+    p.add_argument("--out", default="runs/launch", help="folder for logs and node files")
+    p.set_defaults(func=cmd_launch)
+
+    p = sub.add_parser("calibrate", help="the ceiling camera's floor homography")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--twin", help="twin config YAML ('default' for the built-in scene)")
+    g.add_argument("--points", help="YAML of clicked/measured {pixel: [u, v], map: [x, y]}")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_calibrate)
+
     p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
     p.add_argument("--out", default="runs/main")
     p.add_argument("--episodes", type=int, default=50)
@@ -348,6 +377,49 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 REPLAY_ITERATIONS = 200
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from vigil.run import RunError, run_scenario
+
+    try:
+        summary = run_scenario(
+            args.scenario, args.config, args.out, args.seed, args.observations, args.timeout
+        )
+    except RunError as err:
+        print(f"vigil run: {err}", file=sys.stderr)
+        return 1
+    keys = ("steps", "total_discounted_reward", "left_map", "returned_to_rest")
+    print(json.dumps({k: summary.get(k) for k in keys}, sort_keys=True))
+    return 0
+
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    from vigil.launch import launch
+
+    return launch(args.config, args.out)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from stack.perception.homography import calibrate, load_points_file, save_calibration
+
+    if args.twin:
+        from twin.calibration import calibrate_twin
+        from twin.config import TwinConfig, load_twin_config
+        from twin.twin import Twin
+
+        cfg = load_twin_config(args.twin) if args.twin != "default" else TwinConfig()
+        with Twin(cfg, seed=0) as tw:
+            cal = calibrate_twin(tw)
+    else:
+        pts = load_points_file(args.points)
+        cal = calibrate(pts.image_px, pts.map_m, image_size_px=pts.image_size_px)
+    save_calibration(args.output, cal)
+    print(
+        f"calibration: {len(cal.errors_m)} points, reprojection error mean "
+        f"{cal.mean_error_m * 100:.2f} cm, max {cal.max_error_m * 100:.2f} cm -> {args.output}"
+    )
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -31,6 +31,7 @@ class ProcessSpec:
         params_file: the ROS parameters file (``--ros-args --params-file``).
         restart: start it again when it exits while the system runs.
         env: extra environment variables.
+        command: run this instead of the module (any program).
     """
 
     name: str
@@ -38,8 +39,11 @@ class ProcessSpec:
     params_file: Path | None = None
     restart: bool = True
     env: dict[str, str] = field(default_factory=dict)
+    command: list[str] | None = None
 
     def argv(self) -> list[str]:
+        if self.command is not None:
+            return list(self.command)
         args = [sys.executable, "-u", "-m", self.module]
         if self.params_file is not None:
             args += ["--ros-args", "--params-file", str(self.params_file)]
@@ -159,3 +163,64 @@ class Launcher:
         if self.stopped_because is None:
             self.stopped_because = "stopped"
         return dict(self.exit_codes)
+
+
+class GraphWatch:
+    """Says when each node appears in the ROS graph (a small rclpy node of our own)."""
+
+    def __init__(self, names: list[str], say: Callable[[str], None] = print):
+        import rclpy
+
+        self._rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("vigil_launch", context=self.context)
+        self.waiting = list(names)
+        self.say = say
+
+    def poll(self) -> list[str]:
+        """Names that came up since the last call."""
+        if not self.waiting:
+            return []
+        present = set(self.node.get_node_names())
+        up = [n for n in self.waiting if n in present]
+        for n in up:
+            self.waiting.remove(n)
+            self.say(f"[launch] up: {n}")
+        return up
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = print) -> int:
+    """``vigil launch CONFIG``: start the system, show each node up, run until Ctrl-C
+    or until a node dies for good; returns 0 on Ctrl-C, 1 when a node died."""
+    from vigil.deployment import load_deployment
+    from vigil.system import prepare
+
+    dep = load_deployment(config)
+    system = prepare(dep, Path(out), say=say)
+    logs = system.run_dir / "logs"
+    launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
+    for key, value in system.env.items():
+        os.environ.setdefault(key, value)
+    watch = GraphWatch([s.name for s in system.specs], say)
+    launcher.start()
+    say(f"[launch] {dep.mode} mode, logs in {system.run_dir / 'logs'}; Ctrl-C stops everything")
+    rc = 0
+    try:
+        while launcher.poll():
+            watch.poll()
+            time.sleep(0.2)
+        rc = 1
+    except KeyboardInterrupt:
+        say("[launch] Ctrl-C: stopping")
+    finally:
+        codes = launcher.stop(dep.nodes.stop_timeout_s)
+        watch.close()
+        say("[launch] stopped: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
+        if launcher.stopped_because not in (None, "stopped"):
+            say(f"[launch] reason: {launcher.stopped_because}")
+    return rc

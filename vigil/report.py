@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -9,8 +11,13 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 
+from stack.cells import CellGrid  # noqa: E402
 from stack.planning.model import ACTIONS, DIRECTIONS, FactoredModel  # noqa: E402
+
+# PNG metadata without a software version: the same figure gives the same bytes.
+_PNG_METADATA = {"Software": None}
 
 
 def observed_rewards(model: FactoredModel, result) -> np.ndarray:
@@ -27,6 +34,14 @@ def observed_rewards(model: FactoredModel, result) -> np.ndarray:
     return np.asarray(out)
 
 
+def draw_cell_bands(ax, restricted: Sequence[int], rest_cell: int | None) -> None:
+    """Mark restricted cells (red) and the rest cell (green) as bands on a cell axis."""
+    for c in restricted:
+        ax.axhline(c, color="r", alpha=0.3, lw=6)
+    if rest_cell is not None:
+        ax.axhline(rest_cell, color="g", alpha=0.2, lw=6)
+
+
 def plot_replay(model: FactoredModel, result, path: str | Path) -> Path:
     """Positions, cumulative reward and the person-position belief over the steps."""
     t = result.table
@@ -37,9 +52,7 @@ def plot_replay(model: FactoredModel, result, path: str | Path) -> Path:
     ax.step(steps, [s.robot for s in t.steps], where="mid", label="robot (observed)", lw=2)
     person = [s.person if s.person is not None else 0 for s in t.steps]
     ax.plot(steps, person, "o--", label="person (observed; 0 = no person)")
-    for c in model.task.restricted_cells:
-        ax.axhline(c, color="r", alpha=0.3, lw=6)
-    ax.axhline(model.task.rest_cell, color="g", alpha=0.2, lw=6)
+    draw_cell_bands(ax, model.task.restricted_cells, model.task.rest_cell)
     ax.set_ylabel("cell")
     ax.set_yticks(range(0, p + 1))
     ax.set_title(f"Table {t.name}: {t.title} - agreement {result.agreement}/{len(t.steps)}")
@@ -71,5 +84,165 @@ def plot_replay(model: FactoredModel, result, path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+# -- run reports (vigil.run_report) ------------------------------------------------------
+
+
+def _cell_values(values: Sequence[int | None | float]) -> np.ndarray:
+    """Cells as plot values: a cell number, 0 for None (no person / out of the map),
+    NaN for unknown (``float('nan')``) so that the line breaks there."""
+    out = []
+    for v in values:
+        if v is None:
+            out.append(0.0)
+        else:
+            out.append(float(v))
+    return np.asarray(out, dtype=float)
+
+
+def plot_positions(
+    path: str | Path,
+    steps: Sequence[int],
+    series: Sequence[tuple[str, Sequence[int | None | float], str]],
+    *,
+    n_cells: int,
+    restricted: Sequence[int],
+    rest_cell: int | None,
+    rewards: Mapping[str, Sequence[float]] | None = None,
+    title: str = "",
+) -> Path:
+    """Figures 5.1-5.4 for a run: cells over the steps and the cumulative reward.
+
+    Args:
+        path: the PNG to write.
+        steps: the x values (step numbers).
+        series: (label, cells, matplotlib format) per line; a cell is a number, None
+            (no person / out of the map, drawn at 0) or NaN (unknown: a gap).
+        n_cells: the number of cells (y axis 0..n_cells).
+        restricted, rest_cell: cells to mark.
+        rewards: label -> cumulative reward per step (second panel), if any.
+        title: the figure title.
+    """
+    x = np.asarray(steps, dtype=float)
+    n_panels = 2 if rewards else 1
+    fig, axes = plt.subplots(n_panels, 1, figsize=(9, 3.6 * n_panels), squeeze=False)
+    ax = axes[0, 0]
+    for label, values, fmt in series:
+        y = _cell_values(values)
+        if len(y) != len(x) or not len(x):
+            continue
+        if fmt.startswith("step:"):
+            ax.step(x, y, fmt[5:], where="mid", label=label, lw=2)
+        else:
+            ax.plot(x, y, fmt, label=label, ms=5)
+    draw_cell_bands(ax, restricted, rest_cell)
+    ax.set_ylabel("cell (0 = no person / out of the map)")
+    ax.set_yticks(range(0, n_cells + 1))
+    ax.set_ylim(-0.5, n_cells + 0.5)
+    ax.set_xlabel("step")
+    ax.grid(alpha=0.2)
+    if title:
+        ax.set_title(title)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    if rewards:
+        rax = axes[1, 0]
+        for label, values in rewards.items():
+            y = np.asarray([np.nan if v is None else v for v in values], dtype=float)
+            if len(y) == len(x) and len(x):
+                rax.plot(x, y, "-o", label=label, ms=4)
+        rax.set_ylabel("cumulative discounted reward")
+        rax.set_xlabel("step")
+        rax.grid(alpha=0.3)
+        if rax.get_legend_handles_labels()[0]:
+            rax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=90, metadata=_PNG_METADATA)
+    plt.close(fig)
+    return path
+
+
+def plot_belief_grids(
+    path: str | Path,
+    grid: CellGrid,
+    panels: Sequence[Mapping],
+    *,
+    restricted: Sequence[int] = (),
+    ncols: int = 6,
+    max_panels: int = 60,
+    title: str = "",
+) -> Path:
+    """The person belief through a run: one small grid heatmap per step.
+
+    Each panel is laid out as the cells lie on the floor (``grid.numbering``: north up,
+    east right). A panel is a mapping with ``title`` (str), ``probs`` ({cell: P(person
+    in cell)} or None for "no belief"), and optionally ``robot`` (a cell, drawn as a
+    black square), ``person`` (the true cell, drawn as a cross) and ``note`` (text under
+    the panel, e.g. P(no person)). Restricted cells get a red frame. With more than
+    ``max_panels`` panels, evenly spaced ones are drawn (the first and last kept).
+    """
+    panels = list(panels)
+    shown = panels
+    if len(panels) > max_panels:
+        idx = np.unique(np.linspace(0, len(panels) - 1, max_panels).round().astype(int))
+        shown = [panels[i] for i in idx]
+    n = max(len(shown), 1)
+    cols = max(1, min(ncols, n))
+    rows = math.ceil(n / cols)
+    gr, gc = grid.rows, grid.columns
+    w = 0.36 * gc + 0.15
+    h = 0.36 * gr + 0.45
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(w * cols + 0.8, h * rows + 0.4), squeeze=False, layout="constrained"
+    )
+    im = None
+    for k in range(rows * cols):
+        ax = axes[k // cols, k % cols]
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if k >= len(shown):
+            ax.axis("off")
+            continue
+        panel = shown[k]
+        probs = panel.get("probs")
+        img = np.full((gr, gc), np.nan)
+        if probs is not None:
+            for cell, p in probs.items():
+                r, c = grid.rowcol(int(cell))
+                img[r, c] = float(p)
+        im = ax.imshow(img, cmap="viridis", vmin=0.0, vmax=1.0, origin="upper")
+        for r in range(gr):
+            for c in range(gc):
+                cell = grid.numbering[r][c]
+                ax.text(c, r, str(cell), ha="center", va="center", fontsize=5, color="w")
+        for cell in restricted:
+            r, c = grid.rowcol(cell)
+            ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="r", lw=1.5))
+        robot = panel.get("robot")
+        if robot is not None:
+            r, c = grid.rowcol(int(robot))
+            ax.add_patch(Rectangle((c - 0.35, r - 0.35), 0.7, 0.7, fill=False, ec="k", lw=1.2))
+        person = panel.get("person")
+        if person is not None:
+            r, c = grid.rowcol(int(person))
+            ax.plot([c], [r], "x", color="magenta", ms=6, mew=1.5)
+        ax.set_title(str(panel.get("title", "")), fontsize=6)
+        if probs is None:
+            ax.text(0.5, 0.5, "no belief", transform=ax.transAxes, ha="center", fontsize=6)
+        if panel.get("note"):
+            ax.set_xlabel(str(panel["note"]), fontsize=5)
+    sup = title
+    if len(shown) < len(panels):
+        sup += f" ({len(shown)} of {len(panels)} steps shown)"
+    sup += "  [square: robot, x: true person, red: restricted]"
+    fig.suptitle(sup.strip(), fontsize=8)
+    if im is not None:
+        fig.colorbar(im, ax=axes, shrink=0.8, aspect=30, label="P(person in cell)")
+    path = Path(path)
+    fig.savefig(path, dpi=100, metadata=_PNG_METADATA)
     plt.close(fig)
     return path

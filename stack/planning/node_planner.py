@@ -22,7 +22,9 @@ Parameters: ``task_file``, ``policy_file`` (alpha vectors, ``vigil solve``),
 resumed), ``steps_file`` (JSON lines, appended), ``initial_robot_cell`` (0: the
 task's), ``initial_person_cell`` (-1: the task's, 0: nobody), ``initial_direction``
 ("": the task's), ``max_steps`` (0: no end), ``start_delay_s``, ``nav_timeout_s``,
-``obs_timeout_s``, ``resume_wait_s``, ``lockstep`` (see :mod:`stack.ros_lockstep`).
+``obs_timeout_s``, ``resume_wait_s``, ``min_step_s`` (a step lasts at least this long: "Do
+nothing" is done at once, but the model's time steps are of one length, about one
+cell's move), ``lockstep`` (see :mod:`stack.ros_lockstep`).
 """
 
 from __future__ import annotations
@@ -61,6 +63,7 @@ class PlannerNode(Node):
         self.nav_timeout_s = float(p("nav_timeout_s", 60.0).value)
         self.obs_timeout_s = float(p("obs_timeout_s", 5.0).value)
         self.resume_wait_s = float(p("resume_wait_s", 3.0).value)
+        self.min_step_s = float(p("min_step_s", 0.0).value)
         if not task_file or not policy_file:
             raise ConfigError("task_file/policy_file", (task_file, policy_file), "both are needed")
         model = build_model(load_task(task_file))
@@ -92,8 +95,8 @@ class PlannerNode(Node):
         ls.subscription(String, "/observations", self.on_observation, 10)
         ls.timer(0.1, self.poll)
 
-        self.waiting = ""  # "" | "nav" | "obs"
-        self.since_s = 0.0
+        self.waiting = ""  # "" | "nav" | "hold" (min_step_s) | "obs"
+        self.since_s = self.step_start_s = self.hold_until_s = 0.0
         self.requests = 0
         self.last_nav: dict | None = None
         self.started = False
@@ -114,7 +117,9 @@ class PlannerNode(Node):
             self.started = True
             self.start()
             return
-        if self.waiting == "nav" and now - self.since_s > self.nav_timeout_s:
+        if self.waiting == "hold" and now >= self.hold_until_s:
+            self.request_observations()
+        elif self.waiting == "nav" and now - self.since_s > self.nav_timeout_s:
             self.get_logger().warning(
                 f"no navigation result for {self.nav_timeout_s:g} s: reading observations"
             )
@@ -147,6 +152,7 @@ class PlannerNode(Node):
         a = self.agent.decide()
         self.save()
         self.waiting, self.since_s, self.last_nav = "nav", self.now_s(), None
+        self.step_start_s = self.since_s
         self.pub_action.publish(String(data=ACTIONS[a]))
         self.get_logger().info(f"step {self.agent.step + 1}: {ACTIONS[a]}")
 
@@ -164,7 +170,11 @@ class PlannerNode(Node):
         if self.waiting != "nav":
             return  # a result nobody waits for (e.g. after a timeout)
         self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
-        self.request_observations()
+        self.hold_until_s = self.step_start_s + self.min_step_s
+        if self.now_s() >= self.hold_until_s:
+            self.request_observations()
+        else:
+            self.waiting = "hold"
 
     def on_observation(self, msg: String) -> None:
         if self.waiting != "obs":

@@ -1,0 +1,167 @@
+"""Deployment files, scenario files, and the launcher's process handling."""
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from stack.cells import CellGrid, ConfigError
+from vigil.deployment import load_deployment, parse_deployment
+from vigil.launch import Launcher, ProcessSpec
+from vigil.scenario import load_scenario, parse_scenario
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = REPO / "config"
+
+
+def test_shipped_files_are_valid():
+    twin = load_deployment(CONFIG / "twin.yaml")
+    assert twin.mode == "twin" and twin.lockstep and twin.ros.localhost_only
+    assert twin.task == CONFIG / "task-r2.yaml"
+    hw = load_deployment(CONFIG / "hardware.yaml")
+    assert hw.mode == "hardware" and not hw.lockstep
+    assert hw.hardware["armed"] is False
+    for path in sorted((REPO / "scenarios").glob("*.yaml")):
+        sc = load_scenario(path)
+        assert sc.task.exists() and sc.steps >= 1, path
+
+
+def base(**changes):
+    data = {"mode": "twin", "task": str(CONFIG / "task-r1.yaml")}
+    data.update(changes)
+    return data
+
+
+@pytest.mark.parametrize(
+    "data, key",
+    [
+        (base(mode="robot"), "mode"),
+        (base(colour="red"), "colour"),
+        (base(task="nope.yaml"), "task"),
+        (base(lockstep="yes"), "lockstep"),
+        (base(twin={"odom_rate_hz": 0}), "twin.odom_rate_hz"),
+        (base(twin={"scnee": "x"}), "twin.scnee"),
+        (base(planner={"max_steps": -1}), "planner.max_steps"),
+        (base(navigation={"pose_source": "gps"}), "navigation.pose_source"),
+        (base(hardware={"armed": True}), "hardware"),
+        (base(mode="hardware", twin={"seed": 1}), "twin"),
+        (base(mode="hardware", lockstep=True), "lockstep"),
+    ],
+)
+def test_bad_deployments_name_the_key(data, key):
+    with pytest.raises(ConfigError) as err:
+        parse_deployment(data, None)
+    assert err.value.key == key
+
+
+def test_hardware_mode_needs_calibration_and_a_valid_stream(tmp_path):
+    hw = {"camera_stream": {"url": "rtsp://cam/stream"}}
+    with pytest.raises(ConfigError) as err:
+        parse_deployment(base(mode="hardware", hardware=hw), None)
+    assert err.value.key == "perception.calibration"
+    ok = base(mode="hardware", hardware=hw, perception={"calibration": "cal.yaml"})
+    assert parse_deployment(ok, None).hardware["camera_stream"]["url"] == "rtsp://cam/stream"
+    bad = base(mode="hardware", hardware={"camera_stream": {"url": "x", "rate_hz": -1}})
+    bad["perception"] = {"calibration": "cal.yaml"}
+    with pytest.raises(ConfigError):
+        parse_deployment(bad, None)
+
+
+def test_relative_paths_resolve_against_the_file(tmp_path):
+    (tmp_path / "task.yaml").write_text((CONFIG / "task-r1.yaml").read_text())
+    (tmp_path / "dep.yaml").write_text(yaml.safe_dump({"mode": "twin", "task": "task.yaml"}))
+    dep = load_deployment(tmp_path / "dep.yaml")
+    assert dep.task == tmp_path / "task.yaml"
+    assert dep.resolve("scene.yaml") == tmp_path / "scene.yaml"
+
+
+def scenario(**changes):
+    data = {
+        "name": "t",
+        "task": str(CONFIG / "task-r1.yaml"),
+        "steps": 3,
+        "person": {"start": "outside", "walk": [{"to": "door"}, {"to": 1, "pause_s": 2}]},
+    }
+    data.update(changes)
+    return data
+
+
+def test_scenario_waypoints_in_thesis_terms():
+    sc = parse_scenario(scenario())
+    grid = CellGrid()
+    wps = sc.person_waypoints(grid, door_m=(7.0, 4.0))
+    assert wps[0]["x_m"] == 7.0 and wps[0]["y_m"] == pytest.approx(4.0 + 1.2)
+    assert wps[1]["y_m"] == pytest.approx(4.0 - 0.8)
+    assert (wps[2]["x_m"], wps[2]["y_m"]) == grid.center(1)
+    assert wps[2]["pause_s"] == 2
+
+
+@pytest.mark.parametrize(
+    "changes, key",
+    [
+        ({"steps": 0}, "steps"),
+        ({"robot_cell": "seven"}, "robot_cell"),
+        ({"belief": {"direction": "up"}}, "belief.direction"),
+        ({"person": {"walk": [{"to": "kitchen"}]}}, "person.walk[0].to"),
+        ({"person": {"walk": [{"to": 1, "speed_mps": 3.0}]}}, "person.walk[0].speed_mps"),
+        ({"faults": [{"kind": "meteor"}]}, "faults[0].kind"),
+        ({"faults": [{"kind": "camera_off", "at_s": 1}]}, "faults[0].duration_s"),
+        ({"faults": [{"kind": "kill", "node": "planner"}]}, "faults[0]"),
+    ],
+)
+def test_bad_scenarios_name_the_key(changes, key):
+    with pytest.raises(ConfigError) as err:
+        parse_scenario(scenario(**changes))
+    assert err.value.key == key
+
+
+def test_unknown_cell_in_a_walk_is_refused():
+    sc = parse_scenario(scenario(person={"walk": [{"to": 40}]}))
+    with pytest.raises(ConfigError) as err:
+        sc.person_waypoints(CellGrid(), (7.0, 4.0))
+    assert err.value.key == "person.walk[0].to"
+
+
+# -- the launcher ---------------------------------------------------------------------
+def sleeper(name, seconds, restart=True, code=0):
+    cmd = [sys.executable, "-c", f"import time, sys; time.sleep({seconds}); sys.exit({code})"]
+    return ProcessSpec(name, "unused", restart=restart, command=cmd)
+
+
+def wait_for(cond, timeout=10.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_launcher_restarts_a_node_then_stops_everything_and_says_which(tmp_path):
+    lines = []
+    la = Launcher(
+        [sleeper("steady", 60), sleeper("flaky", 0.2, code=3)],
+        tmp_path,
+        max_restarts=2,
+        say=lines.append,
+    )
+    la.start()
+    assert wait_for(lambda: not la.poll())
+    assert la.stopped_because == "flaky exited (code 3)"
+    assert sum("restarting" in line for line in lines) == 2
+    assert la.exit_codes["flaky"] == 3
+    assert la.exit_codes["steady"] is not None  # stopped by the launcher
+    assert (tmp_path / "flaky.log").read_text().count("--- restart") == 2
+
+
+def test_launcher_stop_and_kill(tmp_path):
+    la = Launcher([sleeper("a", 60), sleeper("b", 60, restart=False)], tmp_path, say=lambda s: 0)
+    la.start()
+    first = la.pids()["a"]
+    la.kill("a")
+    assert wait_for(lambda: la.poll() and la.pids()["a"] != first)
+    codes = la.stop(timeout_s=2.0)
+    assert set(codes) == {"a", "b"} and all(c is not None for c in codes.values())
+    assert la.running == {}

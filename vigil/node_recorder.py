@@ -1,0 +1,167 @@
+"""The recorder node: writes what a run shows into its folder, as it happens.
+
+For every camera detection record (``/perception/person``, one per frame) it appends
+one line to ``trace.jsonl`` (the instant's ground truth from ``/twin/truth`` when there
+is a twin, the odometry, the camera's detection, the leg tracks, speech) and one frame
+to ``camera.mp4`` (the camera frame with the detections beside a top view of the grid,
+:class:`vigil.run_report.VideoComposer`). :func:`vigil.run_report.write_report` turns
+the folder into the report.
+
+Subscribes: ``/camera/image_raw``, ``/perception/person``, ``/perception/legs``,
+``/twin/truth``, ``/odom``, ``/planner/belief``, ``/speech/speaking``, ``/speech/done``.
+
+Parameters: ``out_dir``, ``task_file`` (restricted cells), ``config_file`` (grid),
+``video`` (false: trace only), ``fps``, ``lockstep``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from std_msgs.msg import Bool, String
+
+from stack.perception._config import load_config_file
+from stack.perception.errors import BadFrameError
+from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
+from stack.planning.task import load_task
+from stack.ros_lockstep import Participant
+from stack.ros_main import spin_node
+
+TRACE_FILE = "trace.jsonl"
+VIDEO_FILE = "camera.mp4"
+
+
+class RecorderNode(Node):
+    """Trace and video of a run."""
+
+    def __init__(self, **kwargs):
+        super().__init__("recorder", **kwargs)
+        p = self.declare_parameter
+        out_dir = Path(p("out_dir", "runs/recording").value)
+        task_file = p("task_file", "").value
+        grid, _ = load_config_file(p("config_file", "").value)
+        video = bool(p("video", True).value)
+        fps = float(p("fps", 10.0).value)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.trace = open(out_dir / TRACE_FILE, "a")
+        self.composer = None
+        if video:
+            from vigil.run_report import VideoComposer
+
+            restricted = load_task(task_file).restricted_cells if task_file else ()
+            self.composer = VideoComposer(out_dir / VIDEO_FILE, grid, tuple(restricted), fps=fps)
+        self.images: dict[float, object] = {}
+        self.truth: dict | None = None
+        self.odom: list[float] | None = None
+        self.legs: list = []
+        self.belief: dict | None = None
+        self.speech: str | None = None
+        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls.subscription(Image, "/camera/image_raw", self.on_image, 5)
+        ls.subscription(String, "/perception/person", self.on_person, 10)
+        ls.subscription(String, "/perception/legs", self.on_legs, 10)
+        ls.subscription(String, "/twin/truth", self.on_truth, 10)
+        ls.subscription(Odometry, "/odom", self.on_odom, 10)
+        ls.subscription(String, "/planner/belief", self.on_belief, 10)
+        ls.subscription(Bool, "/speech/speaking", self.on_speaking, 10)
+        ls.subscription(String, "/speech/done", self.on_speech_done, 10)
+        self.get_logger().info(f"recording into {out_dir}")
+
+    def on_image(self, msg: Image) -> None:
+        stamp = round(stamp_to_s(msg.header.stamp), 6)
+        self.images[stamp] = msg
+        while len(self.images) > 4:
+            del self.images[min(self.images)]
+
+    def on_truth(self, msg: String) -> None:
+        self.truth = _json(msg.data)
+
+    def on_odom(self, msg: Odometry) -> None:
+        try:
+            pose = pose_from_msg(msg.pose.pose)
+            self.odom = [round(pose.x_m, 4), round(pose.y_m, 4), round(pose.yaw_rad, 4)]
+        except ValueError:
+            self.odom = None
+
+    def on_legs(self, msg: String) -> None:
+        data = _json(msg.data) or {}
+        tracks = data.get("tracks", [])
+        self.legs = [t["position_m"] for t in tracks if t.get("confirmed") and "position_m" in t]
+
+    def on_belief(self, msg: String) -> None:
+        self.belief = _json(msg.data)
+
+    def on_speaking(self, msg: Bool) -> None:
+        if msg.data:
+            self.speech = "speaking"
+
+    def on_speech_done(self, msg: String) -> None:
+        data = _json(msg.data) or {}
+        if data.get("kind") == "finished" and data.get("text"):
+            self.speech = str(data["text"])
+
+    def on_person(self, msg: String) -> None:
+        camera = _json(msg.data)
+        if camera is None:
+            return
+        stamp = round(float(camera.get("stamp_s") or 0.0), 6)
+        truth = self.truth or {}
+        record = {
+            "t": truth.get("t", stamp),
+            "robot": truth.get("robot"),
+            "robot_cell": truth.get("robot_cell"),
+            "person": truth.get("person"),
+            "person_cell": truth.get("person_cell"),
+            "person_velocity": truth.get("person_velocity"),
+            "odom": self.odom,
+            "camera": {
+                k: camera.get(k)
+                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
+            },
+            "legs": self.legs,
+            "speech": self.speech,
+        }
+        self.speech = None
+        self.trace.write(json.dumps(record, sort_keys=True) + "\n")
+        self.trace.flush()
+        if self.composer is not None:
+            frame = None
+            image = self.images.pop(stamp, None)
+            if image is not None:
+                try:
+                    frame = image_from_msg(image)[:, :, ::-1]  # BGR -> RGB
+                except BadFrameError:
+                    frame = None
+            belief = (self.belief or {}).get("person")
+            robot = truth.get("robot") or self.odom
+            self.composer.add(
+                record["t"], frame, record["camera"], self.legs, robot, truth.get("person"), belief
+            )
+
+    def destroy_node(self) -> None:
+        if self.composer is not None:
+            self.composer.close()
+        self.trace.flush()
+        os.fsync(self.trace.fileno())
+        self.trace.close()
+        super().destroy_node()
+
+
+def _json(text: str):
+    try:
+        return json.loads(text)
+    except ValueError:
+        return None
+
+
+def main(args=None) -> None:
+    spin_node(RecorderNode, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,74 @@
+"""The table player: a thesis table's observations, entered as the thesis entered them.
+
+Chapter 5's simulation (table 5.1) fed the planner observations by hand. This node
+stands in for navigation and perception: every ``/nav/action`` is reported done at
+once on ``/nav/result`` (in the row's robot cell), and every
+``/observations/request`` is answered on ``/observations`` with the next row of the
+table (robot cell, person cell, velocity). The planner node is the real one.
+
+Parameters: ``table`` ("5.1" ... "5.4", :data:`stack.planning.replay.TABLES`).
+"""
+
+from __future__ import annotations
+
+import json
+
+from rclpy.node import Node
+from std_msgs.msg import Empty, String
+
+from stack.cells import ConfigError
+from stack.planning.replay import TABLES
+from stack.ros_main import spin_node
+
+
+class TablePlayerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("table_player", **kwargs)
+        name = self.declare_parameter("table", "5.1").value
+        if name not in TABLES:
+            raise ConfigError("table", name, f"must be one of {sorted(TABLES)}")
+        self.rows = TABLES[name].steps
+        self.row = 0
+        self.goal_id = 0
+        self.pub_result = self.create_publisher(String, "/nav/result", 10)
+        self.pub_obs = self.create_publisher(String, "/observations", 10)
+        self.create_subscription(String, "/nav/action", self.on_action, 10)
+        self.create_subscription(Empty, "/observations/request", self.on_request, 10)
+        self.get_logger().info(f"table {name}: {len(self.rows)} rows of observations")
+
+    def _current(self):
+        return self.rows[min(self.row, len(self.rows) - 1)]
+
+    def on_action(self, msg: String) -> None:
+        self.goal_id += 1
+        body = {
+            "goal_id": self.goal_id,
+            "result": "succeeded",
+            "error_code": 0,
+            "error_name": "NONE",
+            "message": "table row",
+            "action": msg.data,
+            "cell": self._current().robot,
+        }
+        self.pub_result.publish(String(data=json.dumps(body)))
+
+    def on_request(self, _msg: Empty) -> None:
+        if self.row >= len(self.rows):
+            self.get_logger().warning("the table has no more rows: repeating the last")
+        st = self._current()
+        obs = {
+            "robot": str(st.robot),
+            "person": "No person" if st.person is None else str(st.person),
+            "velocity": st.velocity,
+            "source": f"table row {self.row + 1}",
+        }
+        self.row += 1
+        self.pub_obs.publish(String(data=json.dumps(obs)))
+
+
+def main(args=None) -> None:
+    spin_node(TablePlayerNode, args)
+
+
+if __name__ == "__main__":
+    main()

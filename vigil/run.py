@@ -1,0 +1,183 @@
+"""``vigil run SCENARIO``: one experiment through the real ROS stack, then its report.
+
+The run starts every node (:mod:`vigil.system`, :mod:`vigil.launch`), prints a line
+per decision step as the planner records it, injects the scenario's faults, stops the
+system when the planner has made the scenario's steps, and writes the report
+(:func:`vigil.run_report.write_report`) into the run folder.
+
+With ``observations="table"`` the twin, perception and navigation are replaced by the
+thesis table's observations (:mod:`vigil.node_table_player`), as chapter 5's
+simulation entered them by hand; the planner node is the same.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from stack.cells import ConfigError
+from vigil.deployment import Deployment, load_deployment
+from vigil.launch import Launcher
+from vigil.scenario import Scenario, load_scenario
+from vigil.system import System, _write, policy_for, prepare
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
+RUN_MARK = "params.yaml"  # a folder holding this is a run folder (safe to clear)
+
+
+class RunError(RuntimeError):
+    """The run could not finish (a node died for good, or it timed out)."""
+
+
+def _fresh(run_dir: Path) -> None:
+    if run_dir.exists() and any(run_dir.iterdir()):
+        if not (run_dir / RUN_MARK).exists():
+            raise ConfigError("--out", str(run_dir), "exists and is not a run folder")
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True)
+
+
+def prepare_table(dep: Deployment, run_dir: Path, scenario: Scenario, say=print) -> System:
+    """Planner + table player: the thesis's table as the observations."""
+    if not scenario.thesis_table:
+        raise ConfigError("thesis_table", "", "the scenario names no thesis table")
+    policy = dep.policy or policy_for(scenario.task, say)
+    params = {
+        "planner": {
+            "lockstep": False,
+            "task_file": str(scenario.task),
+            "policy_file": str(policy),
+            "state_file": str(run_dir / "planner_state.json"),
+            "steps_file": str(run_dir / "steps.jsonl"),
+            "max_steps": scenario.steps,
+            "start_delay_s": 1.0,
+            "min_step_s": 0.0,
+            "initial_robot_cell": scenario.robot_cell,
+            "initial_person_cell": scenario.belief_person or 0,
+            "initial_direction": scenario.belief_direction,
+        },
+        "table_player": {"table": scenario.thesis_table},
+    }
+    dep = replace(dep, lockstep=False)
+    return _write(run_dir, ["planner", "table_player"], params, dep, scenario.steps)
+
+
+def _count_lines(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except ValueError:
+            break  # a line being written
+    return out
+
+
+def run_scenario(
+    scenario_path: str | Path,
+    config_path: str | Path | None = None,
+    out: str | Path | None = None,
+    seed: int | None = None,
+    observations: str = "twin",
+    timeout_s: float = 1800.0,
+    say=print,
+) -> dict:
+    """Run a scenario end to end and write its report; returns the summary.
+
+    Args:
+        scenario_path: the scenario file (``scenarios/*.yaml``).
+        config_path: the deployment file (default ``config/twin.yaml``).
+        out: the run folder (default ``runs/<scenario name>``); cleared first.
+        seed: overrides the scenario's seed.
+        observations: "twin" (the whole stack in the twin) or "table" (the thesis
+            table's observations through the planner node).
+        timeout_s: wall-clock limit.
+
+    Raises:
+        ConfigError: a bad scenario or deployment file.
+        RunError: a node died for good, or the run timed out.
+    """
+    from stack.planning.replay import TABLES
+    from vigil.run_report import write_report
+
+    scenario = load_scenario(scenario_path)
+    if seed is not None:
+        scenario = replace(scenario, seed=seed)
+    dep = load_deployment(config_path or DEFAULT_CONFIG)
+    run_dir = Path(out or REPO / "runs" / scenario.name).resolve()
+    _fresh(run_dir)
+    say(f"[run] {scenario.name}: {scenario.title} ({scenario.steps} steps, seed {scenario.seed})")
+    if observations == "table":
+        system = prepare_table(dep, run_dir, scenario, say)
+    elif observations == "twin":
+        if dep.mode != "twin":
+            raise ConfigError("mode", dep.mode, "vigil run needs a twin deployment")
+        system = prepare(dep, run_dir, scenario, say=say)
+    else:
+        raise ConfigError("observations", observations, "must be twin or table")
+
+    launcher = Launcher(system.specs, run_dir / "logs", system.env, dep.nodes.max_restarts, say=say)
+    kills = [f for f in scenario.faults if f.kind == "kill"]
+    t0 = time.monotonic()
+    shown = 0
+    error = None
+    launcher.start()
+    try:
+        while True:
+            if not launcher.poll():
+                error = f"the system stopped: {launcher.stopped_because}"
+                break
+            steps = _count_lines(run_dir / "steps.jsonl")
+            for rec in steps[shown:]:
+                say("[run] " + _progress(rec, scenario.steps))
+            shown = len(steps)
+            for fault in list(kills):
+                if shown >= fault.after_step and fault.node in launcher.running:
+                    say(f"[fault] killing {fault.node} after step {shown}")
+                    launcher.kill(fault.node)
+                    kills.remove(fault)
+            if shown >= scenario.steps:
+                break
+            if time.monotonic() - t0 > timeout_s:
+                error = f"timed out after {timeout_s:.0f} s at step {shown}/{scenario.steps}"
+                break
+            time.sleep(0.2)
+    finally:
+        codes = launcher.stop(dep.nodes.stop_timeout_s)
+    wall_s = time.monotonic() - t0
+    say(f"[run] stopped after {wall_s:.0f} s: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
+    table = TABLES.get(scenario.thesis_table)
+    summary = write_report(run_dir, scenario.task, table)
+    (run_dir / "run.json").write_text(
+        json.dumps(
+            {
+                "scenario": scenario.name,
+                "seed": scenario.seed,
+                "observations": observations,
+                "wall_s": round(wall_s, 1),
+                "exit_codes": codes,
+                "error": error,
+            },
+            indent=2,
+            sort_keys=True,
+        )
+    )
+    say(f"[run] report: {run_dir}/steps.md, positions.png, belief.png, summary.json")
+    if error:
+        raise RunError(error)
+    return summary
+
+
+def _progress(rec: dict, total: int) -> str:
+    o = rec.get("observation") or {}
+    t = rec.get("stamp_s") or 0.0
+    when = f" t={t:.1f}s" if t < 1e6 else ""  # simulated time; wall-clock stamps not shown
+    return (
+        f"step {rec.get('step')}/{total}{when}: {rec.get('action')} -> "
+        f"robot {o.get('robot', '-')}, person {o.get('person', '-')}, {o.get('velocity', '-')}"
+    )

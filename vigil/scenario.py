@@ -1,0 +1,238 @@
+"""A scenario file: one experiment of chapter 5 (or a new one), end to end.
+
+A scenario names the task, the robot's start cell, the planner's initial belief
+about the person, the person's walk in the twin, how many decision steps to run, the
+seed, and faults to inject. Waypoints are written in the terms the thesis uses::
+
+    name: "5.2.2"
+    title: Experiment 2 with two restricted areas
+    thesis_table: "5.4"          # the table to set beside the run's (stack.planning.replay)
+    task: ../config/task-r2.yaml # relative to this file
+    seed: 0
+    steps: 17
+    robot_cell: 9
+    belief: {person: none, direction: not moving}   # the planner's initial belief
+    person:
+      start: outside             # outside | door | a cell | [x, y]
+      walk:
+        - {to: door, speed_mps: 1.0}
+        - {to: 1, speed_mps: 0.6, pause_s: 8}  # a cell's centre
+        - {to: [2.3, 0.4], speed_mps: 0.4}       # a map point [m]
+        - {to: outside, speed_mps: 1.0}
+    faults:
+      - {kind: camera_off, at_s: 20, duration_s: 4}
+      - {kind: lidar_off, at_s: 30, duration_s: 5}
+      - {kind: kill, node: planner, after_step: 3}
+      - {kind: obstacle, cell: 5}               # a box on the cell's waypoint
+
+"door" is just inside the doorway, "outside" beyond it (the person is out of the
+room and out of the camera's view). Errors name the key and the rule
+(:class:`stack.cells.ConfigError`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from stack.cells import CellGrid, ConfigError
+
+FAULT_KINDS = ("camera_off", "lidar_off", "kill", "obstacle")
+DIRECTIONS = ("north", "south", "east", "west", "not moving")
+
+
+@dataclass(frozen=True)
+class Leg:
+    """One leg of the person's walk: go to ``to`` at ``speed_mps``, wait ``pause_s``."""
+
+    to: Any  # "door" | "outside" | int cell | (x, y)
+    speed_mps: float = 1.0
+    pause_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Fault:
+    kind: str
+    at_s: float = 0.0
+    duration_s: float = 0.0
+    node: str = ""
+    after_step: int = 0
+    cell: int = 0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    title: str
+    task: Path
+    seed: int
+    steps: int
+    robot_cell: int
+    belief_person: int | None
+    belief_direction: str
+    start: Any
+    walk: tuple[Leg, ...]
+    faults: tuple[Fault, ...] = ()
+    thesis_table: str = ""
+    source: Path | None = None
+
+    def person_waypoints(
+        self, grid: CellGrid, door_m: tuple[float, float], inside_m: float = 0.8
+    ) -> list[dict[str, float]]:
+        """The walk as twin waypoints (``twin.config.Waypoint`` mappings).
+
+        Args:
+            grid: the cell geometry.
+            door_m: the doorway's centre on the north wall (twin SceneLayout.door_center_m).
+            inside_m: how far inside the room "door" is (outside is 1.5 times that).
+        """
+
+        def point(to: Any, key: str) -> tuple[float, float]:
+            if to == "door":
+                return door_m[0], door_m[1] - inside_m
+            if to == "outside":
+                return door_m[0], door_m[1] + 1.5 * inside_m
+            if isinstance(to, int):
+                if to not in grid.cells:
+                    raise ConfigError(key, to, f"not a cell of the grid {grid.cells}")
+                return grid.center(to)
+            return float(to[0]), float(to[1])
+
+        wps = [{"x_m": point(self.start, "person.start")[0], "y_m": point(self.start, "")[1]}]
+        wps[0]["pause_s"] = 0.0
+        for i, leg in enumerate(self.walk):
+            x, y = point(leg.to, f"person.walk[{i}].to")
+            wps.append({"x_m": x, "y_m": y, "speed_mps": leg.speed_mps, "pause_s": leg.pause_s})
+        return wps
+
+
+def _where(value: Any, key: str) -> Any:
+    if value in ("door", "outside"):
+        return value
+    if isinstance(value, bool):
+        raise ConfigError(key, value, "must be door, outside, a cell number or [x, y]")
+    if isinstance(value, int):
+        return value
+    if (
+        isinstance(value, list | tuple)
+        and len(value) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        return (float(value[0]), float(value[1]))
+    raise ConfigError(key, value, "must be door, outside, a cell number or [x, y]")
+
+
+def _number(data: dict, key: str, default: float, prefix: str, minimum: float = 0.0) -> float:
+    v = data.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int | float) or v < minimum:
+        raise ConfigError(f"{prefix}.{key}", v, f"must be a number >= {minimum}")
+    return float(v)
+
+
+def _check_keys(data: Any, known: set[str], prefix: str) -> dict:
+    if not isinstance(data, dict):
+        raise ConfigError(prefix, data, "must be a mapping")
+    for k in data:
+        if k not in known:
+            raise ConfigError(f"{prefix}.{k}", data[k], f"unknown key (known: {sorted(known)})")
+    return data
+
+
+def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
+    """Validate a scenario mapping.
+
+    Raises:
+        ConfigError: naming the key, the value and the rule.
+    """
+    known = {"name", "title", "thesis_table", "task", "seed", "steps", "robot_cell"}
+    known |= {"belief", "person", "faults"}
+    d = _check_keys(data, known, "scenario")
+    for key in ("name", "task"):
+        if not isinstance(d.get(key), str) or not d[key]:
+            raise ConfigError(key, d.get(key), "must be a non-empty string")
+    task = Path(d["task"])
+    if not task.is_absolute() and source is not None:
+        task = source.parent / task
+    if not task.exists():
+        raise ConfigError("task", str(task), "file not found")
+    ints = {}
+    for key, default, low in (("seed", 0, 0), ("steps", 10, 1), ("robot_cell", 7, 1)):
+        v = d.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise ConfigError(key, v, f"must be an integer >= {low}")
+        ints[key] = v
+    belief = _check_keys(d.get("belief", {}), {"person", "direction"}, "belief")
+    person = belief.get("person", "none")
+    if person in ("none", None):
+        person = None
+    elif isinstance(person, bool) or not isinstance(person, int):
+        raise ConfigError("belief.person", person, "must be a cell number or none")
+    direction = str(belief.get("direction", "not moving")).lower()
+    if direction not in DIRECTIONS:
+        raise ConfigError("belief.direction", direction, f"must be one of {DIRECTIONS}")
+    p = _check_keys(d.get("person", {}), {"start", "walk"}, "person")
+    start = _where(p.get("start", "outside"), "person.start")
+    walk = []
+    legs = p.get("walk", [])
+    if not isinstance(legs, list):
+        raise ConfigError("person.walk", legs, "must be a list of legs")
+    for i, leg in enumerate(legs):
+        key = f"person.walk[{i}]"
+        leg = _check_keys(leg, {"to", "speed_mps", "pause_s"}, key)
+        speed = _number(leg, "speed_mps", 1.0, key, 0.1)
+        if speed > 1.4:
+            raise ConfigError(f"{key}.speed_mps", speed, "must be in [0.1, 1.4] m/s")
+        walk.append(Leg(_where(leg.get("to"), f"{key}.to"), speed, _number(leg, "pause_s", 0, key)))
+    faults = []
+    raw_faults = d.get("faults", []) or []
+    if not isinstance(raw_faults, list):
+        raise ConfigError("faults", raw_faults, "must be a list")
+    for i, f in enumerate(raw_faults):
+        key = f"faults[{i}]"
+        f = _check_keys(f, {"kind", "at_s", "duration_s", "node", "after_step", "cell"}, key)
+        kind = f.get("kind")
+        if kind not in FAULT_KINDS:
+            raise ConfigError(f"{key}.kind", kind, f"must be one of {FAULT_KINDS}")
+        fault = Fault(
+            kind,
+            _number(f, "at_s", 0, key),
+            _number(f, "duration_s", 0, key),
+            str(f.get("node", "")),
+            int(f.get("after_step", 0)),
+            int(f.get("cell", 0)),
+        )
+        if kind == "kill" and (not fault.node or fault.after_step < 1):
+            raise ConfigError(key, f, "kill needs node and after_step >= 1")
+        if kind in ("camera_off", "lidar_off") and fault.duration_s <= 0:
+            raise ConfigError(f"{key}.duration_s", fault.duration_s, "must be > 0")
+        if kind == "obstacle" and fault.cell < 1:
+            raise ConfigError(f"{key}.cell", fault.cell, "must name a cell")
+        faults.append(fault)
+    return Scenario(
+        name=d["name"],
+        title=str(d.get("title", d["name"])),
+        task=task.resolve(),
+        seed=ints["seed"],
+        steps=ints["steps"],
+        robot_cell=ints["robot_cell"],
+        belief_person=person,
+        belief_direction=direction,
+        start=start,
+        walk=tuple(walk),
+        faults=tuple(faults),
+        thesis_table=str(d.get("thesis_table", "")),
+        source=source,
+    )
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file (see the module docstring)."""
+    path = Path(path).resolve()
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ConfigError(str(path), "", f"not valid YAML: {err}") from None
+    return parse_scenario(data, path)

@@ -1,0 +1,288 @@
+"""The networked system of figure 4.7 as processes: which nodes, with which parameters.
+
+:func:`prepare` turns a deployment file (and optionally a scenario) into a run folder
+holding everything the nodes read (the twin's scene with the scenario's person, the
+stack's config with the task's grid, the camera calibration, the policy, one ROS
+parameters file) and the list of :class:`vigil.launch.ProcessSpec` to start.
+
+Twin mode: twin_bridge + camera_people, legs, observations, navigation, speech,
+planner, recorder (lock-step participants). Hardware mode: camera_stream and
+velocity_gate instead of the bridge; the robot's own drivers provide /scan and the
+pose, navigation drives ``/nav/cmd_vel`` through the gate, and nothing moves until the
+operator arms the gate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from stack.cells import CellGrid
+from vigil.deployment import Deployment
+from vigil.launch import ProcessSpec
+from vigil.scenario import Scenario
+
+REPO = Path(__file__).resolve().parents[1]
+POLICY_CACHE = REPO / "runs" / ".policies"
+LIDAR_X_M = 0.24  # the twin's lidar site on the MBot (twin/assets/mbot.xml)
+
+MODULES = {
+    "twin_bridge": "twin.bridge_node",
+    "camera_stream": "stack.hardware.node_camera_stream",
+    "velocity_gate": "stack.hardware.node_velocity_gate",
+    "camera_people": "stack.perception.node_camera_people",
+    "legs": "stack.perception.node_legs",
+    "observations": "stack.perception.node_observations",
+    "navigation": "stack.nav.node_navigation",
+    "speech": "stack.nav.node_speech",
+    "planner": "stack.planning.node_planner",
+    "recorder": "vigil.node_recorder",
+    "table_player": "vigil.node_table_player",
+}
+
+
+@dataclass
+class System:
+    """A prepared run: its folder, its processes and what they were given."""
+
+    run_dir: Path
+    specs: list[ProcessSpec]
+    params: dict[str, dict[str, Any]]
+    env: dict[str, str] = field(default_factory=dict)
+    max_steps: int = 0
+
+
+def policy_for(task_path: Path, say=print, iterations: int = 200) -> Path:
+    """The task's policy, solved once and cached by the task file's content."""
+    digest = hashlib.sha256(Path(task_path).read_bytes()).hexdigest()[:12]
+    path = POLICY_CACHE / f"{Path(task_path).stem}-{digest}-{iterations}.npz"
+    if path.exists():
+        return path
+    from stack.planning.solve import format_progress
+    from vigil.cli import solve_task
+
+    say(f"[policy] solving {Path(task_path).name} ({iterations} Perseus iterations), once")
+    args = argparse.Namespace(
+        beliefs=300, iterations=iterations, time_limit=None, fib_time=0.0, seed=0, quiet=False
+    )
+    _, _, result = solve_task(
+        Path(task_path), args, lambda s: say("[policy] " + format_progress(s))
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    result.policy.save(tmp)
+    tmp.replace(path)
+    return path
+
+
+def _task_grid(task_path: Path) -> dict[str, Any] | None:
+    data = yaml.safe_load(Path(task_path).read_text()) or {}
+    return data.get("grid")
+
+
+def _read_yaml(path: Path | None) -> dict[str, Any]:
+    if path is None:
+        return {}
+    data = yaml.safe_load(path.read_text()) or {}
+    return dict(data)
+
+
+def prepare(
+    dep: Deployment,
+    run_dir: Path,
+    scenario: Scenario | None = None,
+    seed: int | None = None,
+    say=print,
+) -> System:
+    """Write the run folder's inputs and return the processes to start.
+
+    Raises:
+        ConfigError: a file the deployment names is missing or invalid.
+    """
+    from twin.config import TwinConfig
+
+    run_dir = Path(run_dir).resolve()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "speech").mkdir(exist_ok=True)
+    task = scenario.task if scenario is not None else dep.task
+    grid_section = _task_grid(task)
+    grid = CellGrid.from_mapping(grid_section) if grid_section else CellGrid()
+    seed = seed if seed is not None else (scenario.seed if scenario else dep.twin.seed)
+
+    # the stack's config: the task's grid + perception and navigation sections
+    stack_cfg: dict[str, Any] = {}
+    for extra in (dep.resolve(dep.perception.config), dep.resolve(dep.navigation.config)):
+        stack_cfg.update(_read_yaml(extra))
+    if grid_section:
+        stack_cfg["grid"] = grid_section
+    stack_file = run_dir / "stack.yaml"
+    stack_file.write_text(yaml.safe_dump(stack_cfg, sort_keys=True))
+
+    policy = dep.policy or policy_for(task, say)
+    common = {"lockstep": dep.lockstep, "use_sim_time": False}
+    params: dict[str, dict[str, Any]] = {}
+    twin_mode = dep.mode == "twin"
+    if twin_mode:
+        scene = _read_yaml(dep.resolve(dep.twin.scene))
+        scene = dict(scene.get("twin", scene))
+        if grid_section:
+            scene["grid"] = grid_section
+        faults = scenario.faults if scenario else ()
+        if scenario is not None:
+            scene.setdefault("robot", {})
+            scene["robot"] = {**scene["robot"], "start_cell": scenario.robot_cell}
+            obstacles = [
+                {"x_m": grid.center(f.cell)[0], "y_m": grid.center(f.cell)[1]}
+                for f in faults
+                if f.kind == "obstacle"
+            ]
+            if obstacles:
+                scene["obstacles"] = obstacles
+            base = TwinConfig.from_dict(scene)  # validates, and gives the door
+            from twin.scene import build_spec
+
+            _, layout = build_spec(base)
+            scene["person"] = {
+                **scene.get("person", {}),
+                "waypoints": scenario.person_waypoints(grid, layout.door_center_m),
+            }
+        twin_file = run_dir / "twin.yaml"
+        twin_file.write_text(yaml.safe_dump({"twin": scene}, sort_keys=False))
+        twin_cfg = TwinConfig.from_dict(scene)
+        outages = [
+            [f.kind.split("_")[0], f.at_s, f.at_s + f.duration_s]
+            for f in faults
+            if f.kind in ("camera_off", "lidar_off")
+        ]
+        calibration = dep.resolve(dep.perception.calibration)
+        if calibration is None:
+            calibration = run_dir / "calibration.yaml"
+            _calibrate_twin(twin_cfg, calibration, say)
+        params["twin_bridge"] = {
+            "config": str(twin_file),
+            "seed": seed,
+            "realtime": dep.twin.realtime,
+            "odom_rate_hz": dep.twin.odom_rate_hz,
+            "lockstep": dep.lockstep,
+            "stall_timeout_s": dep.twin.stall_timeout_s,
+            "sensor_outages": json.dumps(outages),
+        }
+    else:
+        calibration = dep.resolve(dep.perception.calibration)
+        hw_file = run_dir / "hardware.yaml"
+        hw_file.write_text(yaml.safe_dump(dep.hardware, sort_keys=True))
+        params["camera_stream"] = {"config_file": str(hw_file)}
+        params["velocity_gate"] = {
+            "config_file": str(hw_file),
+            "armed": bool(dep.hardware.get("armed", False)),
+            "input_topic": "/nav/cmd_vel",
+            "output_topic": dep.topics.cmd_vel,
+        }
+
+    cfg = str(stack_file)
+    params["camera_people"] = {**common, "config_file": cfg, "calibration_file": str(calibration)}
+    params["legs"] = {
+        **common,
+        "config_file": cfg,
+        "scan_topic": dep.topics.scan,
+        "odom_topic": dep.topics.odom,
+        "laser_x_m": LIDAR_X_M if twin_mode else 0.0,
+    }
+    params["observations"] = {
+        **common,
+        "config_file": cfg,
+        "odom_topic": dep.topics.odom,
+        "decision_period_s": 0.0,
+    }
+    params["navigation"] = {
+        **common,
+        "config_file": cfg,
+        "pose_source": dep.navigation.pose_source,
+        "pose_topic": dep.navigation.pose_topic,
+        "control_rate_hz": dep.navigation.control_rate_hz,
+        "cmd_vel_topic": "/cmd_vel" if twin_mode else "/nav/cmd_vel",
+    }
+    params["speech"] = {
+        **common,
+        "config_file": cfg,
+        "voice": dep.speech.voice,
+        "out_dir": str(run_dir / "speech"),
+    }
+    max_steps = scenario.steps if scenario else dep.planner.max_steps
+    planner = {
+        **common,
+        "task_file": str(task),
+        "policy_file": str(policy),
+        "state_file": str(run_dir / "planner_state.json"),
+        "steps_file": str(run_dir / "steps.jsonl"),
+        "max_steps": max_steps,
+        "start_delay_s": dep.planner.start_delay_s,
+        "nav_timeout_s": dep.planner.nav_timeout_s,
+        "obs_timeout_s": dep.planner.obs_timeout_s,
+        "min_step_s": 2.5,
+    }
+    if scenario is not None:
+        planner.update(
+            initial_robot_cell=scenario.robot_cell,
+            initial_person_cell=scenario.belief_person or 0,
+            initial_direction=scenario.belief_direction,
+        )
+    params["planner"] = planner
+    params["recorder"] = {
+        **common,
+        "out_dir": str(run_dir),
+        "task_file": str(task),
+        "config_file": cfg,
+    }
+
+    names = ["twin_bridge"] if twin_mode else ["camera_stream", "velocity_gate"]
+    names += ["camera_people", "legs", "observations", "navigation", "speech", "planner"]
+    names += ["recorder"]
+    if twin_mode and dep.lockstep:
+        params["twin_bridge"]["participants"] = [n for n in names if n != "twin_bridge"]
+    return _write(run_dir, names, params, dep, max_steps)
+
+
+def _write(
+    run_dir: Path, names: list[str], params: dict, dep: Deployment, max_steps: int
+) -> System:
+    params_file = run_dir / "params.yaml"
+    doc = {name: {"ros__parameters": params[name]} for name in names}
+    params_file.write_text(yaml.safe_dump(doc, sort_keys=True))
+    specs = [
+        ProcessSpec(
+            name,
+            MODULES[name],
+            params_file,
+            restart=dep.nodes.restart and name not in ("twin_bridge", "recorder"),
+        )
+        for name in names
+    ]
+    env = {"PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"}
+    if dep.ros.localhost_only:
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if dep.ros.domain_id >= 0:
+        env["ROS_DOMAIN_ID"] = str(dep.ros.domain_id)
+    if dep.mode == "twin":
+        env.setdefault("MUJOCO_GL", "egl")
+    return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
+
+
+def _calibrate_twin(twin_cfg, path: Path, say) -> None:
+    """The camera's floor homography from points the twin reports (as on the robot,
+    from measured floor points)."""
+    from stack.perception.homography import save_calibration
+    from twin.calibration import calibrate_twin
+    from twin.twin import Twin
+
+    with Twin(twin_cfg, seed=0) as tw:
+        cal = calibrate_twin(tw)
+    save_calibration(path, cal)
+    err_cm = cal.mean_error_m * 100
+    say(f"[calibration] twin floor points: mean error {err_cm:.1f} cm -> {path.name}")
