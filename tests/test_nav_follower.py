@@ -41,9 +41,9 @@ def room(wall_x_m: float | None = None, door_y_m: tuple[float, float] | None = N
     return m.with_data(data)
 
 
-def drive(follower, base, goal, t0=0.0, people=(), max_s=40.0):
+def drive(follower, base, goal, t0=0.0, people=(), max_s=40.0, region=None):
     """Run the loop until the task ends; returns (final status, commands, poses, t)."""
-    follower.start(goal, t0)
+    follower.start(goal, t0, region)
     t, cmds, poses = t0, [], [base.pose]
     while t - t0 < max_s:
         status = follower.step(base.pose, t, t, people)
@@ -134,6 +134,21 @@ def test_person_standing_on_the_waypoint_blocks():
     assert t == pytest.approx(cfg.blocked_timeout_s, abs=2 * DT)
     assert all(c.is_zero() for c in cmds)
     assert math.dist((base.pose.x_m, base.pose.y_m), GRID.center(7)) < 1e-9
+
+
+def test_person_on_the_waypoint_the_robot_still_enters_the_cell():
+    # the action is "go to cell 5": with the cell as the region the robot stops inside
+    # it, beside the person, instead of waiting for the person to leave the waypoint
+    follower = PathFollower(CFG, room())
+    base = KinematicBase(Pose2D(*GRID.center(7)))
+    person = GRID.center(5)
+    status, _, poses, _ = drive(
+        follower, base, GRID.center(5), people=[person], region=GRID.bounds(5)
+    )
+    assert status.result is NavResult.SUCCEEDED
+    assert GRID.cell_at(base.pose.x_m, base.pose.y_m) == 5
+    clearance = min(math.dist((p.x_m, p.y_m), person) for p in poses)
+    assert clearance >= CFG.person_radius_m + CFG.robot_radius_m - 0.05
 
 
 def test_person_in_a_doorway_blocks_after_the_robot_stops_short():

@@ -100,6 +100,9 @@ class FollowerConfig:
     stale_pose_s: float = 0.5  # pose older than this: zero velocity [s]
     timeout_s: float = 60.0  # whole task [s]
     blocked_timeout_s: float = 5.0  # waiting for a person to clear the way before BLOCKED [s]
+    # a person standing on the waypoint: stop at the nearest free point of the target
+    # cell at least this far inside its borders instead (the action is "go to the cell")
+    region_margin_m: float = 0.1
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
     unknown_is_occupied: bool = True

@@ -177,6 +177,9 @@ class PathFollower:
         self.config = config
         self.set_map(occ_map)
         self._goal: tuple[float, float] | None = None
+        self._region: tuple[float, float, float, float] | None = None
+        self._beside = False
+        self._people = np.zeros((0, 2))
         self._state = FollowerState.IDLE
         self._prev_cmd = ZERO_TWIST
         self._last_step_s: float | None = None
@@ -221,12 +224,23 @@ class PathFollower:
         return self._path.copy()
 
     # -- task control --------------------------------------------------------
-    def start(self, goal_xy: tuple[float, float], now_s: float) -> None:
+    def start(
+        self,
+        goal_xy: tuple[float, float],
+        now_s: float,
+        region: tuple[float, float, float, float] | None = None,
+    ) -> None:
         """Begin a task to ``goal_xy`` (supersedes any running task).
 
         The path is planned on the next :meth:`step`, where the pose is known.
+        ``region`` (x_min, y_min, x_max, y_max): the target cell. When people make the
+        goal unreachable, the follower drives to the nearest free point of the region
+        instead (``region_margin_m`` inside it): the robot reaches the person's cell.
         """
         self._goal = (float(goal_xy[0]), float(goal_xy[1]))
+        self._region = region
+        self._beside = False
+        self._people = np.zeros((0, 2))
         self._state = FollowerState.ACTIVE
         self._start_s = now_s
         self._replans = -1  # the first plan is not a replan
@@ -317,7 +331,10 @@ class PathFollower:
             return self._end(NavResult.SUCCEEDED, NavErrorCode.NONE, "", d_goal)
 
         people = np.asarray(list(people_xy), dtype=float).reshape(-1, 2)
-        person_mask = disc_mask(self.map, people, cfg.person_radius_m + cfg.inflation_radius_m)
+        # beside a person in the target cell: contact clearance only (see _plan_into_region)
+        keep = cfg.robot_radius_m if self._beside else cfg.inflation_radius_m
+        person_mask = disc_mask(self.map, people, cfg.person_radius_m + keep)
+        self._people = people
         need_plan = len(self._path) == 0 or self._path_blocked(person_mask)
         if self._state is FollowerState.WAITING:
             need_plan = now_s - self._last_try_s >= cfg.replan_period_s
@@ -374,6 +391,8 @@ class PathFollower:
         try:
             grid_path = astar_grid(self.static_blocked | person_mask, start, goal_cell)
         except NoPathError:
+            grid_path = self._plan_into_region(start)
+        if grid_path is None:
             if self._waiting_since is None:
                 self._waiting_since = now_s
             self._state = FollowerState.WAITING
@@ -389,6 +408,43 @@ class PathFollower:
         pts[0] = (pose.x_m, pose.y_m)
         pts[-1] = self._goal
         self._path, self._path_cells, self._index = pts, cells, 0
+        return None
+
+    def _plan_into_region(self, start: tuple[int, int]):
+        """A path to the free point of the target region nearest the goal, or None.
+
+        Beside a person the robot keeps contact clearance (person + robot radius, no
+        inflation margin): close, as a robot asking someone to leave would stand."""
+        if self._region is None:
+            return None
+        m = self.config.region_margin_m
+        x0, y0, x1, y1 = self._region
+        r_a, c_a = self.map.world_to_cell(x0 + m, y0 + m)
+        r_b, c_b = self.map.world_to_cell(x1 - m, y1 - m)
+        r0, r1 = sorted((r_a, r_b))
+        c0, c1 = sorted((c_a, c_b))
+        h, w = self.map.shape
+        r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, h - 1), min(c1, w - 1)
+        if r1 < r0 or c1 < c0:
+            return None
+        cfg = self.config
+        near = disc_mask(self.map, self._people, cfg.person_radius_m + cfg.robot_radius_m)
+        blocked = self.static_blocked | near
+        free = np.argwhere(~blocked[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
+        if len(free) == 0:
+            return None
+        goal_rc = np.array(self.map.world_to_cell(*self._goal))
+        order = np.argsort(((free - goal_rc) ** 2).sum(axis=1), kind="stable")
+        for k in order[:5]:  # the nearest few: one of them is reachable if any is
+            cell = (int(free[k, 0]), int(free[k, 1]))
+            try:
+                path = astar_grid(blocked, start, cell)
+            except NoPathError:
+                continue
+            x, y = self.map.cells_to_world(np.array([cell]))[0]
+            self._goal = (float(x), float(y))
+            self._beside = True
+            return path
         return None
 
     def _start_cell(self, pose: Pose2D) -> tuple[int, int]:

@@ -234,7 +234,7 @@ class NavigationNode(Node):
             self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
             self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "holding position")
         else:
-            self.begin(target.waypoint_m)
+            self.begin(target.waypoint_m, target.cell)
 
     def on_goal(self, msg: PoseStamped) -> None:
         frame = msg.header.frame_id
@@ -249,11 +249,12 @@ class NavigationNode(Node):
         self.task = {"action": "goal_pose", "target_cell": self.grid.cell_at(x, y)}
         self.begin((x, y))
 
-    def begin(self, goal_xy: tuple[float, float]) -> None:
+    def begin(self, goal_xy: tuple[float, float], cell: int | None = None) -> None:
         if self.stopped:
             self.publish_result(NavResult.CANCELED, NavErrorCode.STOPPED, "stop is active")
             return
-        self.follower.start(goal_xy, self.now_s())
+        region = self.grid.bounds(cell) if cell is not None else None
+        self.follower.start(goal_xy, self.now_s(), region)
 
     # -- the control loop ----------------------------------------------------
     def on_timer(self) -> None:
