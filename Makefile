@@ -6,12 +6,15 @@ export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup run test lint bench
+.PHONY: setup run replay test lint bench
 setup:
 	@bash scripts/setup.sh
 
 run: setup
-	$(VENV)/bin/vigil main --out runs/main
+	$(VENV)/bin/vigil run scenarios/5.2.2.yaml --out runs/main
+
+replay: setup
+	$(VENV)/bin/vigil main --out runs/replay
 
 test: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)

@@ -66,3 +66,57 @@ def test_bridge_publishes_all_topics_and_obeys_cmd_vel():
         bridge.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+@pytest.mark.ros
+def test_lockstep_time_waits_for_every_participant():
+    """In lock-step the twin stands still until each participant has processed what
+    it was sent; a slow participant slows the twin, not the other way round."""
+    from rclpy.parameter import Parameter
+
+    from stack.ros_lockstep import Participant
+
+    rclpy.init()
+    try:
+        cfg = TwinConfig.from_dict({"camera": {"width_px": 160, "height_px": 100}})
+        bridge = TwinBridge(
+            Twin(cfg, seed=0),
+            parameter_overrides=[
+                Parameter("lockstep", value=True),
+                Parameter("participants", value=["slow"]),
+            ],
+        )
+        ex = SingleThreadedExecutor()
+        ex.add_node(bridge)
+        for _ in range(100):  # nobody there: the twin does not start
+            ex.spin_once(timeout_sec=0.01)
+        assert bridge.twin.time_s == 0.0
+        slow = rclpy.create_node("slow")
+        part = Participant(slow, enabled=True)
+        seen: list[float] = []
+        hold = {"on": True}
+
+        def on_odom(msg):
+            seen.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+
+        part.subscription(Odometry, "/odom", on_odom, 10)
+        # a participant that stops acknowledging (its callbacks run, acks are lost)
+        real_ack = part.ack
+        part.ack = lambda: None if hold["on"] else real_ack()
+        ex.add_node(slow)
+        hold["on"] = False
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and bridge.twin.time_s < 0.5:
+            ex.spin_once(timeout_sec=0.01)
+        assert bridge.twin.time_s >= 0.5
+        # every odometry message was processed before the next step: none skipped
+        assert seen == pytest.approx([0.04 * k for k in range(len(seen))], abs=1e-6)
+        hold["on"] = True  # acks stop: the twin must stop within one tick
+        t_hold = bridge.twin.time_s
+        for _ in range(200):
+            ex.spin_once(timeout_sec=0.005)
+        assert bridge.twin.time_s <= t_hold + 0.04 + 1e-9
+        bridge.destroy_node()
+        slow.destroy_node()
+    finally:
+        rclpy.try_shutdown()

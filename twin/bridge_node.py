@@ -182,7 +182,7 @@ class TwinBridge(Node):
         p("seed", 0)
         p("realtime", False)
         p("cmd_timeout_s", 0.5)
-        p("odom_rate_hz", 20.0)
+        p("odom_rate_hz", 25.0)
         self.lockstep = bool(p("lockstep", False).value)
         participants = list(p("participants", [""]).value)
         self.stall_warn_s = float(p("stall_warn_s", 5.0).value)

@@ -12,7 +12,7 @@ Sections (all optional except ``mode`` and ``task``)::
     policy: ""                    # alpha vectors (.npz); "": solved on first use, cached
     lockstep: true                # twin only: advance only when the stack has caught up
     ros: {domain_id: null, localhost_only: true}
-    twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 20.0}
+    twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 25.0}
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
     navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0}
     speech: {voice: en}
@@ -53,7 +53,7 @@ class TwinSection:
     scene: str = "twin-scene.yaml"
     seed: int = 0
     realtime: bool = False
-    odom_rate_hz: float = 20.0
+    odom_rate_hz: float = 25.0
     stall_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:

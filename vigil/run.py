@@ -35,7 +35,7 @@ class RunError(RuntimeError):
 
 def _fresh(run_dir: Path) -> None:
     if run_dir.exists() and any(run_dir.iterdir()):
-        if not (run_dir / RUN_MARK).exists():
+        if not any((run_dir / f).exists() for f in (RUN_MARK, "summary.json")):
             raise ConfigError("--out", str(run_dir), "exists and is not a run folder")
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True)
