@@ -36,7 +36,6 @@ from stack.cells import CellGrid, Direction  # noqa: E402
 from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus  # noqa: E402
 from stack.perception.direction import classify_displacement  # noqa: E402
 from stack.perception.hog import HogConfig, HogPeopleDetector  # noqa: E402
-from stack.perception.homography import calibrate  # noqa: E402
 from stack.perception.legs import LegConfig, Pose2D, Scan, StaticMap, detect_legs  # noqa: E402
 from stack.perception.observation import speed_class  # noqa: E402
 from stack.perception.synthetic import simulate_scan, walking_legs  # noqa: E402
@@ -56,14 +55,9 @@ def twin_setup(width_px: int, height_px: int, person_xy=None, seed=0):
 
 
 def twin_calibration(tw, grid: CellGrid):
-    from twin.sensors import project
+    from twin.calibration import calibrate_twin
 
-    w, h = grid.cell_size_m
-    xs = grid.origin_m[0] + w * np.arange(grid.columns + 1)
-    ys = grid.origin_m[1] + h * np.arange(grid.rows + 1)
-    floor = np.array([(x, y) for x in xs for y in ys])
-    px = project(tw.camera_info, tw.camera_pose(), np.c_[floor, np.zeros(len(floor))])
-    return calibrate(px, floor, image_size_px=(tw.camera_info.width, tw.camera_info.height))
+    return calibrate_twin(tw, grid)
 
 
 def region_roi(tw, grid: CellGrid, head_m: float = 2.0, pad_px: int = 24):
@@ -185,6 +179,9 @@ def bench_walk(duration_s: float, camera_hz: float = 5.0, scan_hz: float = 10.0)
     occ_map = tw.occupancy_map()
     smap = StaticMap(np.asarray(occ_map.data) >= 65, occ_map.resolution_m, occ_map.origin_m)
     legs_cfg, tracker = LegConfig(), LegTracker(TrackerConfig())
+    from bench_perception_walks import lidar_mount
+
+    mount = lidar_mount(tw)  # the lidar sits 0.24 m ahead of the robot's centre
     stats = {k: [] for k in ("det", "fp", "err", "cell", "cell_inner", "dir", "spd", "cls", "hog")}
     next_cam = next_scan = 0.0
     tracks = ()
@@ -198,7 +195,8 @@ def bench_walk(duration_s: float, camera_hz: float = 5.0, scan_hz: float = 10.0)
             s = tw.scan()
             scan = Scan(np.asarray(s.ranges_m, float), s.angle_min_rad, s.angle_increment_rad,
                         s.range_min_m, s.range_max_m, t)  # fmt: skip
-            det = detect_legs(scan, legs_cfg, Pose2D(*vars(truth.robot).values()), smap)
+            robot = Pose2D(truth.robot.x_m, truth.robot.y_m, truth.robot.yaw_rad)
+            det = detect_legs(scan, legs_cfg, robot.compose(mount), smap)
             tracks = tracker.update(t, [q.position_m for q in det.people])
         if t < next_cam:
             continue

@@ -165,3 +165,52 @@ def test_launcher_stop_and_kill(tmp_path):
     codes = la.stop(timeout_s=2.0)
     assert set(codes) == {"a", "b"} and all(c is not None for c in codes.values())
     assert la.running == {}
+
+
+# -- the system a deployment makes --------------------------------------------------
+def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
+    from vigil.system import prepare
+
+    (tmp_path / "cal.yaml").write_text("unused: true\n")
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "hardware.yaml").read_text())
+    data.update(
+        task=str(CONFIG / "task-r2.yaml"),
+        policy=str(tmp_path / "policy.npz"),
+        perception={"calibration": str(tmp_path / "cal.yaml")},
+    )
+    dep = parse_deployment(data, tmp_path / "hardware.yaml")
+    system = prepare(dep, tmp_path / "run", say=lambda s: None)
+    names = [s.name for s in system.specs]
+    assert "twin_bridge" not in names
+    assert {"camera_stream", "velocity_gate", "planner", "navigation"} <= set(names)
+    p = system.params
+    assert p["navigation"]["cmd_vel_topic"] == "/nav/cmd_vel"  # only the gate drives
+    assert p["velocity_gate"]["output_topic"] == "/cmd_vel"
+    assert p["velocity_gate"]["armed"] is False
+    assert p["navigation"]["pose_source"] == "amcl"
+    assert not any(v.get("lockstep") for v in p.values())
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in system.env
+    params = yaml.safe_load((tmp_path / "run" / "params.yaml").read_text())
+    assert params["planner"]["ros__parameters"]["task_file"].endswith("task-r2.yaml")
+
+
+def test_twin_system_is_lockstep_on_localhost(tmp_path):
+    from vigil.system import prepare
+
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
+    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
+    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    dep = parse_deployment(data, tmp_path / "twin.yaml")
+    scenario = load_scenario(REPO / "scenarios" / "5.1.2.yaml")
+    system = prepare(dep, tmp_path / "run", scenario, say=lambda s: None)
+    p = system.params
+    assert p["twin_bridge"]["lockstep"] is True
+    assert set(p["twin_bridge"]["participants"]) == {s.name for s in system.specs} - {"twin_bridge"}
+    assert system.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    twin = yaml.safe_load((tmp_path / "run" / "twin.yaml").read_text())["twin"]
+    assert twin["robot"]["start_cell"] == scenario.robot_cell
+    assert len(twin["person"]["waypoints"]) == len(scenario.walk) + 1
+    assert (tmp_path / "run" / "calibration.yaml").exists()  # from the twin's floor points
+    assert p["planner"]["max_steps"] == scenario.steps

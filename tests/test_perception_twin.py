@@ -9,25 +9,14 @@ from __future__ import annotations
 import math
 
 import cv2
-import numpy as np
 import pytest
 
 twin_mod = pytest.importorskip("twin.twin")
 from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus  # noqa: E402
-from stack.perception.homography import calibrate  # noqa: E402
+from twin.calibration import calibrate_twin  # noqa: E402
 from twin.config import TwinConfig  # noqa: E402
-from twin.sensors import project  # noqa: E402
 
 pytestmark = pytest.mark.slow
-
-
-def twin_calibration(tw, grid):
-    w, h = grid.cell_size_m
-    xs = grid.origin_m[0] + w * np.arange(grid.columns + 1)
-    ys = grid.origin_m[1] + h * np.arange(grid.rows + 1)
-    floor = np.array([(x, y) for x in xs for y in ys])
-    pixels = project(tw.camera_info, tw.camera_pose(), np.c_[floor, np.zeros(len(floor))])
-    return calibrate(pixels, floor, image_size_px=(tw.camera_info.width, tw.camera_info.height))
 
 
 # Off-centre spots (0.25-0.35 m from the centre) in near, middle and far cells.
@@ -41,7 +30,7 @@ def test_twin_person_is_detected_in_the_right_cell(cell, offset_m):
     cfg = TwinConfig.from_dict({"person": {"waypoints": [{"x_m": x, "y_m": y, "pause_s": 60.0}]}})
     tw = twin_mod.Twin(cfg, seed=cell)
     try:
-        cal = twin_calibration(tw, grid)
+        cal = calibrate_twin(tw, grid)
         assert cal.max_error_m < 1e-3
         frame = cv2.cvtColor(tw.render_camera(), cv2.COLOR_RGB2BGR)
         truth = tw.ground_truth().person

@@ -38,13 +38,14 @@ def twin_runs(tmp_path_factory):
 
 def test_scenario_outcome(twin_runs):
     run_dir, summary = twin_runs[0]
-    assert summary["steps"] == 11
+    assert summary["steps"] == 20
     assert summary["left_map"] is False
     visits = [v for v in summary["visits"] if v["cell"] == 1]
     assert visits, "the person never reached the restricted cell"
     # the robot reaches the restricted cell while the person is there (or approaching)
     assert any(
-        v["robot_arrival_t"] is not None and v["robot_arrival_t"] <= v["person_left_t"]
+        v["robot_arrival_t"] is not None
+        and (v["person_left_t"] is None or v["robot_arrival_t"] <= v["person_left_t"])
         for v in visits
     )
     assert summary["warning_in_restricted"] is True
@@ -128,3 +129,54 @@ def test_table_5_1_through_ros_matches_the_replay(tmp_path):
         assert rec["action"] == res.chosen_action
         if res.chosen_action != row.action:
             break
+
+
+def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    dep = yaml.safe_load((REPO / "config" / "twin.yaml").read_text())
+    dep.update(task=str(REPO / "config" / "task-r1.yaml"))
+    dep["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
+    dep_path = tmp_path / "twin.yaml"
+    dep_path.write_text(yaml.safe_dump(dep))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vigil.cli", "launch", str(dep_path), "--out", str(tmp_path / "o")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=REPO,
+    )
+    lines, up = [], set()
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and len(up) < 8:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if "[launch] up: " in line:
+            up.add(line.split("[launch] up: ")[1].strip())
+    assert up == {
+        "twin_bridge",
+        "camera_people",
+        "legs",
+        "observations",
+        "navigation",
+        "speech",
+        "planner",
+        "recorder",
+    }, "".join(lines)
+    steps = tmp_path / "o" / "steps.jsonl"
+    end = time.monotonic() + 120
+    while time.monotonic() < end and not (steps.exists() and steps.stat().st_size > 0):
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    stopped = [line for line in out.splitlines() if line.startswith("[launch] stopped:")]
+    assert stopped and "None" not in stopped[0], out  # every node exited
+    assert (tmp_path / "o" / "logs" / "planner.log").exists()
+    assert os.path.getsize(steps) > 0  # it was deciding

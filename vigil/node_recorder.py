@@ -98,12 +98,14 @@ class RecorderNode(Node):
 
     def on_speaking(self, msg: Bool) -> None:
         if msg.data:
-            self.speech = "speaking"
+            self.speech = "warning"
 
     def on_speech_done(self, msg: String) -> None:
+        # an utterance's end comes on wall-clock time (espeak-ng): logged, not traced,
+        # so that the trace of a lock-step run is the same on every machine
         data = _json(msg.data) or {}
-        if data.get("kind") == "finished" and data.get("text"):
-            self.speech = str(data["text"])
+        if data.get("kind") == "failed":
+            self.get_logger().warning(f"speech failed: {data.get('error')}")
 
     def on_person(self, msg: String) -> None:
         camera = _json(msg.data)

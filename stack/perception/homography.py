@@ -15,6 +15,16 @@ Calibration file (YAML)::
     homography: [[h00, h01, h02], ...] # written by save_calibration
     reprojection_error_m: {mean: ..., max: ...}
 
+Points file (YAML), for points clicked in a frame and measured on the floor::
+
+    image_size_px: [640, 400]          # optional: the frame size the pixels were clicked at
+    points:                            # or the list alone at the top level
+      - {pixel: [u, v], map: [x, y]}   # >= 4 entries
+
+:func:`load_points_file` reads it and names the entry at fault in its errors;
+:func:`calibrate` then fits the homography and :func:`save_calibration` writes the
+calibration file above.
+
 Pixels above the horizon have lambda of the wrong sign (or ~0): they map to no
 floor point, and :meth:`FloorHomography.image_to_map` returns None for them rather
 than a point behind the camera.
@@ -93,6 +103,73 @@ class FloorHomography:
         out[lam * self.lambda_sign <= 1e-9] = np.nan
         return out
 
+    def camera_matrix(self) -> np.ndarray | None:
+        """The 3 x 4 projection of map points (x, y, z) [m] implied by the homography.
+
+        A floor homography fixes the camera up to its focal length; with square pixels
+        and the principal point at the image centre (``image_size_px`` needed), the
+        focal length follows from r1 . r2 = 0 and |r1| = |r2| (Zhang's constraints
+        for one plane), and the vertical axis r3 = r1 x r2, oriented so that the
+        camera is above the floor. Used to judge whether a box's size fits a person
+        standing at its foot point.
+
+        Returns:
+            P with lambda [u, v, 1]^T = P [x, y, z, 1]^T, or None without an image size
+            or when the homography is not that of a tilted pinhole camera.
+        """
+        if self.image_size_px is None:
+            return None
+        cached = self.__dict__.get("_camera")
+        if cached is not None:
+            return cached if cached.size else None
+        cx, cy = (self.image_size_px[0] - 1) / 2.0, (self.image_size_px[1] - 1) / 2.0
+        g = np.array([[1.0, 0.0, -cx], [0.0, 1.0, -cy], [0.0, 0.0, 1.0]]) @ self._inverse
+        g1, g2, g3 = g[:, 0], g[:, 1], g[:, 2]
+        # r1 . r2 = 0 and |r1| = |r2| in f^2, least squares over both equations
+        a = np.array(
+            [g1[0] * g2[0] + g1[1] * g2[1], g1[0] ** 2 + g1[1] ** 2 - g2[0] ** 2 - g2[1] ** 2]
+        )
+        b = np.array([-g1[2] * g2[2], g2[2] ** 2 - g1[2] ** 2])
+        inv_f2 = float(a @ b / (a @ a)) if a @ a > 0 else 0.0  # (1 / f^2) a = b
+        if not inv_f2 > 0:
+            object.__setattr__(self, "_camera", np.zeros(0))
+            return None
+        f = 1.0 / math.sqrt(inv_f2)
+        k_inv = np.diag([1.0 / f, 1.0 / f, 1.0])
+        r1, r2, t = k_inv @ g1, k_inv @ g2, k_inv @ g3
+        scale = math.sqrt(np.linalg.norm(r1) * np.linalg.norm(r2))
+        r1, r2, t = r1 / scale, r2 / scale, t / scale
+        if t[2] < 0:  # the floor's origin must lie in front of the camera
+            r1, r2, t = -r1, -r2, -t
+        r3 = np.cross(r1, r2)
+        centre = -np.c_[r1, r2, r3].T @ t
+        if centre[2] < 0:  # the map's z must point up, towards the camera
+            r3 = -r3
+        k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+        cam = k @ np.c_[r1, r2, r3, t]
+        cam.setflags(write=False)
+        object.__setattr__(self, "_camera", cam)
+        return cam
+
+    def height_at_row_m(self, x: float, y: float, v: float) -> float | None:
+        """Height above floor point (x, y) that the image row ``v`` sees [m].
+
+        With :meth:`camera_matrix`: the point of the vertical line through (x, y)
+        whose pixel lies on row v (e.g. a box's top row above its foot point).
+
+        Returns:
+            The height [m], or None without a camera matrix or for a horizontal line.
+        """
+        cam = self.camera_matrix()
+        if cam is None:
+            return None
+        a = cam @ np.array([x, y, 0.0, 1.0])
+        b = cam[:, 2]
+        den = v * b[2] - b[1]
+        if abs(den) < 1e-12:
+            return None
+        return float((a[1] - v * a[2]) / den)
+
     def map_to_image(self, x: float, y: float) -> tuple[float, float] | None:
         """Map a floor point to its pixel (the inverse of eq. 4.4); None if behind the camera."""
         q = self._inverse @ np.array([x, y, 1.0])
@@ -101,6 +178,21 @@ class FloorHomography:
         u, v = q[0] / q[2], q[1] / q[2]
         back = self.image_to_map(u, v)
         return None if back is None else (float(u), float(v))
+
+
+@dataclass(frozen=True, eq=False)
+class FloorPoints:
+    """Floor points known both in the image and on the map (a points file's content).
+
+    Attributes:
+        image_px: (N, 2) pixels (u, v).
+        map_m: (N, 2) their map coordinates (x, y) [m].
+        image_size_px: (width, height) of the frame the pixels belong to, if given.
+    """
+
+    image_px: np.ndarray
+    map_m: np.ndarray
+    image_size_px: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -251,3 +343,109 @@ def load_calibration(path: str | Path) -> Calibration:
         if not np.allclose(check, cal.homography.image_to_map_many(src), atol=1e-3):
             raise CalibrationError(f"{str(path)!r}: stored homography disagrees with its points")
     return cal
+
+
+def _pair_of_numbers(value: Any) -> tuple[float, float] | None:
+    if isinstance(value, str | bytes) or not isinstance(value, list | tuple) or len(value) != 2:
+        return None
+    if any(isinstance(v, bool) or not isinstance(v, int | float) for v in value):
+        return None
+    if not all(math.isfinite(v) for v in value):
+        return None
+    return (float(value[0]), float(value[1]))
+
+
+def load_points_file(path: str | Path) -> FloorPoints:
+    """Read a points file: floor points clicked in a frame and measured on the map.
+
+    The file is YAML: either a list of ``{pixel: [u, v], map: [x, y]}`` entries, or a
+    mapping with that list under ``points`` and an optional ``image_size_px: [w, h]``.
+
+    Args:
+        path: the file.
+
+    Returns:
+        The points (fit them with :func:`calibrate`).
+
+    Raises:
+        CalibrationError: the file is missing or not YAML, an entry is malformed
+            (the message names the entry by its index, from 0, and what is wrong),
+            a pixel or map point repeats, or there are fewer than 4 entries.
+    """
+    path = Path(path)
+    name = repr(str(path))
+    if not path.is_file():
+        raise CalibrationError(f"points file {name} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise CalibrationError(f"cannot read points file {name}: {err}") from err
+    size = None
+    if isinstance(data, dict):
+        unknown = sorted(set(data) - {"points", "image_size_px"})
+        if unknown:
+            raise CalibrationError(
+                f"points file {name}: unknown key(s) {unknown} (known: image_size_px, points)"
+            )
+        if data.get("image_size_px") is not None:
+            raw = data["image_size_px"]
+            pair = _pair_of_numbers(raw)
+            if pair is None or not all(v > 0 and float(v).is_integer() for v in pair):
+                raise CalibrationError(
+                    f"points file {name}: image_size_px {raw!r} must be [width, height] in "
+                    "positive whole pixels"
+                )
+            size = (int(pair[0]), int(pair[1]))
+        data = data.get("points")
+    if not isinstance(data, list):
+        raise CalibrationError(
+            f"points file {name}: needs a list of {{pixel: [u, v], map: [x, y]}} entries "
+            f"(at the top level or under 'points'), got {type(data).__name__}"
+        )
+    image_px, map_m = [], []
+    for i, entry in enumerate(data):
+        where = f"points file {name}: entry {i} ({entry!r})"
+        if not isinstance(entry, dict):
+            raise CalibrationError(f"{where}: must be a mapping {{pixel: [u, v], map: [x, y]}}")
+        extra = sorted(set(entry) - {"pixel", "map"})
+        if extra:
+            raise CalibrationError(f"{where}: unknown key(s) {extra} (known: pixel, map)")
+        for key, unit in (("pixel", "[u, v] in pixels"), ("map", "[x, y] in metres")):
+            if key not in entry:
+                raise CalibrationError(f"{where}: missing '{key}' {unit}")
+            if _pair_of_numbers(entry[key]) is None:
+                raise CalibrationError(f"{where}: '{key}' must be {unit}, two finite numbers")
+        u, v = _pair_of_numbers(entry["pixel"])  # type: ignore[misc]
+        if u < 0 or v < 0 or (size is not None and (u > size[0] - 1 or v > size[1] - 1)):
+            bounds = "" if size is None else f" inside the {size[0]} x {size[1]} image"
+            raise CalibrationError(f"{where}: pixel [{u}, {v}] must be >= 0{bounds}")
+        xy = _pair_of_numbers(entry["map"])
+        for other, (px_seen, xy_seen) in enumerate(zip(image_px, map_m, strict=True)):
+            if px_seen == (u, v) or xy_seen == xy:
+                raise CalibrationError(f"{where}: repeats entry {other}'s pixel or map point")
+        image_px.append((u, v))
+        map_m.append(xy)
+    if len(image_px) < MIN_POINTS:
+        raise CalibrationError(
+            f"points file {name}: needs at least {MIN_POINTS} points, got {len(image_px)}"
+        )
+    return FloorPoints(np.array(image_px, float), np.array(map_m, float), size)
+
+
+def save_points_file(path: str | Path, points: FloorPoints) -> None:
+    """Write floor points in the format :func:`load_points_file` reads.
+
+    Args:
+        path: the file to write (parent folders are created).
+        points: the points (and optional image size).
+    """
+    data: dict[str, Any] = {}
+    if points.image_size_px is not None:
+        data["image_size_px"] = [int(v) for v in points.image_size_px]
+    data["points"] = [
+        {"pixel": [float(u), float(v)], "map": [float(x), float(y)]}
+        for (u, v), (x, y) in zip(points.image_px, points.map_m, strict=True)
+    ]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))

@@ -128,7 +128,7 @@ class LegsNode(Node):
                 )
             laser_pose = self.pose.compose(self.laser_mount)
             det = detect_legs(scan, self.leg_config, laser_pose, self.static_map)
-            tracks = self.tracker.update(scan.stamp_s, [q.position_m for q in det.people])
+            tracks = self.tracker.update(scan.stamp_s, det.people)
         except BadScanError as err:
             log.warning(f"scan ignored: {err}", throttle_duration_sec=5.0)
             return

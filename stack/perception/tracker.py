@@ -30,15 +30,24 @@ class TrackerConfig:
     """Attributes:
     accel_noise_mps2: standard deviation of the person's acceleration, the process
         noise of the constant-velocity model [m/s^2].
+        0.35: the pelvis of a walking person moves steadily, but the legs' midpoint
+        surges and stalls with every step (from 0 to ~1.5 times the walking speed
+        within a step, 0.5-1.3 s); with 1.0 the filter followed those surges and the
+        speed class flickered (twin walks: 81 % right against 92 % with 0.35, see
+        docs/PERCEPTION.md).
     measurement_sigma_m: noise of a leg-pair position [m].
+    single_leg_sigma_m: noise of a lone leg standing for a person [m]: the person is
+        up to half a stride from that leg, so a lone leg moves the track less than a
+        pair (used when ``update`` is given the scan's ``PersonCandidate`` objects).
     initial_speed_sigma_mps: velocity uncertainty of a new track, per axis [m/s].
     gate_m: a detection farther than this from a track's prediction is not its [m].
     min_hits: updates before a track is confirmed.
     max_coast_s: a track without an update for longer is dropped [s].
     """
 
-    accel_noise_mps2: float = 1.0
+    accel_noise_mps2: float = 0.35
     measurement_sigma_m: float = 0.08
+    single_leg_sigma_m: float = 0.3
     initial_speed_sigma_mps: float = 1.0
     gate_m: float = 0.6
     min_hits: int = 3
@@ -50,6 +59,8 @@ class TrackerConfig:
                 "must be > 0")  # fmt: skip
         require(self.initial_speed_sigma_mps > 0, "initial_speed_sigma_mps",
                 self.initial_speed_sigma_mps, "must be > 0")  # fmt: skip
+        require(self.single_leg_sigma_m > 0, "single_leg_sigma_m", self.single_leg_sigma_m,
+                "must be > 0")  # fmt: skip
         require(self.gate_m > 0, "gate_m", self.gate_m, "must be > 0")
         require(self.min_hits >= 1, "min_hits", self.min_hits, "must be >= 1")
         require(self.max_coast_s > 0, "max_coast_s", self.max_coast_s, "must be > 0")
@@ -112,16 +123,22 @@ class ConstantVelocityKalman:
         self.x = F @ self.x
         self.P = F @ self.P @ F.T + Q
 
-    def update(self, z_m: tuple[float, float]) -> None:
-        """Correct the state with a position measurement [m]."""
+    def update(self, z_m: tuple[float, float], sigma_m: float | None = None) -> None:
+        """Correct the state with a position measurement [m].
+
+        Args:
+            z_m: the measured position [m].
+            sigma_m: its noise [m]; None uses ``config.measurement_sigma_m``.
+        """
         H = self._H
+        R = self._R if sigma_m is None else np.eye(2) * sigma_m**2
         y = np.asarray(z_m, dtype=float) - H @ self.x
-        S = H @ self.P @ H.T + self._R
+        S = H @ self.P @ H.T + R
         K = self.P @ H.T @ np.linalg.inv(S)
         self.x = self.x + K @ y
         # Joseph form keeps P symmetric positive definite.
         ikh = np.eye(4) - K @ H
-        self.P = ikh @ self.P @ ikh.T + K @ self._R @ K.T
+        self.P = ikh @ self.P @ ikh.T + K @ R @ K.T
 
     @property
     def speed_mps(self) -> float:
@@ -156,13 +173,15 @@ class LegTracker:
         return self._stamp_s
 
     def update(
-        self, stamp_s: float, positions_m: Iterable[tuple[float, float]]
+        self, stamp_s: float, positions_m: Iterable[tuple[float, float] | Any]
     ) -> tuple[TrackEstimate, ...]:
         """Predict every track to ``stamp_s`` and correct it with the scan's people.
 
         Args:
             stamp_s: the scan's time [s]; must be later than the previous scan's.
-            positions_m: the people found in the scan, map frame [m].
+            positions_m: the people found in the scan, map frame [m]: (x, y) pairs,
+                or the scan's ``legs.PersonCandidate`` objects (``LegDetections.people``),
+                whose lone legs then count with ``single_leg_sigma_m``.
 
         Returns:
             All live tracks after the update.
@@ -176,7 +195,13 @@ class LegTracker:
         self._stamp_s = stamp_s
         for t in self._tracks:
             t.kf.predict(dt)
-        meas = [(float(x), float(y)) for x, y in positions_m]
+        meas, sigmas = [], []
+        for p in positions_m:
+            legs = getattr(p, "legs", None)
+            x, y = p.position_m if hasattr(p, "position_m") else p
+            meas.append((float(x), float(y)))
+            single = legs is not None and len(legs) == 1
+            sigmas.append(self.config.single_leg_sigma_m if single else None)
         pairs = []
         for ti, t in enumerate(self._tracks):
             for mi, z in enumerate(meas):
@@ -192,7 +217,7 @@ class LegTracker:
             used_t.add(ti)
             used_m.add(mi)
             track = self._tracks[ti]
-            track.kf.update(meas[mi])
+            track.kf.update(meas[mi], sigmas[mi])
             track.hits += 1
             track.last_update_s = stamp_s
         for mi, z in enumerate(meas):
