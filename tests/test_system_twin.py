@@ -61,6 +61,8 @@ def test_same_scenario_same_seed_same_steps(twin_runs):
     (a, _), (b, _) = twin_runs
     assert steps_of(a) == steps_of(b)
     assert (a / "steps.csv").read_text() == (b / "steps.csv").read_text()
+    # what the stack saw at every camera frame, too
+    assert (a / "trace.jsonl").read_text() == (b / "trace.jsonl").read_text()
 
 
 def test_faults_do_not_break_the_run(tmp_path):

@@ -8,7 +8,7 @@ to ``camera.mp4`` (the camera frame with the detections beside a top view of the
 the folder into the report.
 
 Subscribes: ``/camera/image_raw``, ``/perception/person``, ``/perception/legs``,
-``/twin/truth``, ``/odom``, ``/planner/belief``, ``/speech/speaking``, ``/speech/done``.
+``/twin/truth``, ``/odom``, ``/planner/belief``, ``/speech/warning``, ``/speech/done``.
 
 Parameters: ``out_dir``, ``task_file`` (restricted cells), ``config_file`` (grid),
 ``video`` (false: trace only), ``fps``, ``lockstep``.
@@ -23,7 +23,7 @@ from pathlib import Path
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Image
-from std_msgs.msg import Bool, String
+from std_msgs.msg import String
 
 from stack.perception._config import load_config_file
 from stack.perception.errors import BadFrameError
@@ -68,7 +68,7 @@ class RecorderNode(Node):
         ls.subscription(String, "/twin/truth", self.on_truth, 10)
         ls.subscription(Odometry, "/odom", self.on_odom, 10)
         ls.subscription(String, "/planner/belief", self.on_belief, 10)
-        ls.subscription(Bool, "/speech/speaking", self.on_speaking, 10)
+        ls.subscription(String, "/speech/warning", self.on_warning, 10)
         ls.subscription(String, "/speech/done", self.on_speech_done, 10)
         self.get_logger().info(f"recording into {out_dir}")
 
@@ -96,9 +96,8 @@ class RecorderNode(Node):
     def on_belief(self, msg: String) -> None:
         self.belief = _json(msg.data)
 
-    def on_speaking(self, msg: Bool) -> None:
-        if msg.data:
-            self.speech = "warning"
+    def on_warning(self, msg: String) -> None:
+        self.speech = msg.data or "warning"
 
     def on_speech_done(self, msg: String) -> None:
         # an utterance's end comes on wall-clock time (espeak-ng): logged, not traced,

@@ -13,6 +13,8 @@ Publishes:
     ``/speech/done`` std_msgs/String: JSON {request_id, kind, text, voice, wav,
         duration_s, error} for every finished, replaced, dropped or failed request.
     ``/speech/speaking`` std_msgs/Bool: true when an utterance starts, false when idle.
+    ``/speech/warning`` std_msgs/String: the warning's text, the moment it is decided
+        (when the navigation result arrives; the utterance itself follows).
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``speech`` sections),
 ``voice`` (overrides the file: "en", "pt"), ``out_dir`` (the run folder: WAV + log there
@@ -61,6 +63,7 @@ class SpeechNode(Node):
                 ("say", "/speech/say"),
                 ("done", "/speech/done"),
                 ("speaking", "/speech/speaking"),
+                ("warning", "/speech/warning"),
             )
         }
         self.grid, config = load_speech_config(config_file)
@@ -79,6 +82,7 @@ class SpeechNode(Node):
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
         self.done_pub = ls.publisher(String, topics["done"], 10)
         self.speaking_pub = ls.publisher(Bool, topics["speaking"], 10)
+        self.warning_pub = ls.publisher(String, topics["warning"], 10)
         ls.subscription(String, topics["result"], self.on_result, 10)
         ls.subscription(String, topics["person_cell"], self.on_person_cell, 10)
         ls.subscription(String, topics["say"], self.on_say, 10)
@@ -106,6 +110,7 @@ class SpeechNode(Node):
             return
         if should_warn(self.grid, cell, self.person_cell, self.config):
             self.get_logger().info(f"robot in restricted cell {cell}, person in {self.person_cell}")
+            self.warning_pub.publish(String(data=self.config.warning))
             self.say(None)
 
     def on_say(self, msg: String) -> None:
