@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from stack.cells import ConfigError
+from stack.config import coerce_like, read_yaml
 
 T = TypeVar("T")
 
@@ -45,25 +46,7 @@ def from_dict(cls: type[T], data: Mapping[str, Any] | None, prefix: str) -> T:
         raise ConfigError(key, exc.value, exc.rule) from None
 
 
-def coerce(key: str, value: Any, default: Any) -> Any:
-    """``value`` checked against the type of ``default`` (ints are accepted for floats)."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(key, value, "must be true or false")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(key, value, "must be a number")
-        return float(value)
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(key, value, "must be an integer")
-        return value
-    if isinstance(default, str):
-        if isinstance(value, bool) or not isinstance(value, str | int):
-            raise ConfigError(key, value, "must be a string")
-        return str(value)  # a device index written as a number in YAML
-    return value
+coerce = coerce_like  # the shared rules (stack.config)
 
 
 def positive(key: str, value: float) -> None:
@@ -77,16 +60,9 @@ def read_section(path: str | Path | None, section: str) -> Mapping[str, Any]:
     Raises:
         ConfigError: unreadable file, not a mapping, or the section not a mapping.
     """
-    import yaml
-
     if not path:
         return {}
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError("config_file", str(path), f"cannot be read: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError("config_file", str(path), "must hold a mapping")
+    data = read_yaml(path)
     sect = data.get(section) or {}
     if not isinstance(sect, Mapping):
         raise ConfigError(section, sect, "must be a mapping")

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 from typing import Any, TypeVar
 
 from stack.cells import ConfigError
+from stack.config import coerce_like, read_yaml
 
 T = TypeVar("T")
 
@@ -37,28 +38,7 @@ def _from_dict(cls: type[T], data: Mapping[str, Any] | None, prefix: str) -> T:
         raise ConfigError(key, exc.value, exc.rule) from None
 
 
-def _coerce(key: str, value: Any, default: Any) -> Any:
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(key, value, "must be true or false")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(key, value, "must be a number")
-        return float(value)
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(key, value, "must be an integer")
-        return value
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(key, value, "must be a string")
-        return value
-    if isinstance(default, tuple):
-        if isinstance(value, str) or not isinstance(value, list | tuple):
-            raise ConfigError(key, value, "must be a list")
-        return tuple(value)
-    return value
+_coerce = coerce_like  # the shared rules (stack.config)
 
 
 def _positive(prefix: str, obj: Any, *names: str) -> None:
@@ -248,19 +228,10 @@ def read_node_config(path: str, section: str, klass):
     Raises:
         ConfigError: unreadable file or an invalid value.
     """
-    from pathlib import Path
-
-    import yaml
-
     from stack.cells import CellGrid
 
     if not path:
         return CellGrid(), klass()
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError("config_file", path, f"cannot be read: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError("config_file", path, "must hold a mapping")
+    data = read_yaml(path)
     grid = CellGrid.from_mapping(data["grid"]) if "grid" in data else CellGrid()
     return grid, klass.from_dict(data.get(section))

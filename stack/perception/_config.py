@@ -16,9 +16,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-import yaml
-
 from stack.cells import CellGrid, ConfigError
+from stack.config import read_yaml
 
 T = TypeVar("T")
 
@@ -121,11 +120,6 @@ def load_config_file(path: str | Path | None) -> tuple[CellGrid, dict[str, Any]]
     """
     if not path:
         return CellGrid(), {}
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError("config_file", str(path), f"cannot be read: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError("config_file", str(path), "must hold a mapping")
+    data = read_yaml(path)
     grid = CellGrid.from_mapping(data["grid"]) if "grid" in data else CellGrid()
     return grid, data
