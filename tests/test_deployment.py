@@ -191,6 +191,8 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
     assert p["navigation"]["pose_source"] == "amcl"
     assert not any(v.get("lockstep") for v in p.values())
     assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in system.env
+    stack_cfg = yaml.safe_load((tmp_path / "run" / "stack.yaml").read_text())
+    assert stack_cfg["speech"]["restricted_cells"] == [1, 12]  # the task's, for the warning
     params = yaml.safe_load((tmp_path / "run" / "params.yaml").read_text())
     assert params["planner"]["ros__parameters"]["task_file"].endswith("task-r2.yaml")
 

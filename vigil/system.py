@@ -121,6 +121,10 @@ def prepare(
         stack_cfg.update(_read_yaml(extra))
     if grid_section:
         stack_cfg["grid"] = grid_section
+    # speech warns in the task's restricted cells (not the node's default)
+    restricted = list(yaml.safe_load(Path(task).read_text()).get("restricted_cells", []))
+    if restricted:
+        stack_cfg["speech"] = {**stack_cfg.get("speech", {}), "restricted_cells": restricted}
     stack_file = run_dir / "stack.yaml"
     stack_file.write_text(yaml.safe_dump(stack_cfg, sort_keys=True))
 
