@@ -25,7 +25,9 @@ over the last ``TRUTH_WINDOW_S`` (0.5 s, the direction estimator's window); the
 instantaneous velocity and "steady" frames (true velocity unchanged for 1 s) are
 reported beside it.
 
-``--quick`` runs two short walks and the 640 x 400 timing only (about a minute).
+``--quick`` runs two short walks and the 640 x 400 timing only (about a minute);
+``--no-short-box`` runs the pipeline without the short-box foot refinement
+(``CameraConfig.short_box_ratio=None``), as it was before, for comparison.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import os
 import statistics
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -342,16 +344,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="one short walk, 640x400 timing only")
     ap.add_argument("--camera-hz", type=float, default=5.0)
+    ap.add_argument("--no-short-box", action="store_true",
+                    help="CameraConfig(short_box_ratio=None): the pipeline before short boxes' "
+                         "foreground feet (for comparison)")  # fmt: skip
     args = ap.parse_args()
     walks = QUICK_WALKS if args.quick else WALKS
+    camera_cfg = CameraConfig(short_box_ratio=None) if args.no_short_box else CameraConfig()
+    setting = "short_box_ratio=None" if args.no_short_box else "default"
     print(f"cv2 {cv2.__version__}, threads {cv2.getNumThreads()}, camera {args.camera_hz} Hz, "
-          f"640x400, default CameraConfig / LegConfig / TrackerConfig")  # fmt: skip
+          f"640x400, {setting} CameraConfig, default LegConfig / TrackerConfig")  # fmt: skip
     t_start = time.perf_counter()
     all_frames: list[Frame] = []
     all_ms: list[float] = []
     for walk in walks:
         t0 = time.perf_counter()
-        r = run_walk(walk, args.camera_hz)
+        r = run_walk(walk, args.camera_hz, camera_cfg=camera_cfg)
         all_frames += r.frames
         all_ms += r.ms
         cells = sorted({f.truth_cell for f in r.frames if f.truth_cell is not None})
@@ -368,10 +375,10 @@ def main() -> None:
     print("\n## Camera pipeline timing (process_frame on twin frames of the first walk)")
     print("| resolution | setting | median ms | fps | p90 ms | detected |")
     print("|---|---|---:|---:|---:|---:|")
-    print(timing(640, 400, CameraConfig(), "default (scale 1.05, tracking window)", 20))
+    print(timing(640, 400, camera_cfg, f"{setting} (scale 1.05, tracking window)", 20))
     if not args.quick:
-        print(timing(1280, 800, CameraConfig(), "default (scale 1.05, tracking window)", 20))
-        print(timing(1280, 800, CameraConfig(hog=HogConfig(downscale=0.5)),
+        print(timing(1280, 800, camera_cfg, f"{setting} (scale 1.05, tracking window)", 20))
+        print(timing(1280, 800, replace(camera_cfg, hog=HogConfig(downscale=0.5)),
                      "downscale 0.5", 20))  # fmt: skip
     print(f"\ntotal wall time {time.perf_counter() - t_start:.0f} s")
 

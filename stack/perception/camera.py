@@ -6,6 +6,11 @@ Per frame: HOG boxes (:mod:`stack.perception.hog`), each box's foot pixel
 frame (:mod:`stack.perception.direction`). With several boxes, the one nearest the
 person's last position is kept (else the strongest).
 
+A box too short for a person standing at its foot point (the camera implied by the
+homography, ``CameraConfig.short_box_ratio``) is HOG's window fitted tightly around
+the person, its bottom at the knees: its feet are looked for in the
+background-subtraction mask below it.
+
 The two-missed-frames rule (thesis 4.5): a person not detected in two consecutive
 frames means no person, direction "Not moving", and the laser is ignored. One
 missed frame keeps the last position and direction.
@@ -62,11 +67,11 @@ class CameraConfig:
     association_gate_m: a box farther than this from the last position is a
         different person (or a false positive) [m].
     black_max_level: frames whose brightest pixel is at or below this are black.
-    use_foreground: run background subtraction (MOG2) to refine the foot row
-        (``FootConfig``). Off: in the twin walks it fixed HOG's knee-high boxes of a
-        person walking north-south (foot error p90 0.79 -> 0.26 m with the search
-        widened to 0.6 box heights) but put the feet of a person walking east-west
-        too low (median 0.08 -> 0.19 m); see docs/PERCEPTION.md.
+    use_foreground: refine the foot row of every box with the foreground mask
+        (``FootConfig``; short boxes are refined anyway, see ``short_box_ratio``).
+        Off: for every box (search widened to 0.6 box heights) it fixed the
+        north-south walk but put the feet of a person walking east-west too low
+        (median 0.08 -> 0.19 m); see docs/PERCEPTION.md.
     track_roi_margin_frac: while a person is tracked, search only their last box
         grown by this fraction of its size on every side (0: always the full
         configured area); nothing found there falls back to the full search.
@@ -84,6 +89,22 @@ class CameraConfig:
         too few to pay.
     max_foreground_frac: a foreground mask covering more than this fraction of the
         frame (the first frames, a light switched) is not used for the feet.
+    person_height_m: the height assumed for the person when judging a box's size [m].
+    short_box_ratio: a box whose height is less than this multiple of the image
+        height of a ``person_height_m`` person standing at its foot point (the
+        camera implied by the homography, ``FloorHomography.row_of_point_px``; needs
+        the calibration's image size) is "short": HOG's window fitted tightly around
+        the person instead of with its margins (a full-body box is 1.33-1.46 times
+        the person in the twin walks, these 0.99-1.34; seen side-on, walking
+        north-south), so its shrunk bottom sits at the knees and the floor point
+        lies 0.6-1.9 m too far. Only a short box's foot row is refined with the
+        foreground, searched down to ``short_box_search_frac`` box heights below the
+        box; without a usable mask the box is kept as it is. None: no check and no
+        background model (unless ``use_foreground``).
+    short_box_search_frac: how far below a short box the foreground search for the
+        feet goes [box heights].
+    foreground_downscale: the background model (MOG2) runs on the frame resized by
+        this factor (0.5: about 2-4 ms per 640 x 400 frame instead of 9-12).
     """
 
     hog: HogConfig = field(default_factory=HogConfig)
@@ -98,8 +119,21 @@ class CameraConfig:
     nested_box_frac: float = 0.8
     box_top_height_m: tuple[float, float] | None = None
     max_foreground_frac: float = 0.3
+    person_height_m: float = 1.75
+    short_box_ratio: float | None = 1.3
+    short_box_search_frac: float = 0.6
+    foreground_downscale: float = 0.5
 
     def __post_init__(self) -> None:
+        require(self.person_height_m > 0.0, "person_height_m", self.person_height_m,
+                "must be > 0")  # fmt: skip
+        if self.short_box_ratio is not None:
+            require(self.short_box_ratio > 0.0, "short_box_ratio", self.short_box_ratio,
+                    "must be > 0 (or null: no check)")  # fmt: skip
+        require(self.short_box_search_frac >= 0.0, "short_box_search_frac",
+                self.short_box_search_frac, "must be >= 0")  # fmt: skip
+        require(0.0 < self.foreground_downscale <= 1.0, "foreground_downscale",
+                self.foreground_downscale, "must be in (0, 1]")  # fmt: skip
         require(0.0 < self.max_foreground_frac <= 1.0, "max_foreground_frac",
                 self.max_foreground_frac, "must be in (0, 1]")  # fmt: skip
         require(0.0 < self.nested_box_frac <= 1.0, "nested_box_frac", self.nested_box_frac,
@@ -190,7 +224,14 @@ class CameraPeopleTracker:
         self.grid = grid
         self.homography = homography
         self.detector = detector if detector is not None else HogPeopleDetector(config.hog)
-        self._foreground = Foreground() if config.use_foreground else None
+        wants_mask = config.use_foreground or config.short_box_ratio is not None
+        self._foreground = Foreground(downscale=config.foreground_downscale) if wants_mask else None
+        self._short_foot = replace(
+            config.foot,
+            use_foreground=True,
+            search_below_frac=config.short_box_search_frac,
+            max_refine_frac=config.short_box_search_frac + config.foot.bottom_shrink_frac,
+        )
         self._direction = DirectionEstimator(config.direction)
         self._state = CameraPersonState(stamp_s=-math.inf, status=PersonStatus.NO_PERSON)
         self._missed = 0
@@ -231,8 +272,9 @@ class CameraPeopleTracker:
         if not boxes:  # no track, nothing in the window, or time for a full search
             boxes = self.detector.detect(image)
             self._since_full = 0
-        return self.update(boxes, stamp_s, image_size_px=(image.shape[1], image.shape[0]),
-                           foreground=mask)  # fmt: skip
+        size = (image.shape[1], image.shape[0])
+        every = mask if self.config.use_foreground else None  # else for short boxes only
+        return self._update(boxes, stamp_s, size, every, mask)
 
     def update(
         self,
@@ -248,11 +290,27 @@ class CameraPeopleTracker:
             stamp_s: the frame's time [s]; must increase.
             image_size_px: (width, height) of the frame; when the calibration was
                 made at another resolution the foot pixels are rescaled.
-            foreground: optional boolean mask for the foot refinement.
+            foreground: optional boolean mask of moving pixels: refines every box's
+                foot row as ``FootConfig`` says, and short boxes'
+                (``CameraConfig.short_box_ratio``) over the wider search. (The mask
+                ``process_frame`` makes goes to short boxes only, unless
+                ``use_foreground``.)
 
         Returns:
             The new state.
         """
+        return self._update(tuple(boxes), stamp_s, image_size_px, foreground, foreground)
+
+    # -- internals ----------------------------------------------------------
+    def _update(
+        self,
+        boxes: tuple[PersonBox, ...],
+        stamp_s: float,
+        image_size_px: tuple[int, int] | None,
+        foreground: np.ndarray | None,
+        short_mask: np.ndarray | None,
+    ) -> CameraPersonState:
+        """``update`` with a mask for every box's foot (``FootConfig``) and one for short boxes."""
         if stamp_s <= self._state.stamp_s:
             return replace(
                 self._state, warning=f"frozen frame: stamp {stamp_s} repeats or goes back"
@@ -267,9 +325,16 @@ class CameraPeopleTracker:
             )  # fmt: skip
             return self._state
         candidates = []
-        for box in _drop_nested(boxes, self.config.nested_box_frac):
-            u, v = foot_point(box, self.config.foot, foreground)
+        cfg = self.config
+        for box in _drop_nested(boxes, cfg.nested_box_frac):
+            u, v = foot_point(box, cfg.foot, foreground)
             pos = self._to_map(u, v, image_size_px)
+            if short_mask is not None and pos is not None and self._short(box, pos, image_size_px):
+                # A tight (knee-high) box: look for the feet in the mask below it.
+                refined = foot_point(box, self._short_foot, short_mask)
+                if refined != foot_point(box, self._short_foot):  # the mask found the feet
+                    u, v = refined
+                    pos = self._to_map(u, v, image_size_px)
             if pos is not None and self._plausible(box, pos, image_size_px):
                 candidates.append((box, (u, v), pos))
         chosen = self._choose(candidates)
@@ -290,7 +355,6 @@ class CameraPeopleTracker:
         )
         return self._state
 
-    # -- internals ----------------------------------------------------------
     def _tracking_window(self, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
         """The search window around the tracked person's last box, or None for a full search."""
         cfg, state = self.config, self._state
@@ -315,6 +379,25 @@ class CameraPeopleTracker:
             u *= cal_size[0] / image_size_px[0]
             v *= cal_size[1] / image_size_px[1]
         return self.homography.image_to_map(u, v)
+
+    def _short(
+        self, box: PersonBox, pos: tuple[float, float], image_size_px: tuple[int, int] | None
+    ) -> bool:
+        """Whether the box is too short for a person standing at its foot point."""
+        ratio = self.config.short_box_ratio
+        assert self.homography is not None
+        if ratio is None:
+            return False
+        hom = self.homography
+        v_foot = hom.row_of_point_px(pos[0], pos[1], 0.0)
+        v_head = hom.row_of_point_px(pos[0], pos[1], self.config.person_height_m)
+        if v_foot is None or v_head is None or v_foot - v_head <= 0.0:
+            return False
+        height = float(box.height)
+        cal_size = hom.image_size_px
+        if image_size_px is not None and cal_size is not None and image_size_px != cal_size:
+            height *= cal_size[1] / image_size_px[1]
+        return height < ratio * (v_foot - v_head)
 
     def _plausible(
         self, box: PersonBox, pos: tuple[float, float], image_size_px: tuple[int, int] | None

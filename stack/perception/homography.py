@@ -170,6 +170,22 @@ class FloorHomography:
             return None
         return float((a[1] - v * a[2]) / den)
 
+    def row_of_point_px(self, x: float, y: float, z: float) -> float | None:
+        """Image row of the point ``z`` metres above floor point (x, y) [px].
+
+        With :meth:`camera_matrix`; e.g. the head row of a person standing at (x, y).
+
+        Returns:
+            The row v [px], or None without a camera matrix or for a point behind it.
+        """
+        cam = self.camera_matrix()
+        if cam is None:
+            return None
+        q = cam @ np.array([x, y, z, 1.0])
+        if q[2] <= 1e-12:
+            return None
+        return float(q[1] / q[2])
+
     def map_to_image(self, x: float, y: float) -> tuple[float, float] | None:
         """Map a floor point to its pixel (the inverse of eq. 4.4); None if behind the camera."""
         q = self._inverse @ np.array([x, y, 1.0])
