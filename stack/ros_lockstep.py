@@ -154,11 +154,15 @@ class Participant:
     def ack(self) -> None:
         if not self.enabled:
             return
-        ack = Ack(
-            self.node.get_name(),
-            self.incarnation,
-            dict(self.recv),
-            dict(self.sent),
-            {p.topic_name: p.get_subscription_count() for p in self._publishers},
-        )
-        self._ack_pub.publish(String(data=ack.to_json()))
+        try:
+            ack = Ack(
+                self.node.get_name(),
+                self.incarnation,
+                dict(self.recv),
+                dict(self.sent),
+                {p.topic_name: p.get_subscription_count() for p in self._publishers},
+            )
+            self._ack_pub.publish(String(data=ack.to_json()))
+        except Exception:  # a callback finishing while Ctrl-C shuts the context down
+            if self.node.context.ok():
+                raise
