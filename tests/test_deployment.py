@@ -156,6 +156,34 @@ def test_launcher_restarts_a_node_then_stops_everything_and_says_which(tmp_path)
     assert (tmp_path / "flaky.log").read_text().count("--- restart") == 2
 
 
+def test_nodes_die_with_a_killed_launcher(tmp_path):
+    import os
+    import signal
+    import subprocess
+
+    code = (
+        f"import sys, time; sys.path.insert(0, {str(REPO)!r});"
+        "from vigil.launch import Launcher, ProcessSpec;"
+        "la = Launcher([ProcessSpec('s', 'x', command=[sys.executable, '-c',"
+        f" 'import time; time.sleep(60)'])], {str(tmp_path)!r}, say=lambda s: 0);"
+        "la.start(); print(la.pids()['s'], flush=True); time.sleep(60)"
+    )
+    launcher = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    child = int(launcher.stdout.readline())
+    launcher.send_signal(signal.SIGKILL)  # no chance to clean up
+    launcher.wait()
+
+    def gone():
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            return True
+        # a zombie until reaped by init counts as gone
+        return open(f"/proc/{child}/stat").read().split()[2] == "Z"
+
+    assert wait_for(gone, timeout=10.0)
+
+
 def test_launcher_stop_and_kill(tmp_path):
     la = Launcher([sleeper("a", 60), sleeper("b", 60, restart=False)], tmp_path, say=lambda s: 0)
     la.start()

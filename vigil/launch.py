@@ -21,6 +21,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
+def _die_with_parent() -> None:
+    """In the child, before exec: SIGTERM when the launcher dies, however it dies
+    (Linux prctl PR_SET_PDEATHSIG), so a killed launcher never leaves a twin running."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:  # not Linux: the launcher's own stop() still applies
+        pass
+
+
 @dataclass
 class ProcessSpec:
     """One node process.
@@ -98,6 +109,7 @@ class Launcher:
             stderr=subprocess.STDOUT,
             env={**self.env, **spec.env},
             start_new_session=True,  # its own process group: Ctrl-C reaches us first
+            preexec_fn=_die_with_parent,
         )
         self.running[spec.name] = _Running(spec, proc, log, restarts)
 
