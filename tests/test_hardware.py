@@ -2,7 +2,6 @@
 
 import json
 import math
-import time
 
 import cv2
 import numpy as np
@@ -315,7 +314,6 @@ def test_calibration_files_in_both_layouts_and_scaling(tmp_path):
 try:
     import rclpy
     from geometry_msgs.msg import Twist
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import CameraInfo, Image
@@ -330,22 +328,7 @@ except ImportError:  # the pure tests above still run
 needs_ros = pytest.mark.skipif(rclpy is None, reason="needs rclpy")
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    executor = SingleThreadedExecutor()
-    yield executor
-    executor.shutdown()
-    rclpy.shutdown()
-
-
-def spin_until(executor, predicate, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-        if predicate():
-            return True
-    return False
+from rostest import spin_until  # noqa: E402  (the ros fixture: conftest.py)
 
 
 class Probe(Node):

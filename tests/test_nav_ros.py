@@ -7,7 +7,6 @@ kinematic base model and publishes /odom.
 import json
 import math
 import shutil
-import time
 
 import pytest
 
@@ -15,7 +14,6 @@ rclpy = pytest.importorskip("rclpy")
 
 from geometry_msgs.msg import Twist  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Bool, String  # noqa: E402
@@ -75,22 +73,7 @@ class SimBase(Node):
         self.odom_pub.publish(odom)
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    executor = SingleThreadedExecutor()
-    yield executor
-    executor.shutdown()
-    rclpy.shutdown()
-
-
-def spin_until(executor, predicate, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-        if predicate():
-            return True
-    return False
+from rostest import spin_until  # noqa: E402  (the ros fixture: conftest.py)
 
 
 def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):

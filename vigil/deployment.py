@@ -29,9 +29,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from stack.cells import ConfigError
+from stack.config import read_yaml
 from stack.perception._config import from_mapping
 
 MODES = ("twin", "hardware")
@@ -235,8 +234,4 @@ def load_deployment(path: str | Path) -> Deployment:
         ConfigError: an invalid key or value; OSError: the file cannot be read.
     """
     path = Path(path).resolve()
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ConfigError(str(path), "", f"not valid YAML: {err}") from None
-    return parse_deployment(data, path)
+    return parse_deployment(read_yaml(path), path)

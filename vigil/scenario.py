@@ -36,9 +36,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from stack.cells import CellGrid, ConfigError
+from stack.config import read_yaml
 
 FAULT_KINDS = ("camera_off", "lidar_off", "kill", "obstacle")
 DIRECTIONS = ("north", "south", "east", "west", "not moving")
@@ -231,8 +230,4 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file (see the module docstring)."""
     path = Path(path).resolve()
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ConfigError(str(path), "", f"not valid YAML: {err}") from None
-    return parse_scenario(data, path)
+    return parse_scenario(read_yaml(path), path)
