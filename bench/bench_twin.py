@@ -21,6 +21,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from stack.perception.hog import PersonBox, foot_point  # noqa: E402
+from twin.calibration import calibrate_twin  # noqa: E402
 from twin.config import TwinConfig  # noqa: E402
 from twin.sensors import project  # noqa: E402
 from twin.twin import Pose2D, Twin, VelocityCommand  # noqa: E402
@@ -85,7 +87,7 @@ def bench_hog(walk_frames: int) -> None:
     for t in np.linspace(0.3, 5.0, walk_frames):
         frames.append((walk, float(t)))
     hits = foot_ok = 0
-    errs, shrunk_errs, hog_ms, fp = [], [], [], 0
+    errs, shrunk_errs, pipe_errs, hog_ms, fp = [], [], [], [], 0
     for wps, t in frames:
         for w in wps[1:]:
             w.setdefault("speed_mps", 0.1)
@@ -123,6 +125,11 @@ def bench_hog(walk_frames: int) -> None:
             err = float(np.hypot(shrunk[0] - x, shrunk[1] - y))
             shrunk_errs.append(err)
             foot_ok += err <= 0.3
+            # perception's foot point (calibrated shrink of fig. 4.9, stack.perception.hog)
+            # through the homography the twin's floor points calibrate (twin.calibration)
+            u, v = foot_point(PersonBox(int(bx), int(by), int(bw), int(bh), 1.0))
+            fx, fy = calibrate_twin(twin).homography.image_to_map(u, v)
+            pipe_errs.append(float(np.hypot(fx - x, fy - y)))
     n = len(frames)
     print(
         f"HOG 640x400 (stride 8, scale 1.05): detected {hits}/{n} = {hits / n:.2f}; "
@@ -130,6 +137,12 @@ def bench_hog(walk_frames: int) -> None:
         f"{foot_ok}/{n} = {foot_ok / n:.2f}, median error {np.median(shrunk_errs):.2f} m "
         f"(raw box bottom: {np.median(errs):.2f} m); "
         f"HOG {np.median(hog_ms):.0f} ms/frame"
+    )
+    pipe = np.array(pipe_errs)
+    print(
+        f"perception foot point (calibrated shrink, twin calibration): within 0.3 m "
+        f"{int((pipe <= 0.3).sum())}/{n} = {(pipe <= 0.3).sum() / n:.2f}, "
+        f"median {np.median(pipe):.2f} m, p90 {np.percentile(pipe, 90):.2f} m"
     )
 
 
