@@ -108,13 +108,16 @@ class Ledger:
         self.own_subscribes: set[str] = set()
         self.retired_sent: dict[str, int] = defaultdict(int)
         self.events: list[str] = []  # restarts, excuses: for the log
+        self.version = 0  # changes with every count: unchanged counts need no new check
 
     # -- the coordinator's own traffic ----------------------------------------------
     def sent(self, topic: str, n: int = 1) -> None:
         self.own_sent[topic] += n
+        self.version += 1
 
     def received(self, topic: str) -> None:
         self.own_recv[topic] += 1
+        self.version += 1
 
     def subscribe(self, topic: str) -> None:
         """The coordinator itself consumes ``topic`` (e.g. /cmd_vel)."""
@@ -123,6 +126,7 @@ class Ledger:
     # -- participants ---------------------------------------------------------------
     def update(self, ack: Ack, now_s: float) -> None:
         """Record a participant's latest counts (a restart is noticed and rebased)."""
+        self.version += 1
         member = self.members.get(ack.node)
         if member is None:
             self.members[ack.node] = _Member(ack, last_heard_s=now_s)
@@ -218,6 +222,7 @@ class Ledger:
         Returns:
             What was done, one line per participant, for the log.
         """
+        self.version += 1
         out = []
         for name in names:
             m = self.members.get(name)

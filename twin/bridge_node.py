@@ -207,6 +207,8 @@ class TwinBridge(Node):
         self._next = dict.fromkeys(self._periods, 0.0)
         self.ledger = Ledger(tuple(n for n in participants if n))
         self._phase = "start"  # lock-step: start -> clock -> sensors -> step -> clock ...
+        self._checked_version = -1  # the ledger's version when last checked
+        self._waiting_for = ""  # what that check found pending
         self._wait_since = self._wall_s()
         self._last_warn = self._wall_s()
 
@@ -278,9 +280,12 @@ class TwinBridge(Node):
             )
             self._begin_tick(now)
             return
-        pending = self.ledger.pending()
-        if pending:
-            self._warn_if_slow(now, "waiting: " + ", ".join(pending), forgive=True)
+        if self.ledger.version != self._checked_version:  # new counts: check them
+            self._checked_version = self.ledger.version
+            pending = self.ledger.pending()
+            self._waiting_for = "waiting: " + ", ".join(pending) if pending else ""
+        if self._waiting_for:
+            self._warn_if_slow(now, self._waiting_for, forgive=True)
             return
         self._wait_since = now
         if self._phase == "clock":

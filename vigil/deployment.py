@@ -30,8 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
-from stack.config import read_yaml
-from stack.perception._config import from_mapping
+from stack.config import from_mapping, read_yaml
 
 MODES = ("twin", "hardware")
 TWIN_ONLY = ("twin", "lockstep")
@@ -138,9 +137,6 @@ class Deployment:
         p = Path(path)
         return p if p.is_absolute() or self.source is None else self.source.parent / p
 
-    def with_changes(self, **changes: Any) -> Deployment:
-        return replace(self, **changes)
-
 
 _SECTIONS = {
     "ros": RosSection,
@@ -197,9 +193,7 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
         source=source,
         **sections,
     )
-    resolved = dep.with_changes(
-        task=dep.resolve(task), policy=dep.resolve(policy) if policy else None
-    )
+    resolved = replace(dep, task=dep.resolve(task), policy=dep.resolve(policy) if policy else None)
     if not resolved.task.exists():
         raise ConfigError("task", str(resolved.task), "file not found")
     if mode == "hardware":

@@ -19,10 +19,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from stack.cells import ConfigError
-from vigil.deployment import Deployment, load_deployment
+from vigil.deployment import load_deployment
 from vigil.launch import Launcher
-from vigil.scenario import Scenario, load_scenario
-from vigil.system import System, _write, policy_for, prepare
+from vigil.scenario import load_scenario
+from vigil.system import prepare, prepare_table
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
@@ -41,32 +41,7 @@ def _fresh(run_dir: Path) -> None:
     run_dir.mkdir(parents=True)
 
 
-def prepare_table(dep: Deployment, run_dir: Path, scenario: Scenario, say=print) -> System:
-    """Planner + table player: the thesis's table as the observations."""
-    if not scenario.thesis_table:
-        raise ConfigError("thesis_table", "", "the scenario names no thesis table")
-    policy = dep.policy or policy_for(scenario.task, say)
-    params = {
-        "planner": {
-            "lockstep": False,
-            "task_file": str(scenario.task),
-            "policy_file": str(policy),
-            "state_file": str(run_dir / "planner_state.json"),
-            "steps_file": str(run_dir / "steps.jsonl"),
-            "max_steps": scenario.steps,
-            "start_delay_s": 1.0,
-            "min_step_s": 0.0,
-            "initial_robot_cell": scenario.robot_cell,
-            "initial_person_cell": scenario.belief_person or 0,
-            "initial_direction": scenario.belief_direction,
-        },
-        "table_player": {"table": scenario.thesis_table},
-    }
-    dep = replace(dep, lockstep=False)
-    return _write(run_dir, ["planner", "table_player"], params, dep, scenario.steps)
-
-
-def _count_lines(path: Path) -> list[dict]:
+def _records(path: Path) -> list[dict]:
     if not path.exists():
         return []
     out = []
@@ -132,7 +107,7 @@ def run_scenario(
             if not launcher.poll():
                 error = f"the system stopped: {launcher.stopped_because}"
                 break
-            steps = _count_lines(run_dir / "steps.jsonl")
+            steps = _records(run_dir / "steps.jsonl")
             for rec in steps[shown:]:
                 say("[run] " + _progress(rec, scenario.steps))
             shown = len(steps)

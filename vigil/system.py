@@ -17,13 +17,14 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from stack.cells import CellGrid
+from stack.cells import CellGrid, ConfigError
+from stack.config import read_yaml
 from vigil.deployment import Deployment
 from vigil.launch import ProcessSpec
 from vigil.scenario import Scenario
@@ -81,16 +82,8 @@ def policy_for(task_path: Path, say=print, iterations: int = 200) -> Path:
     return path
 
 
-def _task_grid(task_path: Path) -> dict[str, Any] | None:
-    data = yaml.safe_load(Path(task_path).read_text()) or {}
-    return data.get("grid")
-
-
 def _read_yaml(path: Path | None) -> dict[str, Any]:
-    if path is None:
-        return {}
-    data = yaml.safe_load(path.read_text()) or {}
-    return dict(data)
+    return {} if path is None else read_yaml(path)
 
 
 def prepare(
@@ -111,7 +104,8 @@ def prepare(
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "speech").mkdir(exist_ok=True)
     task = scenario.task if scenario is not None else dep.task
-    grid_section = _task_grid(task)
+    task_data = read_yaml(task)
+    grid_section = task_data.get("grid")
     grid = CellGrid.from_mapping(grid_section) if grid_section else CellGrid()
     seed = seed if seed is not None else (scenario.seed if scenario else dep.twin.seed)
 
@@ -122,7 +116,7 @@ def prepare(
     if grid_section:
         stack_cfg["grid"] = grid_section
     # speech warns in the task's restricted cells (not the node's default)
-    restricted = list(yaml.safe_load(Path(task).read_text()).get("restricted_cells", []))
+    restricted = list(task_data.get("restricted_cells", []))
     if restricted:
         stack_cfg["speech"] = {**stack_cfg.get("speech", {}), "restricted_cells": restricted}
     stack_file = run_dir / "stack.yaml"
@@ -148,13 +142,12 @@ def prepare(
             ]
             if obstacles:
                 scene["obstacles"] = obstacles
-            base = TwinConfig.from_dict(scene)  # validates, and gives the door
-            from twin.scene import build_spec
+            from twin.scene import layout_of
 
-            _, layout = build_spec(base)
+            door_m = layout_of(TwinConfig.from_dict(scene)).door_center_m
             scene["person"] = {
                 **scene.get("person", {}),
-                "waypoints": scenario.person_waypoints(grid, layout.door_center_m),
+                "waypoints": scenario.person_waypoints(grid, door_m),
             }
         twin_file = run_dir / "twin.yaml"
         twin_file.write_text(yaml.safe_dump({"twin": scene}, sort_keys=False))
@@ -251,6 +244,31 @@ def prepare(
     if twin_mode and dep.lockstep:
         params["twin_bridge"]["participants"] = [n for n in names if n != "twin_bridge"]
     return _write(run_dir, names, params, dep, max_steps)
+
+
+def prepare_table(dep: Deployment, run_dir: Path, scenario: Scenario, say=print) -> System:
+    """Planner + table player: the thesis's table as the observations."""
+    if not scenario.thesis_table:
+        raise ConfigError("thesis_table", "", "the scenario names no thesis table")
+    policy = dep.policy or policy_for(scenario.task, say)
+    params = {
+        "planner": {
+            "lockstep": False,
+            "task_file": str(scenario.task),
+            "policy_file": str(policy),
+            "state_file": str(run_dir / "planner_state.json"),
+            "steps_file": str(run_dir / "steps.jsonl"),
+            "max_steps": scenario.steps,
+            "start_delay_s": 1.0,
+            "min_step_s": 0.0,
+            "initial_robot_cell": scenario.robot_cell,
+            "initial_person_cell": scenario.belief_person or 0,
+            "initial_direction": scenario.belief_direction,
+        },
+        "table_player": {"table": scenario.thesis_table},
+    }
+    dep = replace(dep, lockstep=False)
+    return _write(run_dir, ["planner", "table_player"], params, dep, scenario.steps)
 
 
 def _write(

@@ -1,108 +1,20 @@
-"""Validation of perception configuration mappings into frozen dataclasses.
+"""Perception's configuration: the deployment file's sections for its components.
 
-Every perception component has a frozen dataclass for its configuration. Their
-``from_dict`` class methods share this module: it checks that the keys are known
-and that each value has the field's type, and raises
-:class:`stack.cells.ConfigError` naming the key, the value and the rule. Rules
+Every perception component has a frozen dataclass for its configuration whose
+``from_dict`` uses :func:`stack.config.from_mapping` (known keys, the field's type,
+:class:`stack.cells.ConfigError` naming the key, the value and the rule). Rules
 beyond the type (``> 0``, ordering) live in each dataclass's ``__post_init__``.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import types
-import typing
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-from stack.cells import CellGrid, ConfigError
-from stack.config import read_yaml
+from stack.cells import CellGrid
+from stack.config import from_mapping, read_yaml, require
 
-T = TypeVar("T")
-
-
-def from_mapping(cls: type[T], data: Mapping[str, Any] | None, key: str) -> T:
-    """Build the frozen dataclass ``cls`` from a mapping, validating every field.
-
-    Args:
-        cls: a dataclass whose fields are bool, int, float, str, fixed-length tuples
-            of numbers, nested dataclasses, or ``X | None`` of those.
-        data: the mapping (e.g. one YAML section); None or empty gives the defaults.
-        key: the dotted name of the section, used in error messages.
-
-    Returns:
-        The validated instance.
-
-    Raises:
-        ConfigError: unknown key, wrong type, or a rule of ``cls.__post_init__`` broken.
-    """
-    if data is None:
-        data = {}
-    if not isinstance(data, Mapping):
-        raise ConfigError(key, data, "must be a mapping")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    for k in data:
-        if k not in fields:
-            raise ConfigError(f"{key}.{k}", data[k], f"unknown key (known: {sorted(fields)})")
-    kwargs = {}
-    for name, value in data.items():
-        kwargs[name] = _coerce(hints[name], value, f"{key}.{name}")
-    try:
-        return cls(**kwargs)
-    except ConfigError as err:
-        # Rules raised in __post_init__ name the bare field: prefix the section.
-        if not err.key.startswith(key + "."):
-            raise ConfigError(f"{key}.{err.key}", err.value, err.rule) from None
-        raise
-
-
-def _coerce(hint: Any, value: Any, key: str) -> Any:
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        if len(inner) == 1:
-            return _coerce(inner[0], value, key)
-        raise ConfigError(key, value, f"unsupported type {hint}")
-    if dataclasses.is_dataclass(hint):
-        return from_mapping(hint, value, key)  # type: ignore[arg-type]
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(key, value, "must be true or false")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(key, value, "must be an integer")
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(key, value, "must be a number")
-        return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(key, value, "must be a string")
-        return value
-    if origin is tuple:
-        if isinstance(value, str | bytes) or not isinstance(value, list | tuple):
-            raise ConfigError(key, value, f"must be a list of {len(args)} numbers")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(args[0], v, f"{key}[{i}]") for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise ConfigError(key, value, f"must be a list of {len(args)} values")
-        return tuple(
-            _coerce(a, v, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True))
-        )
-    raise ConfigError(key, value, f"unsupported type {hint}")
-
-
-def require(condition: bool, key: str, value: Any, rule: str) -> None:
-    """Raise ConfigError(key, value, rule) unless ``condition`` holds."""
-    if not condition:
-        raise ConfigError(key, value, rule)
+__all__ = ["from_mapping", "load_config_file", "require"]
 
 
 def load_config_file(path: str | Path | None) -> tuple[CellGrid, dict[str, Any]]:
