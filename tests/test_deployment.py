@@ -62,9 +62,11 @@ def test_hardware_mode_needs_calibration_and_a_valid_stream(tmp_path):
         parse_deployment(base(mode="hardware", hardware=hw), None)
     assert err.value.key == "perception.calibration"
     ok = base(mode="hardware", hardware=hw, perception={"calibration": "cal.yaml"})
+    ok["ros"] = {"domain_id": 42}
     assert parse_deployment(ok, None).hardware["camera_stream"]["url"] == "rtsp://cam/stream"
     bad = base(mode="hardware", hardware={"camera_stream": {"url": "x", "rate_hz": -1}})
     bad["perception"] = {"calibration": "cal.yaml"}
+    bad["ros"] = {"domain_id": 42}
     with pytest.raises(ConfigError):
         parse_deployment(bad, None)
 

@@ -423,11 +423,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from stack.perception.errors import CalibrationError
+
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:  # config, model and file errors
-        print(f"vigil {args.command}: error: {exc}", file=sys.stderr)
+    except (ValueError, OSError, CalibrationError) as exc:  # config, model and file errors
+        text = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"vigil {args.command}: error: {text}", file=sys.stderr)
         return 2
 
 

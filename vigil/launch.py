@@ -67,6 +67,7 @@ class _Running:
     proc: subprocess.Popen
     log: object
     restarts: int = 0
+    killed: bool = False  # by :meth:`Launcher.kill` (an injected fault), not a failure
 
 
 class Launcher:
@@ -96,6 +97,7 @@ class Launcher:
         self.running: dict[str, _Running] = {}
         self.stopped_because: str | None = None
         self.exit_codes: dict[str, int | None] = {}
+        self.failures: list[str] = []  # "<name> exited (code N): <last log line>"
 
     def _spawn(self, spec: ProcessSpec, restarts: int = 0) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -130,6 +132,8 @@ class Launcher:
             if rc is None:
                 continue
             r.log.close()
+            if not r.killed:
+                self.failures.append(self._why(name, rc))
             if r.spec.restart and r.restarts < self.max_restarts:
                 self.say(
                     f"[launch] {name} exited (code {rc}); restarting "
@@ -139,7 +143,7 @@ class Launcher:
                 continue
             self.exit_codes[name] = rc
             del self.running[name]
-            self.stopped_because = f"{name} exited (code {rc})"
+            self.stopped_because = self._why(name, rc)
             self.say(f"[launch] {self.stopped_because}: stopping the system")
             self.stop()
             return False
@@ -148,7 +152,13 @@ class Launcher:
     def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
         """Send ``sig`` to one node (fault injection); the launcher restarts it."""
         r = self.running[name]
+        r.killed = True
         os.killpg(r.proc.pid, sig)
+
+    def _why(self, name: str, rc: int | None) -> str:
+        """``<name> exited (code N)``, with the last error line of its log if any."""
+        last = last_error_line(self.log_dir / f"{name}.log")
+        return f"{name} exited (code {rc})" + (f": {last}" if last else "")
 
     def stop(self, timeout_s: float = 5.0) -> dict[str, int | None]:
         """Stop every process: SIGINT, then SIGTERM, then SIGKILL; returns exit codes."""
@@ -169,12 +179,31 @@ class Launcher:
             while time.monotonic() < deadline and any(r.proc.poll() is None for r in alive):
                 time.sleep(0.05)
         for name, r in self.running.items():
-            self.exit_codes[name] = r.proc.poll()
+            rc = r.proc.poll()
+            self.exit_codes[name] = rc
             r.log.close()
+            if rc != 0 and not r.killed:  # a node that did not leave cleanly on SIGINT
+                self.failures.append(self._why(name, rc) + " at shutdown")
         self.running.clear()
         if self.stopped_because is None:
             self.stopped_because = "stopped"
         return dict(self.exit_codes)
+
+
+def last_error_line(path: Path, tail_bytes: int = 16384) -> str:
+    """The last line of a log that reads as an error ("" if none or unreadable)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - tail_bytes))
+            lines = f.read().decode(errors="replace").splitlines()
+    except OSError:
+        return ""
+    marks = ("[ERROR]", "[FATAL]", "Error:", "Error ", "error:")
+    for line in reversed(lines):
+        if any(m in line for m in marks):
+            return line.strip()[:300]
+    return ""
 
 
 class GraphWatch:
