@@ -29,7 +29,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import String
 
-from stack.lockstep import ACK_TOPIC, Ack
+from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, Ack
 
 HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
 
@@ -81,6 +81,7 @@ class Participant:
         self._clock_s: float | None = None
         self._on_clock: list[Callable[[float], None]] = []
         self.incarnation = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.run_id = os.environ.get(RUN_ID_ENV, "")
         self.in_callback = False
         if not self.enabled:
             return
@@ -161,6 +162,7 @@ class Participant:
                 dict(self.recv),
                 dict(self.sent),
                 {p.topic_name: p.get_subscription_count() for p in self._publishers},
+                run=self.run_id,
             )
             self._ack_pub.publish(String(data=ack.to_json()))
         except Exception:  # a callback finishing while Ctrl-C shuts the context down

@@ -16,9 +16,12 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from stack.lockstep import RUN_ID_ENV
 
 
 def _die_with_parent() -> None:
@@ -237,16 +240,25 @@ class GraphWatch:
 
 def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = print) -> int:
     """``vigil launch CONFIG``: start the system, show each node up, run until Ctrl-C
-    or until a node dies for good; returns 0 on Ctrl-C, 1 when a node died."""
+    or until a node dies for good; returns 0 on Ctrl-C with every node leaving cleanly,
+    1 when a node died or failed to stop cleanly."""
     from vigil.deployment import load_deployment
     from vigil.system import prepare
 
     dep = load_deployment(config)
     system = prepare(dep, Path(out), say=say)
     logs = system.run_dir / "logs"
+    claim = None
+    if dep.mode == "twin" and dep.ros.domain_id < 0:  # private: a parallel run never hears it
+        from vigil.ros_domain import claim_domain
+
+        claim = claim_domain()
+        system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
+    system.env.setdefault(RUN_ID_ENV, uuid.uuid4().hex[:12])
+    say(f"[launch] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}")
     launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
     for key, value in system.env.items():
-        os.environ.setdefault(key, value)
+        os.environ[key] = value  # the graph watch must look at the system's own domain
     watch = GraphWatch([s.name for s in system.specs], say)
     launcher.start()
     say(f"[launch] {dep.mode} mode, logs in {system.run_dir / 'logs'}; Ctrl-C stops everything")
@@ -261,7 +273,11 @@ def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = pri
     finally:
         codes = launcher.stop(dep.nodes.stop_timeout_s)
         watch.close()
+        if claim is not None:
+            claim.release()
         say("[launch] stopped: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
         if launcher.stopped_because not in (None, "stopped"):
             say(f"[launch] reason: {launcher.stopped_because}")
-    return rc
+        for failure in launcher.failures:
+            say(f"[launch] failure: {failure}")
+    return 1 if rc or launcher.failures else 0

@@ -20,6 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from stack.cells import ConfigError
+from stack.lockstep import RUN_ID_ENV  # read by stack.ros_lockstep (acks) and the twin bridge
 from vigil.deployment import load_deployment
 from vigil.launch import Launcher
 from vigil.ros_domain import claim_domain
@@ -28,7 +29,6 @@ from vigil.system import prepare, prepare_table
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
-RUN_ID_ENV = "VIGIL_RUN_ID"  # read by stack.ros_lockstep (acks) and the twin bridge
 RUN_MARK = ".vigil-run"  # written first into every run folder vigil run creates
 MAX_NUMBERED = 1000
 
