@@ -17,6 +17,14 @@ Every chain of work starts at the coordinator's publications (its clock and sens
 messages), so a stale acknowledgement can only under-count receives, never make an
 unfinished system look finished.
 
+Each tick has three phases, each waiting for quiescence before the next: ``/clock``
+(every participant learns the new time, and does nothing else), ``/lockstep/tick``
+(timers run: the planner's poll, navigation's control step, watchdogs) and the
+sensors. Splitting the first two matters: otherwise a message caused by one node's
+timer (the planner's observation request, say) can reach another node before that
+node has processed the new ``/clock``, and it would act at the previous tick's time,
+or not, depending on the machine's load.
+
 Faults: a participant that restarts (new ``incarnation``) or loses messages would
 leave the sums unbalanced forever; :meth:`Ledger.forgive` rebases it after a stall,
 and a participant silent for too long is excused until it speaks again.
@@ -30,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 ACK_TOPIC = "/lockstep/ack"
+TICK_TOPIC = "/lockstep/tick"  # after /clock has reached everyone: run the timers
 RUN_ID_ENV = "VIGIL_RUN_ID"  # every node of a run has the run's id in this variable
 MAX_FOREIGN = 64  # names of other runs' participants remembered (a hostile peer is bounded)
 CATCH_UP_S = 5.0

@@ -9,7 +9,9 @@ when commands are older than ``cmd_timeout_s`` of simulated time.
 Time, three modes:
     lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
         coordinator of :mod:`stack.lockstep`. Each sensor tick it publishes ``/clock``,
-        waits until every participant has processed it, publishes the sensors, waits
+        waits until every participant has processed it, publishes ``/lockstep/tick``
+        (the participants' timers run), waits for that and everything it caused,
+        publishes the sensors, waits
         until every participant has processed them and everything that followed
         (detections, observations, the planner's decision, the next ``/cmd_vel``),
         and only then steps the physics. Results do not depend on the machine's speed.
@@ -41,7 +43,7 @@ from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
 
 from stack.cells import ConfigError
-from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, Ack, Ledger
+from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
@@ -220,7 +222,7 @@ class TwinBridge(Node):
         self.run_id = os.environ.get(RUN_ID_ENV, "")
         self.ledger = Ledger(tuple(n for n in participants if n), run_id=self.run_id)
         self._foreign_seen = 0
-        self._phase = "start"  # lock-step: start -> clock -> sensors -> step -> clock ...
+        self._phase = "start"  # lock-step: start -> clock -> tick -> sensors -> step -> clock
         self._checked_version = -1  # the ledger's version when last checked
         self._waiting_for = ""  # what that check found pending
         self._wait_since = self._wall_s()
@@ -238,6 +240,7 @@ class TwinBridge(Node):
         self.pub_odom = self.create_publisher(OdometryMsg, "/odom", 10)
         self.pub_map = self.create_publisher(OccupancyGrid, "/map", latched)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
         self.pub_truth = self.create_publisher(String, "/twin/truth", 10)
         self.pub_robot = self.create_publisher(PoseStamped, "/twin/robot_pose", 10)
         self.pub_person = self.create_publisher(PoseStamped, "/twin/person_pose", 10)
@@ -285,7 +288,14 @@ class TwinBridge(Node):
 
     # -- lock-step ----------------------------------------------------------------------
     def _own_matched(self) -> dict[str, int]:
-        pubs = (self.pub_clock, self.pub_odom, self.pub_scan, self.pub_image, self.pub_truth)
+        pubs = (
+            self.pub_clock,
+            self.pub_tick,
+            self.pub_odom,
+            self.pub_scan,
+            self.pub_image,
+            self.pub_truth,
+        )
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
     def _lockstep_poll(self) -> None:
@@ -310,7 +320,10 @@ class TwinBridge(Node):
             self._warn_if_slow(now, self._waiting_for, forgive=True)
             return
         self._wait_since = now
-        if self._phase == "clock":
+        if self._phase == "clock":  # everyone has the new time: now the timers
+            self._publish(self.pub_tick, Clock(clock=stamp_of(self.twin.time_s)))
+            self._phase = "tick"
+        elif self._phase == "tick":
             self._publish_sensors()
             self._phase = "sensors"
         else:  # sensors processed and everything they caused: step to the next tick
