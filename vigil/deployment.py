@@ -261,8 +261,12 @@ def _check_hardware(dep: Deployment) -> None:
             dep.topics.cmd_vel,
             f"is the gate's own input or state: the base's topic must differ from {NAV_CMD_VEL}",
         )
-    if ros.keystore and not Path(dep.resolve(ros.keystore)).is_dir():
-        raise ConfigError("ros.keystore", ros.keystore, "no such keystore folder")
+    if ros.keystore:
+        if not Path(dep.resolve(ros.keystore)).is_dir():
+            raise ConfigError("ros.keystore", ros.keystore, "no such keystore folder")
+        from vigil.security import require_support
+
+        require_support()  # a keystore DDS would not enforce is refused, not ignored
 
 
 def load_deployment(path: str | Path) -> Deployment:

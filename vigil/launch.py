@@ -108,11 +108,14 @@ class Launcher:
         if restarts:
             log.write(f"\n--- restart {restarts} ---\n")
             log.flush()
+        env = {**self.env, **spec.env}
+        if env.get("ROS_SECURITY_KEYSTORE"):  # SROS2: each node in its own enclave
+            env.setdefault("ROS_SECURITY_ENCLAVE_OVERRIDE", f"/vigil/{spec.name}")
         proc = subprocess.Popen(
             spec.argv(),
             stdout=log,
             stderr=subprocess.STDOUT,
-            env={**self.env, **spec.env},
+            env=env,
             start_new_session=True,  # its own process group: Ctrl-C reaches us first
             preexec_fn=_die_with_parent,
         )
