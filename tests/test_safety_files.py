@@ -97,3 +97,19 @@ def test_cli_gives_one_line_errors_with_exit_code_2(tmp_path, args):
     assert "Traceback" not in proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("vigil "), proc.stderr
+
+
+def test_a_kill_fault_naming_an_unknown_node_is_refused():
+    import yaml
+
+    from vigil.scenario import KILLABLE, parse_scenario
+
+    data = yaml.safe_load((REPO / "scenarios" / "5.1.2.yaml").read_text())
+    data["task"] = str(REPO / "config" / "task-r1.yaml")
+    data["faults"] = [{"kind": "kill", "node": "plannr", "after_step": 3}]
+    with pytest.raises(ConfigError) as err:
+        parse_scenario(data, None)
+    assert err.value.key == "faults[0].node" and "plannr" in str(err.value)
+    for node in KILLABLE:
+        data["faults"] = [{"kind": "kill", "node": node, "after_step": 3}]
+        assert parse_scenario(data, None).faults[0].node == node
