@@ -32,6 +32,10 @@ from xml.sax.saxutils import escape
 from stack.cells import ConfigError
 
 PROFILE_FILE = "fastdds.xml"
+# participants per host and domain that find each other: Fast DDS sends its unicast
+# announcements to participant ids 0..maxInitialPeersRange-1 (default 4, too few for a
+# system of nine nodes without multicast: measured, the 6th and later never met)
+MAX_PARTICIPANTS = 64
 LOOPBACK = "127.0.0.1"
 
 
@@ -68,6 +72,7 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
       <transport_descriptor>
         <transport_id>vigil_udp</transport_id>
         <type>UDPv4</type>
+        <maxInitialPeersRange>{MAX_PARTICIPANTS}</maxInitialPeersRange>
         <interfaceWhiteList>{white}</interfaceWhiteList>
       </transport_descriptor>
     </transport_descriptors>
