@@ -3,13 +3,13 @@
 Kept apart from the algorithm packages: only node files import it.
 
 Shutdown: rclpy's own signal handler shuts the context down from inside the signal,
-while a callback may still be publishing ("publisher's context is invalid", exit 1)
-and before the node's last words (a zero velocity) can go out. So rclpy installs
-no handler here: SIGINT and SIGTERM raise :class:`KeyboardInterrupt` in the spinning
-thread (the executor wakes every :data:`SPIN_WAKE_S` to let it), ``on_exit``
-publishes with the context still valid, and only then is the node destroyed and the
-context shut down. A clean stop exits 0; a node that cannot start (bad configuration or file) prints one ``[FATAL]`` line
-naming what is wrong and exits 2.
+while a callback may still be publishing ("publisher's context is invalid", exit 1) and
+before the node's last words (a zero velocity) can go out. So rclpy installs no handler
+here: SIGINT and SIGTERM raise :class:`KeyboardInterrupt` in the spinning thread (the
+executor wakes every :data:`SPIN_WAKE_S` to let it), ``on_exit`` publishes with the
+context still valid, and only then is the node destroyed and the context shut down. A
+clean stop exits 0; a node that cannot start (bad configuration or file) prints one
+``[FATAL]`` line naming what is wrong and exits 2.
 """
 
 from __future__ import annotations
