@@ -30,7 +30,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 MEMORY_CAP = 1024 * 2**20  # address space a reader may add to its process [bytes]
 TIME_CAP_S = 20  # a liveness bound per file (a reader that never ends), not a speed test
-CASES_PER_READER = 30
+CASES_PER_READER = 20
 SPECIAL = [
     "nan", ".nan", "NaN", "inf", "-.inf", "1e308", "-1e308", "1e999", "-1", "0", "0.0",
     "100000000", "99", "-99", "''", "[]", "{}", "null", "true", "x",
