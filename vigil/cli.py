@@ -9,6 +9,12 @@ vigil main --out DIR                     the main job: solve, replay, report
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
 vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
+vigil security keystore DIR --domain N   an SROS2 keystore for hardware mode (docs/SAFETY.md)
+vigil security check                     can the installed DDS enforce it?
+
+Over 500 lines because it is the one place where every command's arguments, its
+one-line errors and its exit codes are defined; the work itself lives in the modules
+each command calls.
 """
 
 from __future__ import annotations
