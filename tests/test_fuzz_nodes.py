@@ -19,6 +19,7 @@ import random
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
@@ -182,12 +183,18 @@ def fill(msg, rng: random.Random, now_s: float, depth: int = 0):
 def node_params(tmp: Path) -> dict[str, dict]:
     import yaml
 
+    from stack.planning.model import build_model
+    from stack.planning.policy import AlphaPolicy
+    from stack.planning.task import load_task
     from vigil.deployment import parse_deployment
     from vigil.scenario import load_scenario
     from vigil.system import prepare
 
+    # a tiny policy of the right size (no solve needed; the planner's choices do not matter)
+    n = build_model(load_task(REPO / "config" / "task-r1.yaml")).flat().n_states
+    AlphaPolicy(np.zeros((2, n)), np.array([0, 1]), {}).save(tmp / "policy.npz")
     data = yaml.safe_load((REPO / "config" / "twin.yaml").read_text())
-    data.update(task=str(REPO / "config" / "task-r1.yaml"))
+    data.update(task=str(REPO / "config" / "task-r1.yaml"), policy=str(tmp / "policy.npz"))
     data["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
     dep = parse_deployment(data, tmp / "twin.yaml")
     system = prepare(
