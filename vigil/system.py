@@ -194,8 +194,9 @@ def prepare(
     params["observations"] = {
         **common,
         "config_file": cfg,
+        "calibration_file": str(calibration),  # the cells the robot hides from the camera
         "odom_topic": dep.topics.odom,
-        "decision_period_s": 0.0,
+        "decision_period_s": 0.25,  # continuous: speech and the planner's events read it
     }
     params["navigation"] = {
         **common,
@@ -223,6 +224,7 @@ def prepare(
         "nav_timeout_s": dep.planner.nav_timeout_s,
         "obs_timeout_s": dep.planner.obs_timeout_s,
         "min_step_s": 2.5,
+        "min_event_step_s": 1.5,  # a person in a new cell ends a step this soon
     }
     if scenario is not None:
         planner.update(

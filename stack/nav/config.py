@@ -160,8 +160,10 @@ class SpeechConfig:
     espeak_path: str = "espeak-ng"  # executable name or path
     timeout_s: float = 10.0  # bound on one synthesis [s]
     emulate_playback: bool = True  # WAV output: stay "speaking" for the audio's duration
-    restricted_cells: tuple[int, ...] = (1,)  # where arriving with a person near triggers it
-    near_cells: int = 1  # person within this Chebyshev cell distance counts as "near"
+    restricted_cells: tuple[int, ...] = (1,)  # where the robot warns a person with it
+    grace_s: float = 2.0  # a warning may start this long after the person left the cell [s]
+    repeat_s: float = 8.0  # while the person stays, warn again after this long [s]
+    max_text_chars: int = 300  # a longer request is refused (it would delay a warning)
 
     def validate(self, prefix: str = "speech") -> None:
         """Check every value.
@@ -191,8 +193,12 @@ class SpeechConfig:
         for c in self.restricted_cells:
             if isinstance(c, bool) or not isinstance(c, int) or c < 1:
                 raise ConfigError(f"{prefix}.restricted_cells", c, "cells are positive integers")
-        if self.near_cells < 0:
-            raise ConfigError(f"{prefix}.near_cells", self.near_cells, "must be >= 0")
+        for key in ("grace_s", "repeat_s"):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{prefix}.{key}", v, "must be a finite number >= 0")
+        if not 1 <= self.max_text_chars <= 10_000:
+            raise ConfigError(f"{prefix}.max_text_chars", self.max_text_chars, "1..10000")
 
     def __post_init__(self) -> None:
         self.validate()

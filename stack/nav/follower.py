@@ -331,6 +331,11 @@ class PathFollower:
             return self._end(NavResult.SUCCEEDED, NavErrorCode.NONE, "", d_goal)
 
         people = np.asarray(list(people_xy), dtype=float).reshape(-1, 2)
+        if self._in_region_beside_person_on_goal(pos, goal, people):
+            return self._end(
+                NavResult.SUCCEEDED, NavErrorCode.NONE,
+                "in the target cell; a person stands on its waypoint", d_goal,
+            )  # fmt: skip
         # beside a person in the target cell: contact clearance only (see _plan_into_region)
         keep = cfg.robot_radius_m if self._beside else cfg.inflation_radius_m
         person_mask = disc_mask(self.map, people, cfg.person_radius_m + keep)
@@ -351,6 +356,20 @@ class PathFollower:
         return FollowerStatus(
             cmd, FollowerState.ACTIVE, distance_remaining_m=dist, replans=self._replans
         )
+
+    def _in_region_beside_person_on_goal(
+        self, pos: np.ndarray, goal: np.ndarray, people: np.ndarray
+    ) -> bool:
+        """Inside the target cell (``region_margin_m`` in) with a person on its waypoint."""
+        if self._region is None or len(people) == 0:
+            return False
+        cfg = self.config
+        m = cfg.region_margin_m
+        x0, y0, x1, y1 = self._region
+        if not (x0 + m <= pos[0] <= x1 - m and y0 + m <= pos[1] <= y1 - m):
+            return False
+        reach = cfg.person_radius_m + cfg.robot_radius_m + cfg.goal_tolerance_m
+        return bool(np.hypot(*(people - goal).T).min() <= reach)
 
     def _hold(self, now_s: float, d_goal: float) -> FollowerStatus:
         assert self._waiting_since is not None

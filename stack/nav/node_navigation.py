@@ -211,6 +211,7 @@ class NavigationNode(Node):
         self.handle_action(msg.data)
 
     def handle_action(self, raw: str | int) -> None:
+        previous_target = self.task.get("target_cell") if self.follower.active else None
         self.goal_id += 1
         try:
             action = parse_action(raw)
@@ -233,6 +234,8 @@ class NavigationNode(Node):
                 self.follower.cancel("superseded by Do nothing")
             self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
             self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "holding position")
+        elif target.cell == previous_target:
+            pass  # the same cell as the move under way: keep driving, report under this goal
         else:
             self.begin(target.waypoint_m, target.cell)
 

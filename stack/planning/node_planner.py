@@ -1,8 +1,12 @@
 """The planner node: observations in, actions out, one decision step at a time (4.3).
 
 Each step: choose an action from the belief, publish it, wait until navigation reports
-the action done, ask for the step's observations, update the belief, record the step.
-New observations are read only when the robot has finished its action (section 4.3).
+the action done (and at least ``min_step_s``), ask for the step's observations, update
+the belief, record the step (section 4.3). A step also ends early, at least
+``min_event_step_s`` after it began, when the observations show the person in a cell
+other than at the last step (entering the room, a restricted cell, any new cell):
+the robot reacts to a walker instead of finishing a move first. Navigation keeps
+driving meanwhile; a next action toward the same cell does not stop it.
 
 Subscribes (names are parameters):
     ``/nav/result`` std_msgs/String: navigation's JSON result of the action.
@@ -24,7 +28,8 @@ task's), ``initial_person_cell`` (-1: the task's, 0: nobody), ``initial_directio
 ("": the task's), ``max_steps`` (0: no end), ``start_delay_s``, ``nav_timeout_s``,
 ``obs_timeout_s``, ``resume_wait_s``, ``min_step_s`` (a step lasts at least this long: "Do
 nothing" is done at once, but the model's time steps are of one length, about one
-cell's move), ``lockstep`` (see :mod:`stack.ros_lockstep`).
+cell's move), ``min_event_step_s`` (a step ends on a person event no sooner; 0: no
+events), ``lockstep`` (see :mod:`stack.ros_lockstep`).
 """
 
 from __future__ import annotations
@@ -64,16 +69,16 @@ class PlannerNode(Node):
         self.obs_timeout_s = float(p("obs_timeout_s", 5.0).value)
         self.resume_wait_s = float(p("resume_wait_s", 3.0).value)
         self.min_step_s = float(p("min_step_s", 0.0).value)
+        self.min_event_step_s = float(p("min_event_step_s", 0.0).value)  # 0: no events
         if not task_file or not policy_file:
             raise ConfigError("task_file/policy_file", (task_file, policy_file), "both are needed")
         model = build_model(load_task(task_file))
         pomdp = model.flat()
         policy = AlphaPolicy.load(policy_file, pomdp.n_states)
         ini = model.task.initial
+        first_person = ini.person if person < 0 else (person or None)
         b0 = model.initial_belief(
-            robot or ini.robot,
-            [(ini.person if person < 0 else (person or None), direction or ini.direction)]
-            * model.people,
+            robot or ini.robot, [(first_person, direction or ini.direction)] * model.people
         )
         self.agent = PlannerAgent(model, pomdp, policy, b0)
         self.resumed = False
@@ -99,6 +104,8 @@ class PlannerNode(Node):
         self.since_s = self.step_start_s = self.hold_until_s = 0.0
         self.requests = 0
         self.last_nav: dict | None = None
+        self.sent_action = ""
+        self.last_person = "" if first_person is None else str(first_person)
         self.started = False
         what = f"resuming at step {self.agent.step + 1}" if self.resumed else "initial belief"
         self.get_logger().info(
@@ -153,6 +160,7 @@ class PlannerNode(Node):
         self.save()
         self.waiting, self.since_s, self.last_nav = "nav", self.now_s(), None
         self.step_start_s = self.since_s
+        self.sent_action = ACTIONS[a]
         self.pub_action.publish(String(data=ACTIONS[a]))
         self.get_logger().info(f"step {self.agent.step + 1}: {ACTIONS[a]}")
 
@@ -169,6 +177,8 @@ class PlannerNode(Node):
             self.get_logger().warning(f"malformed navigation result {msg.data[:80]!r}")
         if self.waiting != "nav":
             return  # a result nobody waits for (e.g. after a timeout)
+        if isinstance(body, dict) and body.get("action") not in (None, self.sent_action):
+            return  # the result of an earlier action, superseded
         self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
         self.hold_until_s = self.step_start_s + self.min_step_s
         if self.now_s() >= self.hold_until_s:
@@ -176,16 +186,41 @@ class PlannerNode(Node):
         else:
             self.waiting = "hold"
 
+    @staticmethod
+    def _person_key(label: str) -> str:
+        return label if label.isdigit() else ""
+
     def on_observation(self, msg: String) -> None:
-        if self.waiting != "obs":
+        if self.waiting not in ("obs", "nav", "hold"):
             return
         try:
             observed = Observed.from_dict(json.loads(msg.data))
+        except (ValueError, ObservationError) as err:
+            self.get_logger().error(f"observation ignored: {err}", throttle_duration_sec=5.0)
+            return
+        trigger = "step"
+        if self.waiting != "obs":  # an event: the person shows up in a new cell
+            person = self._person_key(observed.person)
+            elapsed = self.now_s() - self.step_start_s
+            if not (
+                self.min_event_step_s > 0
+                and person
+                and person != self.last_person
+                and elapsed >= self.min_event_step_s
+            ):
+                return
+            trigger = f"person in {person}"
+            if self.last_nav is None:
+                self.last_nav = {"result": "in progress", "action": self.sent_action}
+        try:
             record = self.agent.observe(observed)
         except (ValueError, ObservationError) as err:
-            self.get_logger().error(f"observation ignored, asking again: {err}")
+            self.get_logger().error(f"observation ignored: {err}")
             return
-        record.update(stamp_s=round(self.now_s(), 6), nav=self.last_nav, resumed=self.resumed)
+        self.last_person = self._person_key(observed.person)
+        record.update(
+            stamp_s=round(self.now_s(), 6), nav=self.last_nav, resumed=self.resumed, trigger=trigger
+        )
         self.resumed = False
         self.waiting = ""
         self.save()
