@@ -96,8 +96,13 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
         result = sim.results[1]
         assert result["result"] == "succeeded", result
         assert (result["from_cell"], result["target_cell"], result["cell"]) == (3, 1, 1)
+        # reported on entering the cell; the robot goes on to settle on its waypoint
+        assert result["message"] == "in the target cell"
+        assert spin_until(ros, lambda: not nav.follower.active, 10.0), "never settled"
         pose = sim.base.pose
         assert math.dist((pose.x_m, pose.y_m), GRID.center(1)) < 0.1
+        assert len(sim.results) == 2  # one result per action
+        spin_until(ros, lambda: False, 0.2)
         n_cmds = len(sim.cmds)
         sim.action_pub.publish(String(data="East"))
         assert spin_until(ros, lambda: len(sim.results) == 3, 3.0)

@@ -83,6 +83,9 @@ class FollowerConfig:
     # a person standing on the waypoint: stop at the nearest free point of the target
     # cell at least this far inside its borders instead (the action is "go to the cell")
     region_margin_m: float = 0.1
+    # a move is reported done once the robot is this far inside its target cell; it goes
+    # on to the waypoint meanwhile, so the next decision comes while it still drives
+    arrive_margin_m: float = 0.2
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
     unknown_is_occupied: bool = True
@@ -120,6 +123,7 @@ class FollowerConfig:
             "person_radius_m",
             "blocked_timeout_s",
             "max_start_escape_m",
+            "arrive_margin_m",
         )
 
     def __post_init__(self) -> None:

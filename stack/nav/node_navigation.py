@@ -141,6 +141,7 @@ class NavigationNode(Node):
         self.stopped = False
         self.goal_id = 0
         self.task: dict = {}
+        self.arrived = False  # the move's success was reported on entering its cell
         self._was_moving = False
         self._ticks = 0
         self._progress_every = max(1, round(rate_hz / progress_hz))
@@ -230,12 +231,16 @@ class NavigationNode(Node):
             self.get_logger().warning(f"refusing action: {target.reason}")
             self.publish_result(NavResult.REFUSED, NavErrorCode.ACTION_LEAVES_MAP, target.reason)
         elif target.outcome is ActionOutcome.HOLD:
-            if self.follower.active:
+            if self.follower.active and previous_target == cell:
+                pass  # already in the cell, settling on its waypoint: let it
+            elif self.follower.active:
                 self.follower.cancel("superseded by Do nothing")
             self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
             self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "holding position")
         elif target.cell == previous_target:
-            pass  # the same cell as the move under way: keep driving, report under this goal
+            # the same cell as the move under way: keep driving, report under this goal
+            if self.arrived:
+                self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "in the target cell")
         else:
             self.begin(target.waypoint_m, target.cell)
 
@@ -257,6 +262,7 @@ class NavigationNode(Node):
             self.publish_result(NavResult.CANCELED, NavErrorCode.STOPPED, "stop is active")
             return
         region = self.grid.bounds(cell) if cell is not None else None
+        self.arrived = False
         self.follower.start(goal_xy, self.now_s(), region)
 
     # -- the control loop ----------------------------------------------------
@@ -272,9 +278,22 @@ class NavigationNode(Node):
         self.cmd_pub.publish(twist_to_msg(cmd))
         self._was_moving = True
         if status.result is not None:
-            self.report(status)
+            if not (self.arrived and status.result is NavResult.SUCCEEDED):
+                self.report(status)  # (an arrival was reported on entering the cell)
+        elif not self.arrived and self.in_target_cell():
+            self.arrived = True  # the goal cell is reached: report now, settle on its waypoint
+            self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "in the target cell")
         elif self._ticks % self._progress_every == 0:
             self.publish_progress(status)
+
+    def in_target_cell(self) -> bool:
+        """The robot is ``arrive_margin_m`` inside the cell its action moves it to."""
+        target = self.task.get("target_cell")
+        if self.pose is None or target is None or self.task.get("action") == "goal_pose":
+            return False
+        m = self.config.arrive_margin_m
+        x0, y0, x1, y1 = self.grid.bounds(target)
+        return x0 + m <= self.pose.x_m <= x1 - m and y0 + m <= self.pose.y_m <= y1 - m
 
     def robot_cell(self) -> int | None:
         if self.pose is None:
