@@ -164,3 +164,30 @@ def test_malformed_hidden_and_impossible_out_of_map_are_refused(solved):
     with pytest.raises(ObservationError, match="Out of the map"):
         agent.observe(Observed("Out of the map", "No person", "Not moving"))
     np.testing.assert_array_equal(agent.belief, before)
+
+
+@pytest.mark.parametrize(
+    "mutate",
+    [
+        lambda d: d.update(action=99),
+        lambda d: d.update(action="East"),
+        lambda d: d.update(step=-1),
+        lambda d: d.update(values=["x"]),
+        lambda d: d["belief"].__setitem__(0, float("nan")),
+        lambda d: d.update(belief=[1.0]),
+        lambda d: d.update(phase="dancing"),
+    ],
+)
+def test_a_corrupt_state_file_is_refused_not_crashed_on(solved, tmp_path, mutate):
+    agent, _ = table_agent(solved)
+    path = tmp_path / "state.json"
+    agent.save(path)
+    data = json.loads(path.read_text())
+    mutate(data)
+    path.write_text(json.dumps(data))
+    fresh, _ = table_agent(solved)
+    with pytest.raises(StateFileError):
+        fresh.restore(path)
+    path.write_text("[1, 2]")
+    with pytest.raises(StateFileError):
+        fresh.restore(path)

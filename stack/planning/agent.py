@@ -302,7 +302,11 @@ class PlannerAgent:
         if not path.exists():
             return False
         try:
+            if path.stat().st_size > 50_000_000:
+                raise ValueError("larger than 50 MB")
             data = json.loads(path.read_text())
+            if not isinstance(data, dict):
+                raise TypeError("not a JSON object")
             belief = np.asarray(data["belief"], float)
             step, phase, action = int(data["step"]), str(data["phase"]), data["action"]
         except (OSError, ValueError, KeyError, TypeError) as err:
@@ -313,7 +317,22 @@ class PlannerAgent:
             raise StateFileError(f"{path}: the belief is not a distribution over the states")
         if phase not in ("start", "acting", "observing", "done"):
             raise StateFileError(f"{path}: unknown phase {phase!r}")
+        if step < 0:
+            raise StateFileError(f"{path}: negative step {step}")
+        if not np.all(np.isfinite(belief)) or np.any(belief < 0):
+            raise StateFileError(f"{path}: the belief holds negative or non-finite numbers")
+        if action is not None and (
+            isinstance(action, bool)
+            or not isinstance(action, int)
+            or not 0 <= action < self.pomdp.n_actions
+        ):
+            raise StateFileError(f"{path}: unknown action {action!r}")
+        values = data.get("values", [])
+        if not isinstance(values, list) or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in values
+        ):
+            raise StateFileError(f"{path}: values must be a list of numbers")
         self.belief, self.step, self.phase = belief, step, phase
         self.action = None if action is None else int(action)
-        self.values = [float(v) for v in data.get("values", [])]
+        self.values = [float(v) for v in values]
         return True
