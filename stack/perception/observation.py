@@ -53,12 +53,11 @@ from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
 from stack.perception.tracker import TrackEstimate, nearest_track
 from stack.perception.visibility import CameraVisibility
+from stack.vocabulary import NO_PERSON, NOT_MOVING, OUT_OF_MAP, UNSEEN
 
-NO_PERSON = "No person"
-OUT_OF_MAP = "Out of the map"
+__all__ = ["NO_PERSON", "NOT_MOVING", "OUT_OF_MAP", "UNSEEN", "Observation", "ObservationCombiner"]
+
 SOURCES = ("camera", "laser", "fused", "none")
-NOT_MOVING = "Not moving"
-UNSEEN = "Unseen"  # the camera could not look: no evidence either way
 
 
 class SpeedClass(enum.Enum):

@@ -25,6 +25,7 @@ from stack.planning.model import ACTIONS, DIRECTIONS, OUT_OF_MAP, VELOCITIES, Fa
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
 from stack.planning.replay import policy_chooser
+from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
 
 
 class ObservationError(ValueError):
@@ -33,9 +34,6 @@ class ObservationError(ValueError):
 
 class StateFileError(ValueError):
     """A planner state file that does not belong to this model or is unreadable."""
-
-
-UNSEEN = "Unseen"
 
 
 @dataclass(frozen=True)
@@ -211,7 +209,7 @@ class PlannerAgent:
         if z is None:
             z = self._observation_index(observed)[0]
         lik = self.pomdp.O[self.action][:, z].toarray().ravel()
-        if observed.person not in ("No person", UNSEEN) or self.model.people != 1:
+        if observed.person not in (NO_PERSON, UNSEEN) or self.model.people != 1:
             return lik
         cells = self.model.task.grid.cells
         h = np.zeros(self.model.n_cells + 1)
@@ -236,10 +234,10 @@ class PlannerAgent:
     def _observation_index(self, o: Observed) -> tuple[int, int | None, int | None, str]:
         cells = self.model.task.grid.cells
         robot = _cell(o.robot, OUT_OF_MAP, "robot cell", cells)
-        person = None if o.person == UNSEEN else _cell(o.person, "No person", "person cell", cells)
+        person = None if o.person == UNSEEN else _cell(o.person, NO_PERSON, "person cell", cells)
         if o.velocity not in VELOCITIES:
             raise ObservationError(f"unknown velocity {o.velocity!r}; known: {VELOCITIES}")
-        direction = o.velocity.split(" ")[0] if o.velocity != "Not moving" else "Not moving"
+        direction = o.velocity.split(" ")[0] if o.velocity != NOT_MOVING else NOT_MOVING
         z = self.model.observation_index(robot, [(person, o.velocity)] * self.model.people)
         return z, robot, person, direction
 
