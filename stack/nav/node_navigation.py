@@ -231,11 +231,13 @@ class NavigationNode(Node):
             self.get_logger().warning(f"refusing action: {target.reason}")
             self.publish_result(NavResult.REFUSED, NavErrorCode.ACTION_LEAVES_MAP, target.reason)
         elif target.outcome is ActionOutcome.HOLD:
-            if self.follower.active and previous_target == cell:
-                pass  # already in the cell, settling on its waypoint: let it
-            elif self.follower.active:
-                self.follower.cancel("superseded by Do nothing")
-            self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+            if self.follower.active and previous_target != cell:
+                # stopped mid-move: settle in the cell it is in, not on a border
+                self.begin(self.grid.center(cell), cell)
+                self.arrived = True
+            elif not self.follower.active:
+                self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+            # else: already in the cell, settling on its waypoint: let it
             self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "holding position")
         elif target.cell == previous_target:
             # the same cell as the move under way: keep driving, report under this goal

@@ -1,7 +1,8 @@
 """The planner node: observations in, actions out, one decision step at a time (4.3).
 
 Each step: choose an action from the belief, publish it, wait until navigation reports
-the action done (and at least ``min_step_s``), ask for the step's observations, update
+the action done (a move: the robot entered its target cell; anything else: and at least
+``min_step_s``), ask for the step's observations, update
 the belief, record the step (section 4.3). A step also ends early, at least
 ``min_event_step_s`` after it began, when the observations show the person in a cell
 other than at the last step (entering the room, a restricted cell, any new cell):
@@ -181,7 +182,8 @@ class PlannerNode(Node):
             return  # the result of an earlier action, superseded
         self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
         self.hold_until_s = self.step_start_s + self.min_step_s
-        if self.now_s() >= self.hold_until_s:
+        moved = self.sent_action != "Do nothing" and self.last_nav.get("result") == "succeeded"
+        if moved or self.now_s() >= self.hold_until_s:  # a move ends on arrival
             self.request_observations()
         else:
             self.waiting = "hold"
