@@ -9,8 +9,8 @@ from stack.nav.config import SpeechConfig
 from stack.nav.speech import (
     EmptyTextError,
     EspeakNotFoundError,
-    SpeechError,
     Speaker,
+    SpeechError,
     UnknownVoiceError,
     WarningGate,
     synthesize,

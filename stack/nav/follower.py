@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stack.geometry import Pose2D
 from stack.nav.astar import NoPathError, NoPathReason, astar_grid
 from stack.nav.config import FollowerConfig
 from stack.nav.occupancy import OccupancyMap, disc_mask, inflate
@@ -75,15 +76,6 @@ class FollowerState(enum.Enum):
     WAITING = "waiting"  # a person blocks every path: holding still
     STALE_POSE = "stale_pose"  # holding still until a fresh pose arrives
     DONE = "done"  # the task has just ended (see result)
-
-
-@dataclass(frozen=True)
-class Pose2D:
-    """Planar pose in the map frame: position [m] and yaw [rad] (x east, y north)."""
-
-    x_m: float
-    y_m: float
-    yaw_rad: float = 0.0
 
 
 @dataclass(frozen=True)

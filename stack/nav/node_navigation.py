@@ -38,6 +38,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Int32, String
 
 from stack.cells import CellGrid, ConfigError
+from stack.geometry import yaw_from_quaternion
 from stack.nav.config import FollowerConfig, read_node_config
 from stack.nav.follower import (
     ZERO_TWIST,
@@ -56,11 +57,6 @@ from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 POSE_SOURCES = {"odom": "/odom", "amcl": "/amcl_pose"}
-
-
-def yaw_from_quaternion(q) -> float:
-    """Yaw [rad] of a geometry_msgs/Quaternion (rotation about z)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 def twist_to_msg(cmd: Twist2D) -> Twist:
