@@ -7,6 +7,7 @@ vigil evaluate TASK.yaml --policy P      mean discounted return by simulation
 vigil replay --table all                 chapter 5's tables against our planner
 vigil main --out DIR                     the main job: solve, replay, report
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
+vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
 vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
 """
@@ -249,7 +250,7 @@ def cmd_main(args: argparse.Namespace) -> int:
     """Until the twin scenarios land: solve both task models, replay chapter 5, report."""
     from stack.planning.evaluate import evaluate
     from stack.planning.replay import TABLES
-    from vigil.report import plot_replay
+    from vigil.report.figures import plot_replay
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -356,6 +357,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=1800.0, help="wall-clock seconds")
     p.set_defaults(func=cmd_run)
 
+    p = sub.add_parser(
+        "experiments",
+        help="run a folder of scenarios; metric table per scenario and totals, and a figure",
+    )
+    p.add_argument("scenarios", help="folder of scenario files (or one file), e.g. scenarios/guard")
+    p.add_argument("--out", required=True, help="the set's folder, e.g. runs/guard")
+    p.add_argument("--config", default=None, help="deployment file (default config/twin.yaml)")
+    p.add_argument("--seed", type=int, default=None, help="override every scenario's seed")
+    p.add_argument("--only", nargs="+", default=(), help="these file stems only")
+    p.add_argument(
+        "--report-only",
+        action="store_true",
+        help="recompute the reports of the run folders in --out; run nothing",
+    )
+    p.add_argument("--docs", default=None, help="update a marked section of this Markdown file")
+    p.add_argument("--label", default="guard", help="the section's marker label (default: guard)")
+    p.add_argument("--heading", default="", help="heading for a new section (default: none)")
+    p.set_defaults(func=cmd_experiments)
+
     p = sub.add_parser("launch", help="start the whole system from a deployment file")
     p.add_argument("config", help="config/twin.yaml or config/hardware.yaml")
     p.add_argument("--out", default="runs/launch", help="folder for logs and node files")
@@ -392,6 +412,24 @@ def cmd_run(args: argparse.Namespace) -> int:
     keys = ("steps", "total_discounted_reward", "left_map", "returned_to_rest")
     print(json.dumps({k: summary.get(k) for k in keys}, sort_keys=True))
     return 0
+
+
+def cmd_experiments(args: argparse.Namespace) -> int:
+    from vigil.experiments import run_set, write_docs
+
+    record = run_set(
+        args.scenarios,
+        args.out,
+        config=args.config,
+        seed=args.seed,
+        report_only=args.report_only,
+        only=args.only,
+    )
+    if args.docs:
+        doc = write_docs(args.docs, args.out, args.label, args.heading)
+        print(f"updated the section {args.label!r} of {doc}")
+    print(json.dumps(record["totals"], sort_keys=True))
+    return 1 if any(e["error"] for e in record["scenarios"]) else 0
 
 
 def cmd_launch(args: argparse.Namespace) -> int:
