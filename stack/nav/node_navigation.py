@@ -37,6 +37,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Int32, String
 
+import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.geometry import yaw_from_quaternion
 from stack.nav.config import FollowerConfig, read_node_config
@@ -56,7 +57,7 @@ from stack.nav.waypoints import ActionOutcome, CellWaypoints, parse_action
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
-POSE_SOURCES = {"odom": "/odom", "amcl": "/amcl_pose"}
+POSE_SOURCES = {"odom": topic.ODOM, "amcl": topic.AMCL_POSE}
 
 
 def twist_to_msg(cmd: Twist2D) -> Twist:
@@ -104,15 +105,15 @@ class NavigationNode(Node):
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("action", "/nav/action"),
-                ("action_id", "/nav/action_id"),
-                ("goal", "/goal_pose"),
-                ("map", "/map"),
-                ("people", "/perception/leg_people"),
-                ("stop", "/stop"),
-                ("cmd_vel", "/cmd_vel"),
-                ("progress", "/nav/progress"),
-                ("result", "/nav/result"),
+                ("action", topic.NAV_ACTION),
+                ("action_id", topic.NAV_ACTION_ID),
+                ("goal", topic.GOAL_POSE),
+                ("map", topic.MAP),
+                ("people", topic.LEG_PEOPLE),
+                ("stop", topic.STOP),
+                ("cmd_vel", topic.CMD_VEL),
+                ("progress", topic.NAV_PROGRESS),
+                ("result", topic.NAV_RESULT),
             )
         }
         if source not in POSE_SOURCES:

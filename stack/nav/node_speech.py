@@ -30,6 +30,7 @@ from dataclasses import replace
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
+import stack.topics as topic
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate
@@ -59,11 +60,11 @@ class SpeechNode(Node):
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("observations", "/observations"),
-                ("say", "/speech/say"),
-                ("done", "/speech/done"),
-                ("speaking", "/speech/speaking"),
-                ("warning", "/speech/warning"),
+                ("observations", topic.OBSERVATIONS),
+                ("say", topic.SPEECH_SAY),
+                ("done", topic.SPEECH_DONE),
+                ("speaking", topic.SPEECH_SPEAKING),
+                ("warning", topic.SPEECH_WARNING),
             )
         }
         self.grid, config = load_speech_config(config_file)

@@ -34,6 +34,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import Empty, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.perception._config import load_config_file
 from stack.perception.errors import CalibrationError
@@ -58,11 +59,11 @@ class ObservationsNode(Node):
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("person", "/perception/person"),
-                ("legs", "/perception/legs"),
-                ("odom", "/odom"),
-                ("request", "/observations/request"),
-                ("observations", "/observations"),
+                ("person", topic.PERSON),
+                ("legs", topic.LEGS),
+                ("odom", topic.ODOM),
+                ("request", topic.OBSERVATIONS_REQUEST),
+                ("observations", topic.OBSERVATIONS),
             )
         }
         if period_s < 0:

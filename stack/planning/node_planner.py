@@ -42,6 +42,7 @@ from pathlib import Path
 from rclpy.node import Node
 from std_msgs.msg import Empty, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.planning.agent import ObservationError, Observed, PlannerAgent, StateFileError
 from stack.planning.model import ACTIONS, build_model
@@ -92,13 +93,13 @@ class PlannerNode(Node):
                 self.get_logger().error(f"{err}; kept as {bad}, starting from the initial belief")
 
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
-        self.pub_action = ls.publisher(String, "/nav/action", 10)
-        self.pub_request = ls.publisher(Empty, "/observations/request", 10)
-        self.pub_belief = ls.publisher(String, "/planner/belief", 10)
-        self.pub_step = ls.publisher(String, "/planner/step", 10)
-        self.pub_done = ls.publisher(String, "/planner/done", 10)
-        ls.subscription(String, "/nav/result", self.on_result, 10)
-        ls.subscription(String, "/observations", self.on_observation, 10)
+        self.pub_action = ls.publisher(String, topic.NAV_ACTION, 10)
+        self.pub_request = ls.publisher(Empty, topic.OBSERVATIONS_REQUEST, 10)
+        self.pub_belief = ls.publisher(String, topic.PLANNER_BELIEF, 10)
+        self.pub_step = ls.publisher(String, topic.PLANNER_STEP, 10)
+        self.pub_done = ls.publisher(String, topic.PLANNER_DONE, 10)
+        ls.subscription(String, topic.NAV_RESULT, self.on_result, 10)
+        ls.subscription(String, topic.OBSERVATIONS, self.on_observation, 10)
         ls.timer(0.1, self.poll)
 
         self.waiting = ""  # "" | "nav" | "hold" (min_step_s) | "obs"
