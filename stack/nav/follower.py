@@ -444,7 +444,8 @@ class PathFollower:
         free = np.argwhere(~blocked[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
         if len(free) == 0:
             return None
-        goal_rc = np.array(self.map.world_to_cell(*self._goal))
+        assert self._goal is not None
+        goal_rc = np.array(self.map.world_to_cell(self._goal[0], self._goal[1]))
         order = np.argsort(((free - goal_rc) ** 2).sum(axis=1), kind="stable")
         for k in order[:5]:  # the nearest few: one of them is reachable if any is
             cell = (int(free[k, 0]), int(free[k, 1]))

@@ -334,7 +334,10 @@ class NavigationNode(Node):
 
 def main(args=None) -> None:
     # leave the base standing still on the way out
-    spin_node(NavigationNode, args, on_exit=lambda n: n.cmd_pub.publish(twist_to_msg(ZERO_TWIST)))
+    def stop_base(node: NavigationNode) -> None:
+        node.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+
+    spin_node(NavigationNode, args, on_exit=stop_base)
 
 
 if __name__ == "__main__":

@@ -264,7 +264,7 @@ class CameraPeopleTracker:
         mask = self._foreground.apply(image) if self._foreground is not None else None
         if mask is not None and mask.mean() > self.config.max_foreground_frac:
             mask = None  # the model is still learning, or the whole scene changed
-        boxes = ()
+        boxes: tuple[PersonBox, ...] = ()
         window = self._tracking_window(image.shape)
         if window is not None:
             boxes = self.detector.detect(image, roi_px=window)

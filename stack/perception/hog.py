@@ -194,7 +194,7 @@ class HogPeopleDetector:
     def __init__(self, config: HogConfig = HogConfig()):
         self.config = config
         self._hog = cv2.HOGDescriptor()
-        self._hog.setSVMDetector(cv2.HOGDescriptor_getDefaultPeopleDetector())
+        self._hog.setSVMDetector(np.asarray(cv2.HOGDescriptor.getDefaultPeopleDetector()))
         if config.threads > 0:
             cv2.setNumThreads(config.threads)
 

@@ -415,7 +415,7 @@ class ObservationCombiner:
             pos, source = camera.position_m, "camera"
         else:
             wc, wl = cfg.camera_sigma_m**-2, cfg.laser_sigma_m**-2
-            pos = tuple(
+            pos = tuple(  # type: ignore[assignment]
                 (wc * c + wl * t) / (wc + wl)
                 for c, t in zip(camera.position_m, track.position_m, strict=True)
             )

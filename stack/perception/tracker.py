@@ -198,7 +198,7 @@ class LegTracker:
         meas, sigmas = [], []
         for p in positions_m:
             legs = getattr(p, "legs", None)
-            x, y = p.position_m if hasattr(p, "position_m") else p
+            x, y = getattr(p, "position_m", p)
             meas.append((float(x), float(y)))
             single = legs is not None and len(legs) == 1
             sigmas.append(self.config.single_leg_sigma_m if single else None)

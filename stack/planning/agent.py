@@ -193,6 +193,7 @@ class PlannerAgent:
 
     def _robot_probability(self, cell: int | None) -> float:
         """P(robot in ``cell`` after the action under way | belief)."""
+        assert self.action is not None
         pred = belief_ops.predict(self.pomdp, self.belief, self.action)
         r = self._robot_of_state == self.model.robot_index(cell)
         return float(pred[r].sum())
@@ -206,6 +207,8 @@ class PlannerAgent:
         everywhere: only the robot's cell is observed and the person's belief follows
         the transition alone. docs/MODEL.md, "What the camera could not see".
         """
+        if self.action is None:
+            raise RuntimeError("likelihood() without an action under way")
         if z is None:
             z = self._observation_index(observed)[0]
         lik = self.pomdp.O[self.action][:, z].toarray().ravel()
