@@ -14,6 +14,9 @@ Safety rules, in order: a stale or missing pose gives zero velocity at once (no 
 a person on the path makes the follower replan with the person stamped on the grid,
 and wait (zero velocity) while no path exists, ending BLOCKED after
 ``blocked_timeout_s``; every command is capped by :func:`cap_twist`.
+
+It is just over 500 lines because the follower's state machine (plan, track, wait,
+region fallback, end) reads best as one class with its small helpers beside it.
 """
 
 from __future__ import annotations
