@@ -149,7 +149,10 @@ def test_speech_node_warns_a_person_in_the_restricted_cell_with_the_robot(ros, t
         assert spin_until(ros, lambda: speech.person_cell == 3, 3.0)
         spin_until(ros, lambda: False, 0.3)
         assert sim.speech == []
-        observe("1", "1")  # together in restricted cell 1: warn
+        observe("1", "1")  # together in restricted cell 1 ...
+        spin_until(ros, lambda: False, 0.7)
+        assert sim.speech == []
+        observe("1", "1")  # ... for confirm_s (0.5 s): warn
         assert spin_until(ros, lambda: len(sim.speech) >= 1, 10.0), "no speech report"
         done = sim.speech[0]
         assert done["kind"] == "finished" and done["voice"] == "en"

@@ -107,18 +107,23 @@ def test_config_defaults_and_validation():
 
 
 def test_warning_only_while_the_person_is_in_the_restricted_cell_with_the_robot():
-    gate = WarningGate((1, 12), grace_s=2.0, repeat_s=8.0)
+    gate = WarningGate((1, 12), grace_s=2.0, repeat_s=8.0, confirm_s=0.5)
     assert gate.update(0.0, 7, 7, False) is None  # not a restricted cell
     assert gate.update(0.5, 1, 3, False) is None  # the person only near
     assert gate.update(1.0, 1, None, False) is None  # nobody
-    assert gate.update(1.5, 1, 1, False) == "say"
+    assert gate.update(1.1, 1, 1, False) is None  # just seen in the cell: a border flicker?
+    assert gate.update(1.2, 1, 3, False) is None  # it was
+    assert gate.update(1.25, 1, 1, False) is None
+    assert gate.update(1.5, 1, 1, False) is None
+    assert gate.update(1.75, 1, 1, False) == "say"  # in the cell for 0.5 s
     assert gate.update(2.0, 1, 1, True) is None  # speaking: nothing queued
     assert gate.update(4.0, 1, 1, False) is None  # said 2.5 s ago: not again yet
     assert gate.update(9.6, 1, 1, False) == "say"  # still there after repeat_s
     assert gate.update(10.0, 1, None, True) is None  # left 0.4 s ago: let it finish
     assert gate.update(11.7, 1, None, True) == "stop"  # stale: cut, never played to nobody
     assert gate.update(12.0, 1, None, False) is None
-    assert gate.update(13.0, 12, 12, False) == "say"
+    assert gate.update(13.0, 12, 12, False) is None
+    assert gate.update(13.5, 12, 12, False) == "say"
 
 
 def test_speech_refuses_a_text_longer_than_the_cap(tmp_path):

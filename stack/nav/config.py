@@ -167,6 +167,7 @@ class SpeechConfig:
     restricted_cells: tuple[int, ...] = (1,)  # where the robot warns a person with it
     grace_s: float = 2.0  # a warning may start this long after the person left the cell [s]
     repeat_s: float = 8.0  # while the person stays, warn again after this long [s]
+    confirm_s: float = 0.5  # the person is seen in the cell this long before a warning [s]
     max_text_chars: int = 300  # a longer request is refused (it would delay a warning)
 
     def validate(self, prefix: str = "speech") -> None:
@@ -197,7 +198,7 @@ class SpeechConfig:
         for c in self.restricted_cells:
             if isinstance(c, bool) or not isinstance(c, int) or c < 1:
                 raise ConfigError(f"{prefix}.restricted_cells", c, "cells are positive integers")
-        for key in ("grace_s", "repeat_s"):
+        for key in ("grace_s", "repeat_s", "confirm_s"):
             v = getattr(self, key)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{prefix}.{key}", v, "must be a finite number >= 0")

@@ -73,7 +73,9 @@ class SpeechNode(Node):
         self.config = config
         self.person_cell: int | None = None
         self.robot_cell: int | None = None
-        self.gate = WarningGate(config.restricted_cells, config.grace_s, config.repeat_s)
+        self.gate = WarningGate(
+            config.restricted_cells, config.grace_s, config.repeat_s, config.confirm_s
+        )
         self.speaker: Speaker | None = None
         self.speaker_error = ""
         try:

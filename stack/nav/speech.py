@@ -399,21 +399,30 @@ class WarningGate:
     """When to speak the warning (thesis 3.2.2, made timely).
 
     The robot warns while a person is in a restricted cell with it: the person's and
-    the robot's cells are the same restricted cell. A warning starts only while that
-    holds or within ``grace_s`` after the person left; while the person stays it is
+    the robot's cells are the same restricted cell, seen so for ``confirm_s`` (a person
+    hesitating on the border flickers between cells: the warning waits until they are
+    in). A warning starts only while that holds; while the person stays it is
     repeated every ``repeat_s``. Nothing is queued: a warning due while one is playing
     is not said, and one still playing ``grace_s`` after the person left is cut short
     (:meth:`update` returns "stop"), so no warning plays to an empty cell.
 
     Args:
         restricted_cells: the task's restricted cells.
-        grace_s, repeat_s: as above [s].
+        grace_s, repeat_s, confirm_s: as above [s].
     """
 
-    def __init__(self, restricted_cells, grace_s: float = 2.0, repeat_s: float = 8.0):
+    def __init__(
+        self,
+        restricted_cells,
+        grace_s: float = 2.0,
+        repeat_s: float = 8.0,
+        confirm_s: float = 0.5,
+    ):
         self.restricted = frozenset(int(c) for c in restricted_cells)
         self.grace_s, self.repeat_s = float(grace_s), float(repeat_s)
+        self.confirm_s = float(confirm_s)
         self._with_person_s = -math.inf  # last time a person was in a restricted cell with it
+        self._together_since_s: float | None = None  # start of the current "together" run
         self._started_s = -math.inf  # last warning's start
 
     def update(
@@ -426,10 +435,15 @@ class WarningGate:
             if now_s - self._with_person_s > self.grace_s:  # a new visit: warn at once
                 self._started_s = -math.inf
             self._with_person_s = now_s
+            if self._together_since_s is None:
+                self._together_since_s = now_s
+        else:
+            self._together_since_s = None
         recent = now_s - self._with_person_s <= self.grace_s
         if speaking:
             return None if recent else "stop"
-        if together and now_s - self._started_s >= self.repeat_s:
+        confirmed = together and now_s - (self._together_since_s or now_s) >= self.confirm_s
+        if confirmed and now_s - self._started_s >= self.repeat_s:
             self._started_s = now_s
             return "say"
         return None
