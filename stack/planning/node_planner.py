@@ -45,15 +45,16 @@ from std_msgs.msg import Empty, String
 import stack.topics as topic
 from stack.cells import ConfigError
 from stack.planning.agent import ObservationError, Observed, PlannerAgent, StateFileError
-from stack.planning.model import ACTIONS, build_model
+from stack.planning.model import build_model
 from stack.planning.policy import AlphaPolicy
+from stack.planning.stepper import Command, DecisionSteps, StepTiming
 from stack.planning.task import load_task
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
 
 class PlannerNode(Node):
-    """Holds the policy and the belief; drives the decision steps."""
+    """Holds the policy and the belief; publishes what the step machine decides."""
 
     def __init__(self, **kwargs):
         super().__init__("planner", **kwargs)
@@ -65,13 +66,15 @@ class PlannerNode(Node):
         robot = int(p("initial_robot_cell", 0).value)
         person = int(p("initial_person_cell", -1).value)
         direction = p("initial_direction", "").value
-        self.max_steps = int(p("max_steps", 0).value)
-        self.start_delay_s = float(p("start_delay_s", 1.0).value)
-        self.nav_timeout_s = float(p("nav_timeout_s", 60.0).value)
-        self.obs_timeout_s = float(p("obs_timeout_s", 5.0).value)
-        self.resume_wait_s = float(p("resume_wait_s", 3.0).value)
-        self.min_step_s = float(p("min_step_s", 0.0).value)
-        self.min_event_step_s = float(p("min_event_step_s", 0.0).value)  # 0: no events
+        timing = StepTiming(
+            start_delay_s=float(p("start_delay_s", 1.0).value),
+            min_step_s=float(p("min_step_s", 0.0).value),
+            min_event_step_s=float(p("min_event_step_s", 0.0).value),
+            nav_timeout_s=float(p("nav_timeout_s", 60.0).value),
+            obs_timeout_s=float(p("obs_timeout_s", 5.0).value),
+            resume_wait_s=float(p("resume_wait_s", 3.0).value),
+            max_steps=int(p("max_steps", 0).value),
+        )
         if not task_file or not policy_file:
             raise ConfigError("task_file/policy_file", (task_file, policy_file), "both are needed")
         model = build_model(load_task(task_file))
@@ -83,14 +86,15 @@ class PlannerNode(Node):
             robot or ini.robot, [(first_person, direction or ini.direction)] * model.people
         )
         self.agent = PlannerAgent(model, pomdp, policy, b0)
-        self.resumed = False
+        resumed = False
         if self.state_file:
             try:
-                self.resumed = self.agent.restore(self.state_file)
+                resumed = self.agent.restore(self.state_file)
             except StateFileError as err:
                 bad = self.state_file + ".bad"
                 os.replace(self.state_file, bad)
                 self.get_logger().error(f"{err}; kept as {bad}, starting from the initial belief")
+        self.steps = DecisionSteps(self.agent, timing, first_person, resumed)
 
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
         self.pub_action = ls.publisher(String, topic.NAV_ACTION, 10)
@@ -101,15 +105,7 @@ class PlannerNode(Node):
         ls.subscription(String, topic.NAV_RESULT, self.on_result, 10)
         ls.subscription(String, topic.OBSERVATIONS, self.on_observation, 10)
         ls.timer(0.1, self.poll)
-
-        self.waiting = ""  # "" | "nav" | "hold" (min_step_s) | "obs"
-        self.since_s = self.step_start_s = self.hold_until_s = 0.0
-        self.requests = 0
-        self.last_nav: dict | None = None
-        self.sent_action = ""
-        self.last_person = "" if first_person is None else str(first_person)
-        self.started = False
-        what = f"resuming at step {self.agent.step + 1}" if self.resumed else "initial belief"
+        what = f"resuming at step {self.agent.step + 1}" if resumed else "initial belief"
         self.get_logger().info(
             f"planner: {Path(task_file).name}, {len(policy.alphas)} vectors, {what}"
         )
@@ -117,59 +113,9 @@ class PlannerNode(Node):
     def now_s(self) -> float:
         return self.lockstep.now_s()
 
-    # -- the step machine --------------------------------------------------------------
+    # -- inputs --------------------------------------------------------------------------
     def poll(self) -> None:
-        now = self.now_s()
-        if not self.started:
-            if now < self.start_delay_s:
-                return
-            self.started = True
-            self.start()
-            return
-        if self.waiting == "hold" and now >= self.hold_until_s:
-            self.request_observations()
-        elif self.waiting == "nav" and now - self.since_s > self.nav_timeout_s:
-            self.get_logger().warning(
-                f"no navigation result for {self.nav_timeout_s:g} s: reading observations"
-            )
-            self.last_nav = {"result": "timeout"}
-            self.request_observations()
-        elif self.waiting == "obs" and now - self.since_s > self.obs_timeout_s:
-            self.get_logger().warning(
-                f"no observations {self.obs_timeout_s:g} s after request {self.requests}: "
-                "asking again"
-            )
-            self.request_observations()
-
-    def start(self) -> None:
-        phase = self.agent.phase
-        if phase == "done":
-            self.finish()
-        elif phase == "acting":  # the action's result may have been lost while down
-            self.waiting, self.since_s = (
-                "nav",
-                self.now_s() - self.nav_timeout_s + self.resume_wait_s,
-            )
-            self.get_logger().info(f"resumed during step {self.agent.step + 1}: waiting for it")
-        else:
-            self.act()
-
-    def act(self) -> None:
-        if self.max_steps and self.agent.step >= self.max_steps:
-            self.finish()
-            return
-        a = self.agent.decide()
-        self.save()
-        self.waiting, self.since_s, self.last_nav = "nav", self.now_s(), None
-        self.step_start_s = self.since_s
-        self.sent_action = ACTIONS[a]
-        self.pub_action.publish(String(data=ACTIONS[a]))
-        self.get_logger().info(f"step {self.agent.step + 1}: {ACTIONS[a]}")
-
-    def request_observations(self) -> None:
-        self.waiting, self.since_s = "obs", self.now_s()
-        self.requests += 1
-        self.pub_request.publish(Empty())
+        self.run(self.steps.tick(self.now_s()))
 
     def on_result(self, msg: String) -> None:
         try:
@@ -177,72 +123,44 @@ class PlannerNode(Node):
         except ValueError:
             body = {"result": "malformed", "raw": msg.data[:200]}
             self.get_logger().warning(f"malformed navigation result {msg.data[:80]!r}")
-        if self.waiting != "nav":
-            return  # a result nobody waits for (e.g. after a timeout)
-        if isinstance(body, dict) and body.get("action") not in (None, self.sent_action):
-            return  # the result of an earlier action, superseded
-        self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
-        self.hold_until_s = self.step_start_s + self.min_step_s
-        moved = self.sent_action != "Do nothing" and self.last_nav.get("result") == "succeeded"
-        if moved or self.now_s() >= self.hold_until_s:  # a move ends on arrival
-            self.request_observations()
-        else:
-            self.waiting = "hold"
-
-    @staticmethod
-    def _person_key(label: str) -> str:
-        return label if label.isdigit() else ""
+        self.run(self.steps.on_nav_result(self.now_s(), body))
 
     def on_observation(self, msg: String) -> None:
-        if self.waiting not in ("obs", "nav", "hold"):
+        if self.steps.waiting not in ("obs", "nav", "hold"):
             return
         try:
             observed = Observed.from_dict(json.loads(msg.data))
+            commands = self.steps.on_observation(self.now_s(), observed)
         except (ValueError, ObservationError) as err:
             self.get_logger().error(f"observation ignored: {err}", throttle_duration_sec=5.0)
             return
-        trigger = "step"
-        if self.waiting != "obs":  # an event: the person shows up in a new cell
-            person = self._person_key(observed.person)
-            elapsed = self.now_s() - self.step_start_s
-            if not (
-                self.min_event_step_s > 0
-                and person
-                and person != self.last_person
-                and elapsed >= self.min_event_step_s
-            ):
-                return
-            trigger = f"person in {person}"
-            if self.last_nav is None:
-                self.last_nav = {"result": "in progress", "action": self.sent_action}
-        try:
-            record = self.agent.observe(observed)
-        except (ValueError, ObservationError) as err:
-            self.get_logger().error(f"observation ignored: {err}")
-            return
-        self.last_person = self._person_key(observed.person)
-        record.update(
-            stamp_s=round(self.now_s(), 6), nav=self.last_nav, resumed=self.resumed, trigger=trigger
-        )
-        self.resumed = False
-        self.waiting = ""
-        self.save()
-        self.write_record(record)
-        self.pub_belief.publish(String(data=json.dumps(record["belief"])))
-        self.pub_step.publish(String(data=json.dumps(record)))
-        o = record["observation"]
-        self.get_logger().info(
-            f"step {record['step']}: {record['action']} -> robot {o['robot']}, "
-            f"person {o['person']}, {o['velocity']}"
-        )
-        self.act()
+        self.run(commands)
 
-    def finish(self) -> None:
-        self.agent.phase = "done"
-        self.waiting = ""
-        self.save()
-        self.pub_done.publish(String(data=json.dumps({"steps": self.agent.step})))
-        self.get_logger().info(f"done after {self.agent.step} steps")
+    # -- outputs -------------------------------------------------------------------------
+    def run(self, commands: list[Command]) -> None:
+        for c in commands:
+            if c.kind == "act":
+                self.save()
+                self.pub_action.publish(String(data=c.action))
+                self.get_logger().info(f"step {self.agent.step + 1}: {c.action}")
+            elif c.kind == "request":
+                self.pub_request.publish(Empty())
+            elif c.kind == "record" and c.record is not None:
+                self.save()
+                self.write_record(c.record)
+                self.pub_belief.publish(String(data=json.dumps(c.record["belief"])))
+                self.pub_step.publish(String(data=json.dumps(c.record)))
+                o = c.record["observation"]
+                self.get_logger().info(
+                    f"step {c.record['step']}: {c.record['action']} -> robot {o['robot']}, "
+                    f"person {o['person']}, {o['velocity']}"
+                )
+            elif c.kind == "done":
+                self.save()
+                self.pub_done.publish(String(data=json.dumps({"steps": self.agent.step})))
+                self.get_logger().info(f"done after {self.agent.step} steps")
+            elif c.kind == "log":
+                self.get_logger().warning(c.text)
 
     # -- files --------------------------------------------------------------------------
     def save(self) -> None:
