@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import CellGrid, Direction
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadFrameError
@@ -57,7 +58,7 @@ class PersonStatus(enum.Enum):
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(Config):
     """Attributes:
     hog: detector parameters.
     foot: box shrink and foot refinement.

@@ -24,6 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from stack.config import Config
 from stack.geometry import Pose2D
 from stack.perception._config import from_mapping, require
 from stack.perception.errors import BadScanError
@@ -84,7 +85,7 @@ class Scan:
 
 
 @dataclass(frozen=True)
-class LegConfig:
+class LegConfig(Config):
     """Attributes:
     expected_beams: beams every scan must have (None: any); a scan of another
         length raises BadScanError.

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from stack.cells import CellGrid, Direction
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
@@ -241,7 +242,7 @@ def _cell_label(text: str, what: str) -> int:
 
 
 @dataclass(frozen=True)
-class CombinerConfig:
+class CombinerConfig(Config):
     """Attributes:
     speed_thresholds_mps: boundaries of the speed classes [m/s] (thesis: 0.2, 0.7).
     association_gate_m: a laser track farther than this from the camera's person

@@ -21,12 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.errors import BadScanError
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerConfig(Config):
     """Attributes:
     accel_noise_mps2: standard deviation of the person's acceleration, the process
         noise of the constant-velocity model [m/s^2].

@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from stack.cells import CellGrid
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.homography import FloorHomography
 from stack.perception.legs import Pose2D
@@ -52,7 +53,7 @@ MBOT_BOXES: tuple[Box, ...] = (
 
 
 @dataclass(frozen=True)
-class VisibilityConfig:
+class VisibilityConfig(Config):
     """Attributes:
     person_height_m: the person's silhouette height [m].
     person_half_width_m: half its width [m].
