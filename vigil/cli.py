@@ -388,6 +388,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_calibrate)
 
+    p = sub.add_parser("security", help="SROS2 for hardware mode (docs/SAFETY.md)")
+    sec = p.add_subparsers(dest="security_command", required=True)
+    q = sec.add_parser("keystore", help="write a keystore: CA, enclaves, governance, permissions")
+    q.add_argument("path", help="a new or empty folder")
+    q.add_argument("--domain", type=int, required=True, help="the deployment's ros.domain_id")
+    q.add_argument("--base-topic", default="/cmd_vel", help="the base driver's velocity topic")
+    q.set_defaults(func=cmd_security_keystore)
+    q = sec.add_parser("check", help="can the installed DDS enforce a keystore?")
+    q.set_defaults(func=cmd_security_check)
+
     p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
     p.add_argument("--out", default="runs/main")
     p.add_argument("--episodes", type=int, default=50)
@@ -432,6 +442,24 @@ def cmd_experiments(args: argparse.Namespace) -> int:
     return 1 if any(e["error"] for e in record["scenarios"]) else 0
 
 
+def cmd_security_keystore(args: argparse.Namespace) -> int:
+    from vigil.security import KeystoreError, main_keystore
+
+    try:
+        return main_keystore(args.path, args.domain, args.base_topic)
+    except KeystoreError as exc:
+        print(f"vigil security: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def cmd_security_check(args: argparse.Namespace) -> int:
+    from vigil.security import security_support
+
+    ok, why = security_support()
+    print(("enforceable: " if ok else "NOT enforceable: ") + why)
+    return 0 if ok else 1
+
+
 def cmd_launch(args: argparse.Namespace) -> int:
     from vigil.launch import launch
 
@@ -461,11 +489,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from stack.perception.errors import CalibrationError
+
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:  # config, model and file errors
-        print(f"vigil {args.command}: error: {exc}", file=sys.stderr)
+    except (ValueError, OSError, CalibrationError) as exc:  # config, model and file errors
+        text = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"vigil {args.command}: error: {text}", file=sys.stderr)
         return 2
 
 
