@@ -40,6 +40,7 @@ import scipy.sparse as sp
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp, require_discounted
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12  # successor beliefs less likely than this are not expanded
 
@@ -77,6 +78,7 @@ class SearchConfig:
     fib_share: float = 0.1
     progress_every_s: float = 1.0
     target_levels: bool = True
+    blas_threads: int = 1  # see stack/planning/threads.py: one thread is faster here
 
 
 @dataclass
@@ -351,16 +353,30 @@ class BeliefTreeSearch:
         if seed_alphas is not None and len(seed_alphas[0]):
             alphas = np.vstack([alphas, seed_alphas[0]])
             actions = np.concatenate([actions, np.asarray(seed_alphas[1], dtype=int)])
-        self.alphas = np.array(alphas, dtype=float)
-        self.actions = np.asarray(actions, dtype=int)
-        self.n_initial_alphas = len(self.actions)
-        self._pruned_at = len(self.actions)
+        # the vectors are stored transposed, (S, capacity): a gather of the states a
+        # belief covers then reads contiguous rows
+        self.K = len(actions)
+        self._AT = np.empty((S, max(64, 2 * self.K)))
+        self._AT[:, : self.K] = np.asarray(alphas, dtype=float).T
+        self._act = np.zeros(self._AT.shape[1], dtype=int)
+        self._act[: self.K] = actions
+        self.n_initial_alphas = self.K
+        self._pruned_at = self.K
 
         self.nodes: dict[bytes, _Node] = {}
         b0 = pomdp.b0 if b0 is None else np.asarray(b0, dtype=float)
         idx = np.flatnonzero(b0 > 0)
         self.root = self._node(idx, b0[idx] / b0[idx].sum())
         self.initial_lower = self.root.lb
+
+    @property
+    def alphas(self) -> np.ndarray:
+        """The lower bound's vectors, (K, S)."""
+        return self._AT[:, : self.K].T
+
+    @property
+    def actions(self) -> np.ndarray:
+        return self._act[: self.K]
 
     # -- beliefs and bounds -----------------------------------------------------------
     def _upper_vectors(self, nz: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -373,7 +389,7 @@ class BeliefTreeSearch:
             M = val[:, None]
             if ub is None:
                 ub = float(min(self._upper_vectors(idx, M)[0], self.points.values(idx, M)[0]))
-            lb = float((self.alphas[:, idx] @ val).max())
+            lb = float((val @ self._AT[idx, : self.K]).max())
             node = _Node(idx, val, ub, min(lb, ub))
             self.nodes[key] = node
         return node
@@ -428,9 +444,10 @@ class BeliefTreeSearch:
         for a, k in enumerate(kids):
             ub = self._refresh_upper(k)
             q_upper[a] = k.reward + g * (k.pz @ ub)
-            G = self.alphas[:, k.nz] @ k.M  # (K, Z') values of every vector at every successor
-            best = G.argmax(axis=0)
-            lbs = G[best, np.arange(best.size)]
+            # (Z', K): the value of every vector at every successor
+            G = k.M.T @ self._AT[k.nz, : self.K]
+            best = G.argmax(axis=1)
+            lbs = G[np.arange(best.size), best]
             for c, v in zip(k.nodes, lbs, strict=True):
                 c.lb = max(c.lb, float(v))
             q_lower[a] = k.reward + g * (k.pz @ lbs)
@@ -456,18 +473,22 @@ class BeliefTreeSearch:
         O = self.O[a]
         # observations that b cannot produce: any vector keeps the bound valid; take the
         # best one at b so the new vector is good near b too
-        kstar = np.full(O.shape[1], int((self.alphas[:, node.idx] @ node.val).argmax()))
+        kstar = np.full(O.shape[1], int((node.val @ self._AT[node.idx, : self.K]).argmax()))
         kstar[kids.zs] = best
         rows = self.O_rows[a]
-        v = np.bincount(
-            rows, weights=O.data * self.alphas[kstar[O.indices], rows], minlength=self.S
-        )
+        v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
         return self.R[:, a] + self.gamma * (self.T[a] @ v)
 
     def _add_alpha(self, alpha: np.ndarray, action: int) -> None:
-        self.alphas = np.vstack([self.alphas, alpha[None, :]])
-        self.actions = np.append(self.actions, action)
-        if len(self.actions) > self.config.prune_growth * self._pruned_at + 50:
+        if self.K == self._AT.shape[1]:
+            grown = np.empty((self.S, 2 * self.K))
+            grown[:, : self.K] = self._AT
+            self._AT = grown
+            self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
+        self._AT[:, self.K] = alpha
+        self._act[self.K] = action
+        self.K += 1
+        if self.K > self.config.prune_growth * self._pruned_at + 50:
             self._prune()
 
     def _prune(self) -> None:
@@ -478,8 +499,8 @@ class BeliefTreeSearch:
         every node is kept, so every node's cached lower bound stays exact.
         """
         nodes = list(self.nodes.values())
-        keep = np.zeros(len(self.actions), dtype=bool)
-        chunk = max(1, 4_000_000 // max(len(self.actions), 1))
+        keep = np.zeros(self.K, dtype=bool)
+        chunk = max(1, 4_000_000 // max(self.K, 1))
         for lo in range(0, len(nodes), chunk):
             part = nodes[lo : lo + chunk]
             indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in part])])
@@ -491,14 +512,16 @@ class BeliefTreeSearch:
                 ),
                 shape=(len(part), self.S),
             )
-            V = np.asarray(B @ self.alphas.T)
+            V = np.asarray(B @ self._AT[:, : self.K])
             best = V.argmax(axis=1)
             keep[best] = True
             for n, v in zip(part, V[np.arange(len(part)), best], strict=True):
                 n.lb = min(max(n.lb, float(v)), n.ub)
-        self.alphas = self.alphas[keep]
-        self.actions = self.actions[keep]
-        self._pruned_at = max(len(self.actions), 1)
+        kept = np.flatnonzero(keep)
+        self._AT[:, : kept.size] = self._AT[:, kept]
+        self._act[: kept.size] = self._act[kept]
+        self.K = kept.size
+        self._pruned_at = self.K
 
     # -- the search -----------------------------------------------------------------
     def _done(self) -> str:
@@ -576,7 +599,7 @@ class BeliefTreeSearch:
             trials=self.trials,
             lower=self.root.lb,
             upper=self.root.ub,
-            n_alphas=len(self.actions),
+            n_alphas=self.K,
             n_points=len(self.points),
             n_nodes=len(self.nodes),
             backups=self.backups,
@@ -587,6 +610,11 @@ class BeliefTreeSearch:
             self.progress(stats)
 
     def run(self) -> SearchResult:
+        """Search until the target gap, the time limit or the trial limit."""
+        with blas_threads(self.config.blas_threads):
+            return self._run()
+
+    def _run(self) -> SearchResult:
         self._backup(self.root)
         stopped = self._done()
         while not stopped:
