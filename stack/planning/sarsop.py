@@ -415,7 +415,9 @@ class BeliefTreeSearch:
                 zs = np.flatnonzero(pz > _PROB_EPS)
                 M = joint[:, zs].toarray() / pz[zs]
             reward = float(self.R[node.idx, a] @ node.val)
-            ub = np.minimum(self._upper_vectors(nz, M), self.points.values(nz, M))
+            # the fast informed bound only: the sawtooth is interpolated when an action's
+            # successors matter (see _q_upper)
+            ub = self._upper_vectors(nz, M)
             nodes = []
             for j in range(zs.size):
                 rows = np.flatnonzero(M[:, j] > 0)
@@ -434,16 +436,29 @@ class BeliefTreeSearch:
             c.ub = float(u)
         return ub
 
+    def _q_upper(self, kids: list[_Kids]) -> np.ndarray:
+        """Q_U(b, a) for every action, the best one with freshly interpolated successors.
+
+        The successors' cached bounds are valid, if loose (the bound only decreases):
+        re-interpolate the best action's successors until the best action is fresh.
+        """
+        g = self.gamma
+        q_upper = np.array([k.reward + g * (k.pz @ [c.ub for c in k.nodes]) for k in kids])
+        fresh = np.zeros(self.A, dtype=bool)
+        while True:
+            a = int(q_upper.argmax())
+            if fresh[a]:
+                return q_upper
+            q_upper[a] = kids[a].reward + g * (kids[a].pz @ self._refresh_upper(kids[a]))
+            fresh[a] = True
+
     def _backup(self, node: _Node) -> None:
         """Back up both bounds at ``node``: one alpha vector and one upper point."""
         kids = self._expand(node)
         g = self.gamma
-        q_upper = np.empty(self.A)
         q_lower = np.empty(self.A)
         choice = []
         for a, k in enumerate(kids):
-            ub = self._refresh_upper(k)
-            q_upper[a] = k.reward + g * (k.pz @ ub)
             # (Z', K): the value of every vector at every successor
             G = k.M.T @ self._AT[k.nz, : self.K]
             best = G.argmax(axis=1)
@@ -452,6 +467,7 @@ class BeliefTreeSearch:
                 c.lb = max(c.lb, float(v))
             q_lower[a] = k.reward + g * (k.pz @ lbs)
             choice.append(best)
+        q_upper = self._q_upper(kids)
         self.backups += 1
         # upper bound: a point at this belief
         u = float(q_upper.max())
@@ -555,7 +571,7 @@ class BeliefTreeSearch:
             if self.config.target_levels and node.ub <= U:
                 break
             kids = self._expand(node)
-            q_upper = np.array([k.reward + g * (k.pz @ [c.ub for c in k.nodes]) for k in kids])
+            q_upper = self._q_upper(kids)
             q_lower = np.array([k.reward + g * (k.pz @ [c.lb for c in k.nodes]) for k in kids])
             a = int(q_upper.argmax())
             k = kids[a]
