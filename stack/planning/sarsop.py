@@ -306,6 +306,7 @@ class BeliefTreeSearch:
         start: float | None = None,
         progress: Callable[[SearchStats], None] | None = None,
         b0: np.ndarray | None = None,
+        extra_roots: list[np.ndarray] | None = None,
     ):
         require_discounted(pomdp)
         self.pomdp = pomdp
@@ -368,6 +369,15 @@ class BeliefTreeSearch:
         idx = np.flatnonzero(b0 > 0)
         self.root = self._node(idx, b0[idx] / b0[idx].sum())
         self.initial_lower = self.root.lb
+        # more beliefs to search from (the policy must be good there too); the bounds
+        # reported are b0's, and the search stops when every root meets the target
+        self.roots = [self.root]
+        for b in extra_roots or []:
+            b = np.asarray(b, dtype=float)
+            i = np.flatnonzero(b > 0)
+            node = self._node(i, b[i] / b[i].sum())
+            if all(node is not r for r in self.roots):
+                self.roots.append(node)
 
     @property
     def alphas(self) -> np.ndarray:
@@ -464,7 +474,8 @@ class BeliefTreeSearch:
             best = G.argmax(axis=1)
             lbs = G[np.arange(best.size), best]
             for c, v in zip(k.nodes, lbs, strict=True):
-                c.lb = max(c.lb, float(v))
+                if c.kids is None:  # a leaf's bound is just its best vector's value
+                    c.lb = min(float(v), c.ub)
             q_lower[a] = k.reward + g * (k.pz @ lbs)
             choice.append(best)
         q_upper = self._q_upper(kids)
@@ -508,13 +519,14 @@ class BeliefTreeSearch:
             self._prune()
 
     def _prune(self) -> None:
-        """Keep the vectors that are best at some belief of the tree.
+        """Keep the vectors that are best at some backed-up belief of the tree.
 
         Dominance at the sampled beliefs (SARSOP): a vector that is nowhere the best
-        of the set at a belief the search has reached is dropped. The best vector of
-        every node is kept, so every node's cached lower bound stays exact.
+        of the set at a belief the search has backed up is dropped. The best vector of
+        every such node is kept, so their lower bounds (the roots' among them) never
+        drop; a leaf's bound is re-read from the vectors when its parent is backed up.
         """
-        nodes = list(self.nodes.values())
+        nodes = [n for n in self.nodes.values() if n.kids is not None]
         keep = np.zeros(self.K, dtype=bool)
         chunk = max(1, 4_000_000 // max(self.K, 1))
         for lo in range(0, len(nodes), chunk):
@@ -540,12 +552,14 @@ class BeliefTreeSearch:
         self._pruned_at = self.K
 
     # -- the search -----------------------------------------------------------------
-    def _done(self) -> str:
-        r = self.root
+    def _met(self, r: _Node) -> bool:
         gap = r.ub - r.lb
-        if gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
+        return gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
             abs(r.lb), abs(r.ub)
-        ):
+        )
+
+    def _done(self) -> str:
+        if all(self._met(r) for r in self.roots):
             return "gap"
         if time.perf_counter() >= self.deadline:
             return "time"
@@ -555,7 +569,9 @@ class BeliefTreeSearch:
 
     def _trial(self) -> None:
         g = self.gamma
-        root = self.root
+        # the root furthest from its target (b0 first on ties)
+        open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
+        root = max(open_roots, key=lambda r: r.ub - r.lb)
         eps = self.config.trial_improvement * (root.ub - root.lb)
         L, U = root.lb, root.lb + eps
         path = [root]
@@ -631,13 +647,15 @@ class BeliefTreeSearch:
             return self._run()
 
     def _run(self) -> SearchResult:
-        self._backup(self.root)
+        for r in self.roots:
+            self._backup(r)
         stopped = self._done()
         while not stopped:
             self._trial()
             self._report()
             stopped = self._done()
-        self._prune()
+        if time.perf_counter() < self.deadline:
+            self._prune()  # over the backed-up beliefs only: cheap
         self._report(force=True)
         policy = AlphaPolicy(self.alphas.copy(), self.actions.copy(), meta={"solver": "sarsop"})
         result = SearchResult(
