@@ -30,7 +30,8 @@ from typing import Any
 
 from stack.cells import ConfigError
 from vigil.report import write_report
-from vigil.report.tables import set_markdown, set_totals
+from vigil.report.metrics import set_totals
+from vigil.report.tables import set_markdown
 from vigil.scenario import load_scenario
 
 Runner = Callable[..., dict]
