@@ -107,7 +107,7 @@ def run_scenario(
         RunError: a node died for good, or the run timed out.
     """
     from stack.planning.replay import TABLES
-    from vigil.run_report import write_report
+    from vigil.report import write_report
 
     scenario = load_scenario(scenario_path)
     if seed is not None:
@@ -167,7 +167,7 @@ def run_scenario(
     wall_s = time.monotonic() - t0
     say(f"[run] stopped after {wall_s:.0f} s: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
     table = TABLES.get(scenario.thesis_table)
-    summary = write_report(run_dir, scenario.task, table)
+    summary = write_report(run_dir, scenario.task, table, say=say)
     (run_dir / "run.json").write_text(
         json.dumps(
             {
