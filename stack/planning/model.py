@@ -26,7 +26,6 @@ from stack.planning.pomdp import POMDP, ModelError
 from stack.planning.task import DIRECTION_NAMES, Task
 from stack.vocabulary import (  # the labels are defined once, there
     ACTIONS,
-    DIRECTIONS,
     NO_PERSON,
     OUT_OF_MAP,
     SPEED_CLASSES,
