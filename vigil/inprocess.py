@@ -82,7 +82,12 @@ SPEECH_POLL_S = 0.1  # the speech node's poll_rate_hz 10
 
 
 def ros_time(t_s: float) -> float:
-    """``t_s`` through a builtin_interfaces/Time (what a node reads back)."""
+    """``t_s`` through a builtin_interfaces/Time as the bridge stamps it (what a node
+    reads back). As ``twin.bridge_node.stamp_of``, nanoseconds that round up to 1e9 wrap
+    to 0 without carrying into the seconds: the twin's accumulated 2.999999999999891 s
+    reads 2.0 s. That is a bridge bug (every node's clock steps back one second for that
+    tick, at every whole second from 3 s on); it is mirrored here on purpose so that the
+    in-process loop sees the clock the ROS run sees, and goes when the bridge is fixed."""
     sec = int(math.floor(t_s))
     nanosec = int(round((t_s - sec) * 1e9)) % 1_000_000_000
     return float(sec) + 1e-9 * float(nanosec)
