@@ -306,6 +306,7 @@ def plot_study(path: Path, episodes: Sequence[dict[str, Any]], s: dict[str, Any]
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     ok = [e for e in episodes if "error" not in e]
     x = np.arange(len(ok))
@@ -322,6 +323,7 @@ def plot_study(path: Path, episodes: Sequence[dict[str, Any]], s: dict[str, Any]
     a1.set_xticks(x, labels, fontsize=7)
     a1.set_xlabel("episode (c / l: camera / lidar outage)")
     a1.set_ylabel("count")
+    a1.yaxis.set_major_locator(MaxNLocator(integer=True))
     a1.legend(fontsize=7)
     a1.grid(alpha=0.2, axis="y")
     delays = [d for e in ok for d in e["delays_s"]]
