@@ -149,6 +149,8 @@ def test_video_is_h264_and_index_links_everything(report):
     for name in ("steps.md", "steps.csv", "summary.json", "camera.mp4", "timeline.png"):
         assert f'href="{name}"' in html and (run / name).stat().st_size > 0, name
     assert "<video" in html and "Guarding metrics" in html
+    # the step table itself, a miss marked
+    assert "<h2>Step table</h2>" in html and html.count('<tr class="bad">') == 2
 
 
 def test_no_frames_leaves_an_existing_video_alone(tmp_path):

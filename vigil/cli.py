@@ -23,64 +23,119 @@ REPO = Path(__file__).resolve().parents[1]
 TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r2.yaml"}
 
 
-def _solver_args(p: argparse.ArgumentParser, iterations: int = 50) -> None:
-    p.add_argument("--iterations", type=int, default=iterations, help="Perseus iterations")
-    p.add_argument("--beliefs", type=int, default=300, help="sampled belief points")
-    p.add_argument("--time-limit", type=float, default=None, help="seconds")
+def _solver_args(
+    p: argparse.ArgumentParser, iterations: int = 50, algorithm: str = "sarsop"
+) -> None:
     p.add_argument(
-        "--fib-time", type=float, default=0.0, help="seconds for the fast informed bound"
+        "--solver",
+        choices=("sarsop", "perseus"),
+        default=algorithm,
+        help="sarsop: belief-tree search with a refined upper bound; perseus: the thesis's",
+    )
+    p.add_argument("--iterations", type=int, default=iterations, help="Perseus iterations")
+    p.add_argument("--beliefs", type=int, default=300, help="Perseus: sampled belief points")
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        default=None,
+        help="seconds of wall time for the whole command (start-up, reading, solving, writing)",
+    )
+    p.add_argument("--target-gap", type=float, default=1e-3, help="sarsop: stop at this gap")
+    p.add_argument(
+        "--relative-gap", type=float, default=0.0, help="sarsop: stop at this gap / |V(b0)|"
+    )
+    p.add_argument("--trials", type=int, default=None, help="sarsop: stop after this many")
+    p.add_argument(
+        "--fib-time", type=float, default=0.0, help="Perseus: seconds for the fast informed bound"
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
+# share of --time-limit kept for writing the policy and exiting
+WRITE_RESERVE = 0.02
+
+
 def _solver_config(args: argparse.Namespace):
     from stack.planning.solve import SolverConfig
 
+    limit = getattr(args, "time_limit", None)
+    if limit is not None:
+        if not (limit > 0 and limit < 1e9):
+            raise ValueError(f"--time-limit must be a positive number of seconds, got {limit}")
+        limit = limit * (1.0 - WRITE_RESERVE)
+    # a hand-made Namespace (older callers) gets the task defaults for what it lacks
     return SolverConfig(
+        algorithm=getattr(args, "solver", "perseus"),
         beliefs=args.beliefs,
         iterations=args.iterations,
-        time_limit_s=args.time_limit,
-        fib_time_s=args.fib_time,
-        seed=args.seed,
+        time_limit_s=limit,
+        fib_time_s=getattr(args, "fib_time", 0.0),
+        seed=getattr(args, "seed", 0),
+        target_gap=getattr(args, "target_gap", 1e-3),
+        relative_gap=getattr(args, "relative_gap", 0.0),
+        trials=getattr(args, "trials", None),
     )
 
 
-def _progress(args: argparse.Namespace, stream=sys.stderr):
+def _progress(args: argparse.Namespace, stream=sys.stderr, every_s: float = 1.0):
+    """A progress printer: at most one line per ``every_s`` seconds."""
+    import time
+
     from stack.planning.solve import format_progress
 
     if getattr(args, "quiet", False):
         return None
-    return lambda stats: print(format_progress(stats), file=stream, flush=True)
+    last = [-float("inf")]
+
+    def show(stats) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= every_s:
+            last[0] = now
+            print(format_progress(stats), file=stream, flush=True)
+
+    return show
+
+
+def _start(args: argparse.Namespace) -> float:
+    """When the command's time limit began (``main`` records it)."""
+    import time
+
+    return getattr(args, "start", None) or time.perf_counter()
 
 
 def solve_task(task_path: Path, args: argparse.Namespace, progress=None):
-    """Load, build and solve a task file; returns (model, pomdp, result)."""
-    from stack.planning.model import build_model
-    from stack.planning.replay import TABLES
-    from stack.planning.solve import solve, task_seed_alphas
+    """Load and solve a task file; returns (model, pomdp, result)."""
+    from stack.planning.solve import solve_task_model
     from stack.planning.task import load_task
 
-    task = load_task(task_path)
-    model = build_model(task)
-    pomdp = model.flat()
-    # sample beliefs from the task's initial belief and from every chapter 5 start
-    # of the same restricted cells, so that the policy covers the experiments
-    starts = [pomdp.b0]
-    for t in TABLES.values():
-        b = model.initial_belief(t.robot, [(t.person, t.direction)])
-        if not any((b == s).all() for s in starts):
-            starts.append(b)
-    result = solve(pomdp, _solver_config(args), starts, task_seed_alphas(model, pomdp), progress)
-    result.policy.meta["task"] = str(task_path)
-    return model, pomdp, result
+    sol = solve_task_model(load_task(task_path), _solver_config(args), progress, _start(args))
+    sol.result.policy.meta["task"] = str(task_path)
+    return sol.model, sol.pomdp, sol.result
+
+
+def read_model(path: str | Path):
+    """A flat POMDP from a task file (.yaml), a .pomdpx file or a .pomdp file."""
+    from stack.planning.pomdp_format import read_pomdp
+
+    path = Path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        from stack.planning.model import build_model
+        from stack.planning.task import load_task
+
+        return build_model(load_task(path)).flat()
+    if path.suffix.lower() == ".pomdpx":
+        from stack.planning.pomdpx import read_pomdpx
+
+        return read_pomdpx(path)
+    return read_pomdp(path)
 
 
 # -- subcommands ------------------------------------------------------------------------
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    _, _, result = solve_task(Path(args.task), args, _progress(args))
+    _, pomdp, result = solve_task(Path(args.task), args, _progress(args))
     path = result.policy.save(args.output)
     out = result.summary() | {"policy": str(path)}
     print(json.dumps(out, indent=2) if args.json else _bounds_line(out))
@@ -110,32 +165,36 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_solve_pomdp(args: argparse.Namespace) -> int:
-    from stack.planning.pomdp_format import read_pomdp
+    import time
+
     from stack.planning.solve import solve
 
-    pomdp = read_pomdp(args.file)
-    config = _solver_config(args)
-    result = solve(pomdp, config, progress=None if args.json else _progress(args))
-    if args.output:
-        result.policy.save(args.output)
+    start = _start(args)
+    config = _solver_config(args)  # checks the arguments before the model is read
+    pomdp = read_model(args.file)
+    result = solve(pomdp, config, progress=None if args.json else _progress(args), start=start)
+    result.policy.meta["model"] = Path(args.file).name
     out = {
         "file": str(args.file),
         "states": pomdp.n_states,
         "actions": pomdp.n_actions,
         "observations": pomdp.n_observations,
     } | result.summary()
+    if args.output:
+        out["policy"] = str(result.policy.save(args.output))
+    out["command_seconds"] = time.perf_counter() - start
     print(json.dumps(out, indent=2) if args.json else _bounds_line(out))
     return 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from stack.planning.evaluate import evaluate
-    from stack.planning.model import build_model
     from stack.planning.policy import AlphaPolicy
-    from stack.planning.task import load_task
 
-    pomdp = build_model(load_task(args.task)).flat()
-    policy = AlphaPolicy.load(args.policy, n_states=pomdp.n_states)
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    pomdp = read_model(args.model)
+    policy = AlphaPolicy.load(args.policy, n_states=pomdp.n_states, model_hash=pomdp.fingerprint())
     ev = evaluate(pomdp, policy, episodes=args.episodes, horizon=args.horizon, seed=args.seed)
     print(
         json.dumps(ev.summary())
@@ -303,9 +362,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", help="solve a task file")
     p.add_argument("task")
-    p.add_argument("-o", "--output", required=True, help="policy file (.npz)")
+    p.add_argument("-o", "--output", required=True, help="policy file (.npz, or .policy XML)")
     p.add_argument("--json", action="store_true")
-    _solver_args(p)
+    _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
     p.set_defaults(func=cmd_solve)
 
     p = sub.add_parser("export-pomdp", help="write a task model as a Cassandra .pomdp file")
@@ -313,16 +372,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("solve-pomdp", help="solve a Cassandra .pomdp file")
+    p = sub.add_parser("solve-pomdp", help="solve a .pomdp (Cassandra) or .pomdpx file")
     p.add_argument("file")
-    p.add_argument("-o", "--output", help="policy file (.npz)")
+    p.add_argument(
+        "-o", "--output", help="policy file: exactly this path; .policy writes SARSOP's XML"
+    )
     p.add_argument("--json", action="store_true")
     _solver_args(p, iterations=1000)
     p.set_defaults(func=cmd_solve_pomdp)
 
     p = sub.add_parser("evaluate", help="evaluate a policy by simulation")
-    p.add_argument("task")
-    p.add_argument("--policy", required=True)
+    p.add_argument("model", help="a task file (.yaml), a .pomdp or a .pomdpx file")
+    p.add_argument("--policy", required=True, help="ours (.npz) or SARSOP's (.policy XML)")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--horizon", type=int, default=None)
     p.add_argument("--seed", type=int, default=0)
@@ -332,7 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="replay chapter 5's tables")
     p.add_argument("--table", choices=["5.1", "5.2", "5.3", "5.4", "all"], default="all")
     p.add_argument("--json", action="store_true")
-    _solver_args(p, iterations=REPLAY_ITERATIONS)
+    _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("twin", help="the digital twin")
@@ -403,10 +464,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_calibrate)
 
+    p = sub.add_parser("security", help="SROS2 for hardware mode (docs/SAFETY.md)")
+    sec = p.add_subparsers(dest="security_command", required=True)
+    q = sec.add_parser("keystore", help="write a keystore: CA, enclaves, governance, permissions")
+    q.add_argument("path", help="a new or empty folder")
+    q.add_argument("--domain", type=int, required=True, help="the deployment's ros.domain_id")
+    q.add_argument("--base-topic", default="/cmd_vel", help="the base driver's velocity topic")
+    q.set_defaults(func=cmd_security_keystore)
+    q = sec.add_parser("check", help="can the installed DDS enforce a keystore?")
+    q.set_defaults(func=cmd_security_check)
+
     p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
     p.add_argument("--out", default="runs/main")
     p.add_argument("--episodes", type=int, default=50)
-    _solver_args(p, iterations=REPLAY_ITERATIONS)
+    _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
     p.set_defaults(func=cmd_main)
     return ap
 
@@ -458,6 +529,24 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     return 1 if record["summary"]["failed_episodes"] else 0
 
 
+def cmd_security_keystore(args: argparse.Namespace) -> int:
+    from vigil.security import KeystoreError, main_keystore
+
+    try:
+        return main_keystore(args.path, args.domain, args.base_topic)
+    except KeystoreError as exc:
+        print(f"vigil security: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def cmd_security_check(args: argparse.Namespace) -> int:
+    from vigil.security import security_support
+
+    ok, why = security_support()
+    print(("enforceable: " if ok else "NOT enforceable: ") + why)
+    return 0 if ok else 1
+
+
 def cmd_launch(args: argparse.Namespace) -> int:
     from vigil.launch import launch
 
@@ -487,11 +576,21 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from stack.perception.errors import CalibrationError
+    from stack.planning.clock import process_start
+
+    start = process_start() if argv is None else None  # in-process calls: from here
+    if start is None:
+        import time
+
+        start = time.perf_counter()
     args = build_parser().parse_args(argv)
+    args.start = start
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:  # config, model and file errors
-        print(f"vigil {args.command}: error: {exc}", file=sys.stderr)
+    except (ValueError, OSError, CalibrationError) as exc:  # config, model and file errors
+        text = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"vigil {args.command}: error: {text}", file=sys.stderr)
         return 2
 
 

@@ -30,7 +30,8 @@ from typing import Any
 
 from stack.cells import ConfigError
 from vigil.report import write_report
-from vigil.report.tables import set_markdown, set_totals
+from vigil.report.metrics import set_totals
+from vigil.report.tables import set_markdown
 from vigil.scenario import load_scenario
 
 Runner = Callable[..., dict]
@@ -138,12 +139,22 @@ def run_set(
                 summary = json.loads((run_dir / "summary.json").read_text())
         entry["wall_s"] = round(time.monotonic() - t0, 1)
         entry["load_after"] = _load()
+        if report_only:  # the run's own figures, not the report's
+            entry["wall_s"] = _run_wall_s(run_dir)
+            entry["load_before"] = entry["load_after"] = "-"
         entry["error"] = error
         entry["metrics"] = _brief(summary.get("metrics")) if summary else None
         entries.append(entry)
         write_set(out, entries, say=None)
     record = write_set(out, entries, say=say)
     return record
+
+
+def _run_wall_s(run_dir: Path) -> float | None:
+    try:
+        return float(json.loads((run_dir / "run.json").read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def _brief(metrics: dict | None) -> dict | None:
@@ -179,7 +190,9 @@ def set_section(entries: Sequence[dict[str, Any]], figure: str) -> str:
     rows = [(e["scenario"], e["metrics"], e["error"]) for e in entries]
     lines = [set_markdown(rows), ""]
     runs = ", ".join(
-        f"{e['scenario']} seed {e['seed']} {e['wall_s']:.0f} s (load {e['load_before']})"
+        f"{e['scenario']} seed {e['seed']} "
+        + ("-" if e["wall_s"] is None else f"{e['wall_s']:.0f} s")
+        + f" (load {e['load_before']})"
         for e in entries
     )
     lines.append(f"Runs (seed, wall time, load average 1/5/15 min before the run): {runs}.")

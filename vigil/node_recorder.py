@@ -1,7 +1,9 @@
 """The recorder node: writes what a run shows into its folder, as it happens.
 
 For every camera detection record (``/perception/person``, one per frame) it appends
-one line to ``trace.jsonl`` (the instant's ground truth from ``/twin/truth`` when there
+one line to ``trace.jsonl`` (and, while the camera is silent, e.g. in an outage, one
+per ``TRUTH_GAP_S`` of ground truth with ``camera`` null, so that the metrics keep
+seeing where robot and person are) (the instant's ground truth from ``/twin/truth`` when there
 is a twin, the odometry, the camera's detection, the leg tracks, the warnings decided
 since the last record) and the camera frame, JPEG-encoded, to ``camera_frames.bin``
 (:mod:`vigil.frames`). It writes raw records only and imports nothing of the report:
@@ -33,6 +35,7 @@ from stack.ros_main import spin_node
 from vigil.frames import FRAMES_FILE, FrameWriter
 
 TRACE_FILE = "trace.jsonl"
+TRUTH_GAP_S = 0.25  # camera silent this long: trace the ground truth without it
 
 
 class RecorderNode(Node):
@@ -54,6 +57,7 @@ class RecorderNode(Node):
         self.odom: list[float] | None = None
         self.legs: list = []
         self.speech: list[str] = []
+        self.last_t = 0.0  # the last trace record's time
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
         ls.subscription(Image, "/camera/image_raw", self.on_image, 5)
         ls.subscription(String, "/perception/person", self.on_person, 10)
@@ -72,6 +76,9 @@ class RecorderNode(Node):
 
     def on_truth(self, msg: String) -> None:
         self.truth = _json(msg.data)
+        t = (self.truth or {}).get("t")
+        if isinstance(t, int | float) and t - self.last_t >= TRUTH_GAP_S - 1e-9:
+            self.write(float(t), None, None)  # the camera is silent (outage)
 
     def on_odom(self, msg: Odometry) -> None:
         try:
@@ -101,27 +108,37 @@ class RecorderNode(Node):
             return
         stamp = round(float(camera.get("stamp_s") or 0.0), 6)
         truth = self.truth or {}
+        self.write(
+            truth.get("t", stamp),
+            {
+                k: camera.get(k)
+                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
+            },
+            stamp,
+        )
+
+    def write(self, t: float, camera: dict | None, stamp: float | None) -> None:
+        """One trace record (the latest truth, odometry, legs, speech) and its frame."""
+        truth = self.truth or {}
         record = {
-            "t": truth.get("t", stamp),
+            "t": t,
             "robot": truth.get("robot"),
             "robot_cell": truth.get("robot_cell"),
             "person": truth.get("person"),
             "person_cell": truth.get("person_cell"),
             "person_velocity": truth.get("person_velocity"),
             "odom": self.odom,
-            "camera": {
-                k: camera.get(k)
-                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
-            },
+            "camera": camera,
             "legs": self.legs,
             "speech": self.speech or None,
         }
         self.speech = []
+        self.last_t = float(t)
         self.trace.write(json.dumps(record, sort_keys=True) + "\n")
         self.trace.flush()
         if self.frames is not None:
             frame = None
-            image = self.images.pop(stamp, None)
+            image = self.images.pop(stamp, None) if stamp is not None else None
             if image is not None:
                 try:
                     frame = image_from_msg(image)  # BGR, as the JPEG encoder wants

@@ -14,8 +14,6 @@ operator arms the gate.
 
 from __future__ import annotations
 
-import argparse
-import hashlib
 import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -25,9 +23,11 @@ import yaml
 
 from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
+from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment
 from vigil.launch import ProcessSpec
 from vigil.scenario import Scenario
+from vigil.security import security_env
 
 REPO = Path(__file__).resolve().parents[1]
 POLICY_CACHE = REPO / "runs" / ".policies"
@@ -61,25 +61,11 @@ class System:
 
 def policy_for(task_path: Path, say=print, iterations: int = 200) -> Path:
     """The task's policy, solved once and cached by the task file's content."""
-    digest = hashlib.sha256(Path(task_path).read_bytes()).hexdigest()[:12]
-    path = POLICY_CACHE / f"{Path(task_path).stem}-{digest}-{iterations}.npz"
-    if path.exists():
-        return path
-    from stack.planning.solve import format_progress
-    from vigil.cli import solve_task
+    from stack.planning.policy_cache import cached_task_policy
+    from stack.planning.solve import TASK_CONFIG
 
-    say(f"[policy] solving {Path(task_path).name} ({iterations} Perseus iterations), once")
-    args = argparse.Namespace(
-        beliefs=300, iterations=iterations, time_limit=None, fib_time=0.0, seed=0, quiet=False
-    )
-    _, _, result = solve_task(
-        Path(task_path), args, lambda s: say("[policy] " + format_progress(s))
-    )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    result.policy.save(tmp)
-    tmp.replace(path)
-    return path
+    config = replace(TASK_CONFIG, iterations=iterations)
+    return cached_task_policy(task_path, POLICY_CACHE, config, say)
 
 
 def _read_yaml(path: Path | None) -> dict[str, Any]:
@@ -289,8 +275,11 @@ def _write(
         for name in names
     ]
     env = {"PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"}
-    if dep.ros.localhost_only:
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    # DDS confined to loopback (+ the listed addresses in hardware mode): vigil/dds.py
+    addresses = () if dep.ros.localhost_only else dep.ros.interfaces
+    env.update(dds_env(write_profile(run_dir, addresses), dep.ros.localhost_only))
+    if dep.mode == "hardware" and dep.ros.keystore:
+        env.update(security_env(dep.resolve(dep.ros.keystore)))
     if dep.ros.domain_id >= 0:
         env["ROS_DOMAIN_ID"] = str(dep.ros.domain_id)
     if dep.mode == "twin":

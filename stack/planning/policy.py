@@ -65,37 +65,71 @@ class AlphaPolicy:
 
     # -- files ---------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
-        """Write the policy as a compressed ``.npz`` (alphas, actions, JSON metadata)."""
+        """Write the policy at exactly ``path``.
+
+        A ``.policy`` suffix writes SARSOP's XML (:mod:`stack.planning.sarsop_policy`,
+        which SARSOP's ``pomdpsim`` reads); anything else a compressed numpy archive
+        (alphas, actions, JSON metadata). The file is written whole and then moved into
+        place, so a reader never sees half a policy.
+        """
         path = Path(path)
-        if path.suffix != ".npz":
-            path = (
-                path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
-            )
+        if path.suffix == ".policy":
+            from stack.planning.sarsop_policy import write_policy_xml
+
+            return write_policy_xml(self, path, model=str(self.meta.get("model", "")))
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(
-            path, alphas=self.alphas, actions=self.actions, meta=np.array(json.dumps(self.meta))
-        )
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "wb") as f:  # a file object: numpy adds no ".npz" to the name
+            np.savez_compressed(
+                f, alphas=self.alphas, actions=self.actions, meta=np.array(json.dumps(self.meta))
+            )
+        tmp.replace(path)
         return path
 
     @classmethod
-    def load(cls, path: str | Path, n_states: int | None = None) -> AlphaPolicy:
-        """Read a policy written by :meth:`save`.
+    def load(
+        cls, path: str | Path, n_states: int | None = None, model_hash: str | None = None
+    ) -> AlphaPolicy:
+        """Read a policy written by :meth:`save` (numpy archive) or by SARSOP (XML).
+
+        Args:
+            path: the file.
+            n_states: the model's state count, checked.
+            model_hash: the model's :meth:`POMDP.fingerprint`; a policy that records
+                the hash of another model is refused (a policy solved for task r1 is
+                no policy for r2, though both have 845 states).
 
         Raises:
-            PolicyFileError: unreadable file, missing arrays, or a state count that
-                does not match ``n_states``.
+            PolicyFileError: unreadable file, missing arrays, a state count that does
+                not match ``n_states``, or a policy made for another model.
         """
         path = Path(path)
+        if path.is_dir():
+            raise PolicyFileError(f"{path} is a directory, not a policy file")
+        from stack.planning.sarsop_policy import is_policy_xml, read_policy_xml
+
+        if is_policy_xml(path):
+            return read_policy_xml(path, n_states)
         try:
             with np.load(path, allow_pickle=False) as data:
                 alphas, actions = data["alphas"], data["actions"]
                 meta = json.loads(str(data["meta"])) if "meta" in data else {}
         except FileNotFoundError:
             raise
-        except (OSError, KeyError, ValueError) as exc:
+        except (OSError, KeyError, ValueError, EOFError) as exc:
             raise PolicyFileError(f"{path}: not a policy file ({exc})") from None
+        if alphas.ndim != 2 or actions.shape != (alphas.shape[0],) or alphas.shape[0] == 0:
+            raise PolicyFileError(f"{path}: alphas {alphas.shape} and actions {actions.shape}")
         if n_states is not None and alphas.shape[1] != n_states:
             raise PolicyFileError(
                 f"{path}: policy is for {alphas.shape[1]} states, the model has {n_states}"
+            )
+        if not np.all(np.isfinite(alphas)):
+            raise PolicyFileError(f"{path}: the policy holds non-finite values")
+        recorded = meta.get("model_sha256")
+        if model_hash is not None and recorded is not None and recorded != model_hash:
+            raise PolicyFileError(
+                f"{path}: policy was solved for another model (model hash {recorded[:12]}, "
+                f"this model's is {model_hash[:12]}); solve this model first"
             )
         return cls(alphas=alphas, actions=actions.astype(int), meta=meta)

@@ -14,6 +14,7 @@ are (the robot moves to one of two cells; its position is observed exactly).
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -102,6 +103,23 @@ class POMDP:
             _check_rows(f"O[{name}]", self.O[a], tol, self.states, "in next state")
         if not np.all(np.isfinite(self.R)):
             raise ModelError("R has non-finite entries")
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the model's numbers (T, O, R, discount, b0): a policy records
+        it, so that a policy solved for one model is refused for another."""
+        if "fingerprint" not in self._cache:
+            h = hashlib.sha256()
+            h.update(repr((self.n_states, self.n_actions, self.n_observations)).encode())
+            h.update(np.float64(self.discount).tobytes())
+            for M in (*self.T, *self.O):
+                M = M.tocsr()
+                M.sort_indices()
+                for arr in (M.indptr, M.indices, M.data):
+                    h.update(np.ascontiguousarray(arr).tobytes())
+            h.update(np.ascontiguousarray(self.R, dtype=float).tobytes())
+            h.update(np.ascontiguousarray(self.b0, dtype=float).tobytes())
+            self._cache["fingerprint"] = h.hexdigest()
+        return self._cache["fingerprint"]
 
     # -- derived quantities (cached; the model is immutable) -----------------
     def obs_independent_of_action(self) -> bool:

@@ -43,8 +43,15 @@ __all__ = [
     "format_pomdp",
     "parse_pomdp",
     "read_pomdp",
+    "read_text_capped",
     "write_pomdp",
 ]
+
+# Sizes refused before anything is allocated (a file may declare 10^8 states): the
+# largest public files have 12,545 states; these limits leave room and fit in memory.
+MAX_COUNTS = {"states": 200_000, "actions": 10_000, "observations": 200_000}
+MAX_DENSE_ENTRIES = 50_000_000  # rewards (A x S) and any table given in full
+MAX_BYTES = 256 * 1024 * 1024  # a .pomdp text larger than this is refused (/dev/zero)
 
 PROB_SUM_TOL = 1e-6  # a row of T, O or the start belief must sum to 1 within this
 # Rows written with 6 decimals (0.166667 x 3 + 0.5, TagAvoid) sum to 1 + 1e-6 exactly in
@@ -175,6 +182,12 @@ class _Rewards:
 
     def __init__(self, A: int, S: int, Z: int) -> None:
         self.A, self.S, self.Z = A, S, Z
+        if A * S > MAX_DENSE_ENTRIES:
+            raise PomdpFormatError(
+                0,
+                f"{S:,} states x {A:,} actions: the reward table would exceed "
+                f"{MAX_DENSE_ENTRIES:,} entries",
+            )
         self.default = np.zeros((A, S))
         self.zbase: dict[tuple[int, int], np.ndarray] = {}
         self.over: dict[tuple[int, int], dict[int, float | np.ndarray]] = {}
@@ -486,6 +499,12 @@ class _Parser:
         else:
             self.start_statement(k, kw, toks)
 
+    def check_dense(self, k: int, head: str, entries: int) -> None:
+        if entries > MAX_DENSE_ENTRIES:
+            raise self.error(
+                k, f"'{head} uniform' fills {entries:,} entries (limit {MAX_DENSE_ENTRIES:,})"
+            )
+
     def define(self, k: int, kw: str, toks: list[str]) -> None:
         kind = {"states": "state", "actions": "action", "observations": "observation"}[kw]
         if kind in self.names:
@@ -496,6 +515,10 @@ class _Parser:
             n = int(toks[0])
             if n < 1:
                 raise self.error(k, f"'{kw}: {n}': need at least one")
+            if n > MAX_COUNTS[kw]:
+                raise self.error(
+                    k, f"'{kw}: {n}': more than this reader's limit of {MAX_COUNTS[kw]:,}"
+                )
             names = tuple(str(i) for i in range(n))
         else:
             for t in toks:
@@ -603,6 +626,7 @@ class _Parser:
             s = self.resolve(rowkind, toks[0], k, head)
             rest = toks[1:]
             if rest == ["uniform"]:
+                self.check_dense(k, head, len(self.expand(a, A)) * len(self.expand(s, S)) * ncol)
                 vec = np.full(ncol, 1.0 / ncol)
             elif rest == ["reset"]:
                 raise self.error(k, f"'reset' after '{head}' is not supported")
@@ -618,6 +642,7 @@ class _Parser:
             rest = toks[1:]
             acts = self.expand(a, A)
             if rest == ["uniform"]:
+                self.check_dense(k, head, len(acts) * S * ncol)
                 table.set_row(acts, range(S), np.full(ncol, 1.0 / ncol))
             elif rest == ["identity"]:
                 if kw != "T":
@@ -787,8 +812,25 @@ def read_pomdp(
     if isinstance(path_or_text, str) and "\n" in path_or_text:
         return parse_pomdp(path_or_text, normalize=normalize, tol=tol)
     path = Path(path_or_text)
-    text = path.read_text(encoding="utf-8", errors="replace")
-    return parse_pomdp(text, name=path.stem, normalize=normalize, tol=tol)
+    return parse_pomdp(read_text_capped(path), name=path.stem, normalize=normalize, tol=tol)
+
+
+def read_text_capped(path: str | os.PathLike, max_bytes: int = MAX_BYTES) -> str:
+    """The text of a model file, refusing directories and files over ``max_bytes``.
+
+    Raises:
+        PomdpFormatError: a directory, or more than ``max_bytes`` bytes (a device such
+            as /dev/zero never ends; it is cut off there).
+        FileNotFoundError: no such file.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise PomdpFormatError(0, f"{path} is a directory, not a model file")
+    with open(path, "rb") as f:
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise PomdpFormatError(0, f"{path}: larger than this reader's limit of {max_bytes:,} bytes")
+    return data.decode("utf-8", errors="replace")
 
 
 def _fmt(x: float) -> str:

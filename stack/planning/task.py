@@ -17,6 +17,7 @@ naming the key, the value and the rule it breaks.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -279,6 +280,8 @@ def _is_int(v: Any) -> bool:
 def _number(key: str, v: Any) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float):
         raise ConfigError(key, v, "must be a number")
+    if not math.isfinite(v):  # YAML reads .nan and .inf as floats
+        raise ConfigError(key, v, "must be a finite number")
     return float(v)
 
 

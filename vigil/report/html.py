@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import csv
 import html
+import io
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -43,8 +45,42 @@ def _metric_rows(m: Mapping[str, Any]) -> list[tuple[str, str, bool | None]]:
     ]
 
 
-def index_html(title: str, summary: Mapping[str, Any], files: Sequence[str]) -> str:
-    """The page: metrics, then links and embeds of whatever of the files exist."""
+_STEP_COLUMNS = (
+    ("step", "step"),
+    ("stamp_s", "t [s]"),
+    ("action", "action"),
+    ("obs_robot", "obs robot"),
+    ("obs_person", "obs person"),
+    ("obs_velocity", "obs velocity"),
+    ("true_robot", "true robot"),
+    ("true_person", "true person"),
+    ("source", "seen by"),
+    ("hidden", "camera blind in"),
+    ("outcome", "outcome"),
+    ("nav_result", "nav"),
+)
+
+
+def steps_table_html(steps_csv: str) -> str:
+    """The step table (``steps.csv``'s main columns) as an HTML table; misses and
+    wrong cells marked."""
+    rows = list(csv.DictReader(io.StringIO(steps_csv)))
+    e = html.escape
+    out = ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for _, h in _STEP_COLUMNS) + "</tr>"]
+    for r in rows:
+        bad = r.get("outcome") in ("miss", "wrong cell", "phantom")
+        cls = ' class="bad"' if bad else ""
+        cells = "".join(f"<td>{e(r.get(k, '') or '')}</td>" for k, _ in _STEP_COLUMNS)
+        out.append(f"<tr{cls}>{cells}</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def index_html(
+    title: str, summary: Mapping[str, Any], files: Sequence[str], steps_csv: str = ""
+) -> str:
+    """The page: metrics, links and embeds of whatever of the files exist, the step
+    table (from ``steps_csv``'s text), the summary."""
     have = set(files)
     e = html.escape
     out = [
@@ -86,6 +122,9 @@ def index_html(title: str, summary: Mapping[str, Any], files: Sequence[str]) -> 
     ):
         if f in have:
             out.append(f'<h2>{e(label)}</h2><img src="{e(f)}" alt="{e(label)}">')
+    if steps_csv:
+        out.append("<h2>Step table</h2>")
+        out.append(steps_table_html(steps_csv))
     out.append("<h2>Summary</h2><pre>")
     brief = {k: v for k, v in summary.items() if k not in ("metrics", "warnings_spoken")}
     out.append(e(json.dumps(brief, indent=1, sort_keys=True)))
@@ -98,5 +137,7 @@ def write_index(run_dir: str | Path, title: str, summary: Mapping[str, Any]) -> 
     run_dir = Path(run_dir)
     files = sorted(p.name for p in run_dir.iterdir() if p.is_file())
     path = run_dir / INDEX_FILE
-    path.write_text(index_html(title, summary, files), encoding="utf-8")
+    steps = run_dir / "steps.csv"
+    text = steps.read_text(encoding="utf-8") if steps.exists() else ""
+    path.write_text(index_html(title, summary, files, text), encoding="utf-8")
     return path

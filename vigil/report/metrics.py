@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import bisect
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -391,6 +391,32 @@ def guard_metrics(
         "false_trips": trips,
         "n_false_trips": len(trips),
         **{k: v for k, v in counts.items() if k != "per_step"},
+    }
+
+
+def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Totals over several runs' :func:`guard_metrics` (max delay: the largest)."""
+
+    def total(key: str) -> int:
+        return sum(int(m[key]) for m in metrics)
+
+    delays = [m["max_delay_s"] for m in metrics if m.get("max_delay_s") is not None]
+    with_person = total("steps_with_person") if metrics else 0
+    misses = total("misses") if metrics else 0
+    return {
+        "scenarios": len(metrics),
+        "n_visits": total("n_visits") if metrics else 0,
+        "guarded": total("guarded") if metrics else 0,
+        "abandoned": total("abandoned") if metrics else 0,
+        "max_delay_s": max(delays) if delays else None,
+        "timely_warnings": total("timely_warnings") if metrics else 0,
+        "late_warnings": total("late_warnings") if metrics else 0,
+        "n_false_trips": total("n_false_trips") if metrics else 0,
+        "misses": misses,
+        "steps_with_person": with_person,
+        "miss_rate": round(misses / with_person, 4) if with_person else None,
+        "unseen_steps": total("unseen_steps") if metrics else 0,
+        "wrong_cell_steps": total("wrong_cell_steps") if metrics else 0,
     }
 
 

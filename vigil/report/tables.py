@@ -13,8 +13,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stack.planning.model import ACTIONS, NO_PERSON, OUT_OF_MAP, FactoredModel
-from vigil.report.metrics import Timeline, step_outcome
+from stack.planning.model import FactoredModel
+from stack.vocabulary import ACTIONS, NO_PERSON, OUT_OF_MAP
+from vigil.report.metrics import Timeline, set_totals, step_outcome
 from vigil.report.records import (
     NOT_MOVING,
     UNKNOWN,
@@ -474,32 +475,6 @@ def set_row(name: str, m: Mapping[str, Any] | None, error: str = "") -> tuple:
         m["unseen_steps"],
         m["wrong_cell_steps"],
     )
-
-
-def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Totals over the scenarios' metrics (max delay: the largest)."""
-
-    def total(key: str) -> int:
-        return sum(int(m[key]) for m in metrics)
-
-    delays = [m["max_delay_s"] for m in metrics if m.get("max_delay_s") is not None]
-    with_person = total("steps_with_person") if metrics else 0
-    misses = total("misses") if metrics else 0
-    return {
-        "scenarios": len(metrics),
-        "n_visits": total("n_visits") if metrics else 0,
-        "guarded": total("guarded") if metrics else 0,
-        "abandoned": total("abandoned") if metrics else 0,
-        "max_delay_s": max(delays) if delays else None,
-        "timely_warnings": total("timely_warnings") if metrics else 0,
-        "late_warnings": total("late_warnings") if metrics else 0,
-        "n_false_trips": total("n_false_trips") if metrics else 0,
-        "misses": misses,
-        "steps_with_person": with_person,
-        "miss_rate": round(misses / with_person, 4) if with_person else None,
-        "unseen_steps": total("unseen_steps") if metrics else 0,
-        "wrong_cell_steps": total("wrong_cell_steps") if metrics else 0,
-    }
 
 
 def set_markdown(rows: Sequence[tuple[str, Mapping[str, Any] | None, str]]) -> str:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from stack.cells import CellGrid
-from stack.planning.model import NO_PERSON
+from stack.vocabulary import NO_PERSON
 from vigil.frames import FRAMES_FILE, decode, read_frames
 
 VIDEO_FILE = "camera.mp4"
@@ -80,7 +80,7 @@ class VideoComposer:
     yuv420p, ``+faststart``): browsers play it.
 
     Raises:
-        RuntimeError: the MP4 writer cannot be opened.
+        RuntimeError: the MP4 writer cannot be opened (at the first :meth:`add`).
     """
 
     def __init__(
@@ -109,7 +109,9 @@ class VideoComposer:
         self.frames = 0
         self._path_px: list[tuple[int, int]] = []
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = _h264_writer(self.path, (self.width, self.height), fps)
+        self.fps = float(fps)
+        self._writer = None  # opened by the first add(): no empty, invalid file
+        self._closed = False
         self._setup_map(room_bounds_m, rest_cell)
         self._no_frame = np.full((self.height, self.cam_w, 3), 90, np.uint8)
         cv2.putText(
@@ -327,14 +329,17 @@ class VideoComposer:
         belief_person: Mapping | None = None,
     ) -> None:
         """Compose and write one frame (``belief_person``: {"1": p, ..., "No person": p})."""
-        if self._writer is None:
+        if self._closed:
             raise RuntimeError(f"{self.path} is closed")
+        if self._writer is None:
+            self._writer = _h264_writer(self.path, (self.width, self.height), self.fps)
         img = self.render(t_s, frame_rgb, camera, legs, robot_xy_yaw, person_xy, belief_person)
         self._writer.send(np.ascontiguousarray(img))
         self.frames += 1
 
     def close(self) -> None:
         """Finish the file (safe to call twice)."""
+        self._closed = True
         if self._writer is not None:
             self._writer.close()
             self._writer = None
@@ -394,5 +399,7 @@ def write_video(
             if say is not None and time.monotonic() - last >= 1.0:
                 last = time.monotonic()
                 say(f"[report] video: frame {k + 1}/{len(trace)} (t = {t:.1f} s)")
+    if video.frames == 0:
+        return None
     tmp.replace(out)
     return out

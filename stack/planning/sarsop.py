@@ -1,0 +1,672 @@
+"""Heuristic search over the belief tree reachable from b0 (the HSVI2 / SARSOP family).
+
+Two bounds on the optimal value V* are kept and tightened where the search goes:
+
+- the **lower bound** is a set of alpha vectors, V_L(b) = max_k alpha_k . b. It starts
+  from the blind policies ("always do a", plus any seed plans), and every backup at a
+  visited belief *adds* one vector (the point-based backup of eq. 2.21); vectors are
+  never replaced wholesale, only pruned when another vector is at least as good at
+  every belief the search has visited (dominance at the sampled beliefs, as SARSOP).
+- the **upper bound** is the fast informed bound (a vector per action, Hauskrecht
+  2000) refined by belief-value points: every backup stores (b, V_U(b)) and the bound
+  at any belief is the sawtooth interpolation of the points with the corner values
+  (Hauskrecht 2000; HSVI2, Smith and Simmons 2005).
+
+The search runs trials from b0. A trial descends by the action with the best upper
+bound and the observation with the largest weighted gap, until the gap at a node is
+small enough for the root to reach its target, SARSOP's target-level rule
+(Kurniawati, Hsu and Lee 2008): each trial asks the root's gap to shrink by a factor,
+and propagates the matching targets (L, U) down the tree. The nodes of the trial are
+then backed up deepest first. Beliefs are sparse (index, probability) arrays, so a
+model whose beliefs cover a small part of its states (the robot's own cell observed
+exactly, as in the task model and RockSample) costs in proportion to that part: the
+mixed-observability saving of SARSOP's MOMDP solver falls out of the sparsity.
+
+The search stops when the root's gap is below the target, or at the deadline, which
+is checked between backups (a backup costs milliseconds), so the time limit holds.
+Same model, same settings, same result: there is no randomness in the search.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp, require_discounted
+from stack.planning.policy import AlphaPolicy
+from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
+
+_PROB_EPS = 1e-12  # successor beliefs less likely than this are not expanded
+
+
+class SolveError(RuntimeError):
+    """A solve whose result cannot be used (a degenerate value at b0)."""
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Settings of the belief-tree search.
+
+    Attributes:
+        time_limit_s: stop when this much time has passed since ``start`` (wall time,
+            ``time.perf_counter``); None: no limit.
+        target_gap: stop when V_U(b0) - V_L(b0) is at most this (absolute).
+        relative_gap: ... or at most this fraction of max(|V_L(b0)|, |V_U(b0)|).
+        trial_improvement: each trial aims to shrink the root's gap to this fraction.
+        max_trials: stop after this many trials (None: no limit); the deterministic
+            alternative to a time limit.
+        max_depth: deepest node of a trial.
+        prune_growth: prune the lower bound when the vector set has grown by this
+            factor since the last pruning.
+        fib_share: at most this share of the time limit for the fast informed bound.
+        progress_every_s: at most one progress report per this many seconds.
+    """
+
+    time_limit_s: float | None = 60.0
+    target_gap: float = 1e-3
+    relative_gap: float = 0.0
+    trial_improvement: float = 0.5
+    max_trials: int | None = None
+    max_depth: int = 2000
+    prune_growth: float = 2.0
+    fib_share: float = 0.1
+    progress_every_s: float = 1.0
+    target_levels: bool = True
+    blas_threads: int = 1  # see stack/planning/threads.py: one thread is faster here
+
+
+@dataclass
+class SearchStats:
+    """One progress report (also kept as the solve's history)."""
+
+    trials: int
+    lower: float
+    upper: float
+    n_alphas: int
+    n_points: int
+    n_nodes: int
+    backups: int
+    elapsed_s: float
+
+    @property
+    def gap(self) -> float:
+        return self.upper - self.lower
+
+    # the names pbvi.IterationStats uses, so the two print the same way
+    @property
+    def value_b0(self) -> float:
+        return self.lower
+
+    @property
+    def upper_b0(self) -> float:
+        return self.upper
+
+
+def format_search_progress(s: SearchStats) -> str:
+    rel = s.gap / max(abs(s.lower), abs(s.upper), 1e-12)
+    return (
+        f"{s.elapsed_s:7.2f} s  LB {s.lower:11.5f}  UB {s.upper:11.5f}  gap {s.gap:10.5f} "
+        f"({100 * rel:6.2f} %)  vectors {s.n_alphas:5d}  points {s.n_points:6d}  "
+        f"trials {s.trials:6d}"
+    )
+
+
+class _Kids:
+    """The successors of one node under one action."""
+
+    __slots__ = ("reward", "zs", "pz", "nodes", "M", "nz")
+
+    def __init__(self, reward, zs, pz, nodes, M, nz):
+        self.reward: float = reward  # R(b, a)
+        self.zs: np.ndarray = zs  # the reachable observations
+        self.pz: np.ndarray = pz  # P(z | b, a) of the reachable observations
+        self.nodes = nodes  # successor node per reachable observation
+        self.M = M  # (len(nz), len(pz)) successor beliefs as columns, over states nz
+        self.nz = nz  # states reachable from b under a
+
+
+class _Node:
+    __slots__ = ("idx", "val", "ub", "lb", "kids", "point")
+
+    def __init__(self, idx: np.ndarray, val: np.ndarray, ub: float, lb: float):
+        self.idx = idx
+        self.val = val
+        self.ub = ub
+        self.lb = lb
+        self.kids: list[_Kids] | None = None
+        self.point = -1  # index of this belief's upper-bound point, -1 if none
+
+
+@dataclass
+class SearchResult:
+    policy: AlphaPolicy
+    lower_bound: float
+    upper_bound: float
+    seconds: float
+    history: list[SearchStats] = field(default_factory=list)
+    trials: int = 0
+    backups: int = 0
+    stopped: str = ""  # "gap", "time", "trials"
+
+    @property
+    def gap(self) -> float:
+        return self.upper_bound - self.lower_bound
+
+    @property
+    def relative_gap(self) -> float:
+        return self.gap / max(abs(self.lower_bound), abs(self.upper_bound), 1e-12)
+
+    def summary(self) -> dict:
+        return {
+            "lower_bound": self.lower_bound,
+            "upper_bound": self.upper_bound,
+            "gap": self.gap,
+            "relative_gap": self.relative_gap,
+            "value_b0": self.lower_bound,
+            "alpha_vectors": int(self.policy.alphas.shape[0]),
+            "iterations": self.trials,
+            "trials": self.trials,
+            "backups": self.backups,
+            "stopped": self.stopped,
+            "seconds": self.seconds,
+        }
+
+
+class _UpperPoints:
+    """Belief-value points of the upper bound, with sawtooth interpolation.
+
+    sawtooth_i(b) = c . b + (v_i - c . b_i) min_{s in supp b_i} b(s) / b_i(s), with c
+    the corner values (the bound at the certain beliefs, refined by backups there);
+    the bound is the minimum over the points and the corner plane.
+    """
+
+    def __init__(self, corner: np.ndarray):
+        self.corner = corner.astype(float).copy()
+        self.S = corner.size
+        self.idx: list[np.ndarray] = []
+        self.val: list[np.ndarray] = []
+        self.value: list[float] = []
+        self.by_state: dict[int, list[int]] = {}  # smallest support state -> points
+        self._arrays: dict[int, tuple] = {}
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def add(self, idx: np.ndarray, val: np.ndarray, value: float) -> int:
+        if idx.size == 1:
+            self.set_corner(int(idx[0]), value)
+            return -1
+        if value - float(self.corner[idx] @ val) >= -1e-12:
+            return -1
+        i = len(self.idx)
+        self.idx.append(idx)
+        self.val.append(val)
+        self.value.append(value)
+        self.by_state.setdefault(int(idx[0]), []).append(i)
+        self._arrays.pop(int(idx[0]), None)
+        return i
+
+    def update(self, i: int, value: float) -> None:
+        if value < self.value[i]:
+            self.value[i] = value
+            self._arrays.pop(int(self.idx[i][0]), None)
+            self._arrays.pop(-1, None)
+
+    def set_corner(self, s: int, value: float) -> None:
+        if value < self.corner[s] - 1e-12:
+            self.corner[s] = value
+            self._arrays.clear()  # every point's height above the corner plane moves
+
+    def _group(self, s: int) -> tuple:
+        """Concatenated (support states, probabilities, offsets, excess) of a group."""
+        g = self._arrays.get(s)
+        if g is None:
+            ids = self.by_state[s]
+            sizes = np.array([self.idx[i].size for i in ids])
+            states = np.concatenate([self.idx[i] for i in ids])
+            probs = np.concatenate([self.val[i] for i in ids])
+            offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+            height = np.add.reduceat(self.corner[states] * probs, offsets)
+            excess = np.minimum(np.array([self.value[i] for i in ids]) - height, 0.0)
+            g = (states, probs, offsets, sizes, excess)
+            self._arrays[s] = g
+        return g
+
+    def _all(self) -> tuple:
+        """All points as one group (for models whose points are few and spread)."""
+        g = self._arrays.get(-1)
+        if g is None:
+            sizes = np.array([i.size for i in self.idx])
+            states = np.concatenate(self.idx)
+            probs = np.concatenate(self.val)
+            offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+            height = np.add.reduceat(self.corner[states] * probs, offsets)
+            excess = np.minimum(np.asarray(self.value) - height, 0.0)
+            g = (states, probs, offsets, sizes, excess)
+            self._arrays[-1] = g
+        return g
+
+    def values(self, nz: np.ndarray, M: np.ndarray) -> np.ndarray:
+        """Sawtooth bound at the beliefs M[:, j] (over states nz), shape (M.shape[1],)."""
+        base = self.corner[nz] @ M
+        if not self.idx:
+            return base
+        pos = np.full(self.S, -1)
+        pos[nz] = np.arange(nz.size)
+        best = np.zeros(M.shape[1])
+        groups = [int(s) for s in nz if int(s) in self.by_state]
+        if len(groups) > 4:
+            return base + self._interpolate(self._all(), pos, M, best)
+        for s in groups:
+            best = self._interpolate(self._group(s), pos, M, best)
+        return base + best
+
+    @staticmethod
+    def _interpolate(group: tuple, pos: np.ndarray, M: np.ndarray, best: np.ndarray):
+        states, probs, offsets, sizes, excess = group
+        p = pos[states]
+        inside = np.minimum.reduceat(p, offsets) >= 0
+        if not inside.any():
+            return best
+        if not inside.all():
+            keep = np.flatnonzero(inside)
+            sel = np.repeat(inside, sizes)
+            p, probs = p[sel], probs[sel]
+            offsets = np.concatenate([[0], np.cumsum(sizes[keep])[:-1]])
+            excess = excess[keep]
+        ratio = np.minimum.reduceat(M[p] / probs[:, None], offsets, axis=0)
+        return np.minimum(best, (ratio * excess[:, None]).min(axis=0))
+
+
+class BeliefTreeSearch:
+    """The solver for one model. See the module docstring.
+
+    Args:
+        pomdp: a discounted model.
+        config: search settings.
+        seed_alphas: extra lower-bound vectors (alphas (K, S), actions (K,)), each the
+            exact value of some policy (e.g. :func:`bounds.plan_alphas`).
+        start: time.perf_counter() at which the time limit started (default: now), so
+            that a command's own set-up counts against its limit exactly once.
+        progress: called with a :class:`SearchStats` at most once per
+            ``config.progress_every_s``.
+    """
+
+    def __init__(
+        self,
+        pomdp: POMDP,
+        config: SearchConfig = SearchConfig(),
+        seed_alphas: tuple[np.ndarray, np.ndarray] | None = None,
+        start: float | None = None,
+        progress: Callable[[SearchStats], None] | None = None,
+        b0: np.ndarray | None = None,
+        extra_roots: list[np.ndarray] | None = None,
+    ):
+        require_discounted(pomdp)
+        self.pomdp = pomdp
+        self.config = config
+        self.start = time.perf_counter() if start is None else start
+        self.deadline = (
+            math.inf if config.time_limit_s is None else self.start + config.time_limit_s
+        )
+        self.progress = progress
+        self.gamma = pomdp.discount
+        S, A = pomdp.n_states, pomdp.n_actions
+        self.S, self.A = S, A
+        self.R = np.ascontiguousarray(pomdp.R, dtype=float)
+        self.T = [pomdp.T[a].tocsr() for a in range(A)]
+        self.O = [pomdp.O[a].tocsr() for a in range(A)]
+        self.O_rows = [np.repeat(np.arange(S), np.diff(O.indptr)) for O in self.O]
+        # dense observation tables where they are small (row gathers are then cheap);
+        # actions that share one table share the dense copy
+        self.O_dense: list[np.ndarray | None] = [None] * A
+        if S * pomdp.n_observations <= 4_000_000:
+            for a in range(A):
+                same = next((b for b in range(a) if pomdp.O[b] is pomdp.O[a]), None)
+                self.O_dense[a] = self.O_dense[same] if same is not None else self.O[a].toarray()
+        # one row slice gives the predictions of every action: T_all[s] = [T_0[s] ... T_A[s]]
+        self.T_all = sp.hstack(self.T, format="csr")
+        self.backups = 0
+        self.trials = 0
+        self.history: list[SearchStats] = []
+        self._last_report = -math.inf
+
+        # -- the upper bound: QMDP, tightened by the fast informed bound ----------------
+        Q = qmdp(pomdp)
+        remaining = self.deadline - time.perf_counter()
+        fib_budget = (
+            30.0 if not math.isfinite(remaining) else max(0.0, remaining) * config.fib_share
+        )
+        if fib_budget > 0:
+            Q = fast_informed_bound(pomdp, Q, max_iterations=500, tol=1e-9, time_limit_s=fib_budget)
+        self.Q_upper = Q  # (S, A)
+        self.points = _UpperPoints(Q.max(axis=1))
+
+        # -- the lower bound: blind policies and seeds -----------------------------------
+        alphas = blind_lower_bound(pomdp)
+        actions = np.arange(A)
+        if seed_alphas is not None and len(seed_alphas[0]):
+            alphas = np.vstack([alphas, seed_alphas[0]])
+            actions = np.concatenate([actions, np.asarray(seed_alphas[1], dtype=int)])
+        # the vectors are stored transposed, (S, capacity): a gather of the states a
+        # belief covers then reads contiguous rows
+        self.K = len(actions)
+        self._AT = np.empty((S, max(64, 2 * self.K)))
+        self._AT[:, : self.K] = np.asarray(alphas, dtype=float).T
+        self._act = np.zeros(self._AT.shape[1], dtype=int)
+        self._act[: self.K] = actions
+        self.n_initial_alphas = self.K
+        self._pruned_at = self.K
+
+        self.nodes: dict[bytes, _Node] = {}
+        b0 = pomdp.b0 if b0 is None else np.asarray(b0, dtype=float)
+        idx = np.flatnonzero(b0 > 0)
+        self.root = self._node(idx, b0[idx] / b0[idx].sum())
+        self.initial_lower = self.root.lb
+        # more beliefs to search from (the policy must be good there too); the bounds
+        # reported are b0's, and the search stops when every root meets the target
+        self.roots = [self.root]
+        for b in extra_roots or []:
+            b = np.asarray(b, dtype=float)
+            i = np.flatnonzero(b > 0)
+            node = self._node(i, b[i] / b[i].sum())
+            if all(node is not r for r in self.roots):
+                self.roots.append(node)
+
+    @property
+    def alphas(self) -> np.ndarray:
+        """The lower bound's vectors, (K, S)."""
+        return self._AT[:, : self.K].T
+
+    @property
+    def actions(self) -> np.ndarray:
+        return self._act[: self.K]
+
+    # -- beliefs and bounds -----------------------------------------------------------
+    def _upper_vectors(self, nz: np.ndarray, M: np.ndarray) -> np.ndarray:
+        return (self.Q_upper[nz].T @ M).max(axis=0)
+
+    def _node(self, idx: np.ndarray, val: np.ndarray, ub: float | None = None) -> _Node:
+        key = idx.tobytes() + np.round(val, 10).tobytes()
+        node = self.nodes.get(key)
+        if node is None:
+            M = val[:, None]
+            if ub is None:
+                ub = float(min(self._upper_vectors(idx, M)[0], self.points.values(idx, M)[0]))
+            lb = float((val @ self._AT[idx, : self.K]).max())
+            node = _Node(idx, val, ub, min(lb, ub))
+            self.nodes[key] = node
+        return node
+
+    def _expand(self, node: _Node) -> list[_Kids]:
+        """Successor beliefs of ``node`` under every action (computed once)."""
+        if node.kids is not None:
+            return node.kids
+        S = self.S
+        pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
+        kids = []
+        for a in range(self.A):
+            pred = pred_all[a * S : (a + 1) * S]
+            nz = np.flatnonzero(pred > 0)
+            if self.O_dense[a] is not None:
+                joint = self.O_dense[a][nz] * pred[nz][:, None]
+                pz = joint.sum(axis=0)
+                zs = np.flatnonzero(pz > _PROB_EPS)
+                M = joint[:, zs] / pz[zs]
+            else:
+                joint = self.O[a][nz].multiply(pred[nz][:, None]).tocsc()
+                pz = np.asarray(joint.sum(axis=0)).ravel()
+                zs = np.flatnonzero(pz > _PROB_EPS)
+                M = joint[:, zs].toarray() / pz[zs]
+            reward = float(self.R[node.idx, a] @ node.val)
+            # the fast informed bound only: the sawtooth is interpolated when an action's
+            # successors matter (see _q_upper)
+            ub = self._upper_vectors(nz, M)
+            nodes = []
+            for j in range(zs.size):
+                rows = np.flatnonzero(M[:, j] > 0)
+                child = self._node(nz[rows], M[rows, j], ub=float(ub[j]))
+                nodes.append(child)
+            kids.append(_Kids(reward, zs, pz[zs], nodes, M, nz))
+        node.kids = kids
+        return kids
+
+    def _refresh_upper(self, kids: _Kids) -> np.ndarray:
+        """Upper bounds of the successors, re-interpolated with the latest points."""
+        fresh = self.points.values(kids.nz, kids.M)
+        ub = np.array([c.ub for c in kids.nodes])
+        ub = np.minimum(ub, fresh)
+        for c, u in zip(kids.nodes, ub, strict=True):
+            c.ub = float(u)
+        return ub
+
+    def _q_upper(self, kids: list[_Kids]) -> np.ndarray:
+        """Q_U(b, a) for every action, the best one with freshly interpolated successors.
+
+        The successors' cached bounds are valid, if loose (the bound only decreases):
+        re-interpolate the best action's successors until the best action is fresh.
+        """
+        g = self.gamma
+        q_upper = np.array([k.reward + g * (k.pz @ [c.ub for c in k.nodes]) for k in kids])
+        fresh = np.zeros(self.A, dtype=bool)
+        while True:
+            a = int(q_upper.argmax())
+            if fresh[a]:
+                return q_upper
+            q_upper[a] = kids[a].reward + g * (kids[a].pz @ self._refresh_upper(kids[a]))
+            fresh[a] = True
+
+    def _backup(self, node: _Node) -> None:
+        """Back up both bounds at ``node``: one alpha vector and one upper point."""
+        kids = self._expand(node)
+        g = self.gamma
+        q_lower = np.empty(self.A)
+        choice = []
+        for a, k in enumerate(kids):
+            # (Z', K): the value of every vector at every successor
+            G = k.M.T @ self._AT[k.nz, : self.K]
+            best = G.argmax(axis=1)
+            lbs = G[np.arange(best.size), best]
+            for c, v in zip(k.nodes, lbs, strict=True):
+                if c.kids is None:  # a leaf's bound is just its best vector's value
+                    c.lb = min(float(v), c.ub)
+            q_lower[a] = k.reward + g * (k.pz @ lbs)
+            choice.append(best)
+        q_upper = self._q_upper(kids)
+        self.backups += 1
+        # upper bound: a point at this belief
+        u = float(q_upper.max())
+        if u < node.ub:
+            node.ub = u
+            if node.point < 0:
+                node.point = self.points.add(node.idx, node.val, u)
+            else:
+                self.points.update(node.point, u)
+        # lower bound: add the backed-up vector if it improves the value here
+        a = int(q_lower.argmax())
+        if q_lower[a] > node.lb + 1e-12 * max(1.0, abs(node.lb)):
+            self._add_alpha(self._alpha(kids[a], a, choice[a], node), a)
+            node.lb = float(q_lower[a])
+        node.lb = min(node.lb, node.ub)
+
+    def _alpha(self, kids: _Kids, a: int, best: np.ndarray, node: _Node) -> np.ndarray:
+        """alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s')."""
+        O = self.O[a]
+        # observations that b cannot produce: any vector keeps the bound valid; take the
+        # best one at b so the new vector is good near b too
+        kstar = np.full(O.shape[1], int((node.val @ self._AT[node.idx, : self.K]).argmax()))
+        kstar[kids.zs] = best
+        rows = self.O_rows[a]
+        v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
+        return self.R[:, a] + self.gamma * (self.T[a] @ v)
+
+    def _add_alpha(self, alpha: np.ndarray, action: int) -> None:
+        if self.K == self._AT.shape[1]:
+            grown = np.empty((self.S, 2 * self.K))
+            grown[:, : self.K] = self._AT
+            self._AT = grown
+            self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
+        self._AT[:, self.K] = alpha
+        self._act[self.K] = action
+        self.K += 1
+        if self.K > self.config.prune_growth * self._pruned_at + 50:
+            self._prune()
+
+    def _prune(self) -> None:
+        """Keep the vectors that are best at some backed-up belief of the tree.
+
+        Dominance at the sampled beliefs (SARSOP): a vector that is nowhere the best
+        of the set at a belief the search has backed up is dropped. The best vector of
+        every such node is kept, so their lower bounds (the roots' among them) never
+        drop; a leaf's bound is re-read from the vectors when its parent is backed up.
+        """
+        nodes = [n for n in self.nodes.values() if n.kids is not None]
+        keep = np.zeros(self.K, dtype=bool)
+        chunk = max(1, 4_000_000 // max(self.K, 1))
+        for lo in range(0, len(nodes), chunk):
+            part = nodes[lo : lo + chunk]
+            indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in part])])
+            B = sp.csr_matrix(
+                (
+                    np.concatenate([n.val for n in part]),
+                    np.concatenate([n.idx for n in part]),
+                    indptr,
+                ),
+                shape=(len(part), self.S),
+            )
+            V = np.asarray(B @ self._AT[:, : self.K])
+            best = V.argmax(axis=1)
+            keep[best] = True
+            for n, v in zip(part, V[np.arange(len(part)), best], strict=True):
+                n.lb = min(max(n.lb, float(v)), n.ub)
+        kept = np.flatnonzero(keep)
+        self._AT[:, : kept.size] = self._AT[:, kept]
+        self._act[: kept.size] = self._act[kept]
+        self.K = kept.size
+        self._pruned_at = self.K
+
+    # -- the search -----------------------------------------------------------------
+    def _met(self, r: _Node) -> bool:
+        gap = r.ub - r.lb
+        return gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
+            abs(r.lb), abs(r.ub)
+        )
+
+    def _done(self) -> str:
+        if all(self._met(r) for r in self.roots):
+            return "gap"
+        if time.perf_counter() >= self.deadline:
+            return "time"
+        if self.config.max_trials is not None and self.trials >= self.config.max_trials:
+            return "trials"
+        return ""
+
+    def _trial(self) -> None:
+        g = self.gamma
+        # the root furthest from its target (b0 first on ties)
+        open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
+        root = max(open_roots, key=lambda r: r.ub - r.lb)
+        eps = self.config.trial_improvement * (root.ub - root.lb)
+        L, U = root.lb, root.lb + eps
+        path = [root]
+        node = root
+        t = 0
+        while t < self.config.max_depth:
+            if time.perf_counter() >= self.deadline:
+                break
+            # stop where the gap is small enough for the root's target (HSVI), or where
+            # both target levels are met, or where the upper bound cannot reach L
+            if node.ub - node.lb <= eps * g**-t:
+                break
+            if self.config.target_levels and node.ub <= U:
+                break
+            kids = self._expand(node)
+            q_upper = self._q_upper(kids)
+            q_lower = np.array([k.reward + g * (k.pz @ [c.lb for c in k.nodes]) for k in kids])
+            a = int(q_upper.argmax())
+            k = kids[a]
+            if not k.nodes:
+                break
+            ub = np.array([c.ub for c in k.nodes])
+            lb = np.array([c.lb for c in k.nodes])
+            # HSVI's weighted excess: the observation whose gap is furthest above the
+            # level its depth needs, weighted by its probability
+            j = int((k.pz * (ub - lb - eps * g ** -(t + 1))).argmax())
+            # SARSOP's target levels for the chosen child
+            Lp = max(L, float(q_lower.max()))
+            Up = max(U, float(q_lower.max()) + eps * g**-t)
+            rest_l = k.pz @ lb - k.pz[j] * lb[j]
+            rest_u = k.pz @ ub - k.pz[j] * ub[j]
+            L = (Lp - k.reward - g * rest_l) / (g * k.pz[j])
+            U = (Up - k.reward - g * rest_u) / (g * k.pz[j])
+            node = k.nodes[j]
+            path.append(node)
+            t += 1
+        # refine the corners under the deepest belief first: beliefs that approach
+        # certainty (Tiger after many listens) are bounded by the corner values
+        leaf = path[-1]
+        if leaf.idx.size <= 32:
+            for s in leaf.idx:
+                if time.perf_counter() >= self.deadline:
+                    break
+                self._backup(self._node(np.array([s]), np.ones(1)))
+        for n in reversed(path):
+            if time.perf_counter() >= self.deadline and n is not root:
+                continue
+            self._backup(n)
+        self.trials += 1
+
+    def _report(self, force: bool = False) -> None:
+        now = time.perf_counter()
+        if not force and now - self._last_report < self.config.progress_every_s:
+            return
+        self._last_report = now
+        stats = SearchStats(
+            trials=self.trials,
+            lower=self.root.lb,
+            upper=self.root.ub,
+            n_alphas=self.K,
+            n_points=len(self.points),
+            n_nodes=len(self.nodes),
+            backups=self.backups,
+            elapsed_s=now - self.start,
+        )
+        self.history.append(stats)
+        if self.progress:
+            self.progress(stats)
+
+    def run(self) -> SearchResult:
+        """Search until the target gap, the time limit or the trial limit."""
+        with blas_threads(self.config.blas_threads):
+            return self._run()
+
+    def _run(self) -> SearchResult:
+        for r in self.roots:
+            self._backup(r)
+        stopped = self._done()
+        while not stopped:
+            self._trial()
+            self._report()
+            stopped = self._done()
+        if time.perf_counter() < self.deadline:
+            self._prune()  # over the backed-up beliefs only: cheap
+        self._report(force=True)
+        policy = AlphaPolicy(self.alphas.copy(), self.actions.copy(), meta={"solver": "sarsop"})
+        result = SearchResult(
+            policy=policy,
+            lower_bound=self.root.lb,
+            upper_bound=self.root.ub,
+            seconds=time.perf_counter() - self.start,
+            history=self.history,
+            trials=self.trials,
+            backups=self.backups,
+            stopped=stopped,
+        )
+        policy.meta.update(result.summary())
+        return result
