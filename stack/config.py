@@ -148,6 +148,27 @@ def coerce_like(key: str, value: Any, default: Any) -> Any:
     return value
 
 
+MAX_FILE_BYTES = 16 * 2**20  # no configuration, task, map or state file is near this
+
+
+def read_text_capped(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
+    """A text file's content, refusing one longer than ``max_bytes`` before reading it all
+    (``/dev/zero``, a log passed by mistake): never an unbounded allocation.
+
+    Raises:
+        OSError: unreadable, or a directory.
+        ValueError: longer than ``max_bytes``, or not UTF-8 text.
+    """
+    with open(path, "rb") as f:
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise ValueError(f"{path}: longer than {max_bytes} bytes, not a file vigil reads")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML file holding a mapping (an empty file is an empty mapping).
 
@@ -158,8 +179,8 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     import yaml
 
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
+        data = yaml.safe_load(read_text_capped(path)) or {}
+    except (OSError, ValueError, yaml.YAMLError) as exc:
         raise ConfigError("config_file", str(path), f"cannot be read: {exc}") from exc
     if not isinstance(data, dict):
         raise ConfigError("config_file", str(path), "must hold a mapping")

@@ -63,37 +63,9 @@ R: open-right : tiger-left : * : * 10
 R: open-right : tiger-right : * : * -100
 """
 
-DEV_ZERO = (
-    "reads /dev/zero into memory without a size cap (stack.config.read_yaml / Path.read_text)"
-)
-MAP = "twin/occupancy.load_map: YAML errors, TypeError and numpy errors escape"
 POLICY = "stack/planning/policy.AlphaPolicy.load: BadZipFile, EOFError, zlib/tokenize errors"
-TWIN_SCENE = "twin/config.load_twin_config: yaml ScannerError/ParserError escape"
 # "reader:case" -> why it is not asserted yet (the owner of that reader fixes it)
 KNOWN_FAILURES: dict[str, str] = {
-    "task:dev-zero": DEV_ZERO,
-    "deployment:dev-zero": DEV_ZERO,
-    "hardware:dev-zero": DEV_ZERO,
-    "scenario:dev-zero": DEV_ZERO,
-    "twin_scene:truncate@460": TWIN_SCENE,
-    "twin_scene:bytes#24": TWIN_SCENE,
-    "twin_scene:bytes#29": TWIN_SCENE,
-    "twin_scene:dev-zero": DEV_ZERO,
-    "state:dev-zero": DEV_ZERO,
-    "map:truncate@95": MAP,
-    "map:truncate@109": MAP,
-    "map:number@56='[[[[[[[[1]]]]]]]]'": MAP,
-    "map:number@56='null'": MAP,
-    "map:number@99='inf'": MAP,
-    "map:bytes#17": MAP,
-    "map:bytes#18": MAP,
-    "map:number@117='1e308'": MAP,
-    "map:bytes#22": MAP,
-    "map:bytes#23": MAP,
-    "map:number@56='&a [*a, *a, *a]'": MAP,
-    "map:bytes#26": MAP,
-    "map:empty": MAP,
-    "map:dev-zero": DEV_ZERO,
     "policy:truncate@0": POLICY,
     "policy:truncate@72": POLICY,
     "policy:truncate@144": POLICY,

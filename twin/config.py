@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 import yaml
 
 from stack.cells import CellGrid, ConfigError
-from stack.config import Config
+from stack.config import Config, read_text_capped
 
 Rule = tuple[Callable[[Any], bool], str]
 
@@ -332,6 +332,13 @@ class TwinConfig(_FromDict):
             )
 
 
+def _read_yaml_file(path: str | Path) -> Any:
+    try:
+        return yaml.safe_load(read_text_capped(path)) or {}
+    except (ValueError, yaml.YAMLError) as exc:
+        raise ConfigError(str(path), "<file>", f"is not a readable YAML file: {exc}") from None
+
+
 def load_twin_config(path: str | Path, task_path: str | Path | None = None) -> TwinConfig:
     """Read a twin YAML file; take ``grid`` from a task file when one is given.
 
@@ -348,14 +355,14 @@ def load_twin_config(path: str | Path, task_path: str | Path | None = None) -> T
         ConfigError: any invalid key or value.
         OSError: ``path`` cannot be read.
     """
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    data = _read_yaml_file(path)
     if isinstance(data, Mapping) and "twin" in data:
         data = data["twin"]
     if not isinstance(data, Mapping):
         raise ConfigError(str(path), data, "must hold a mapping")
     data = dict(data)
     if task_path is not None and Path(task_path).exists():
-        task = yaml.safe_load(Path(task_path).read_text()) or {}
+        task = _read_yaml_file(task_path)
         if isinstance(task, Mapping) and "grid" in task:
             data["grid"] = task["grid"]
     return TwinConfig.from_dict(data)

@@ -18,6 +18,8 @@ import mujoco
 import numpy as np
 import yaml
 
+from stack.config import read_text_capped
+
 FREE, OCCUPIED, UNKNOWN = 0, 100, -1
 # trinary PGM values written by map_saver
 _PGM_FREE, _PGM_OCCUPIED, _PGM_UNKNOWN = 254, 0, 205
@@ -104,10 +106,25 @@ def load_map(yaml_path: str | Path) -> OccupancyMap:
         ValueError: a required key is missing, or the image cannot be read.
     """
     yaml_path = Path(yaml_path)
-    meta = yaml.safe_load(yaml_path.read_text())
+    try:
+        return _load_map(yaml_path)
+    except ValueError:
+        raise
+    except (yaml.YAMLError, TypeError, KeyError, IndexError, ArithmeticError, cv2.error) as exc:
+        raise ValueError(f"{yaml_path}: not a map_server map: {exc}") from None
+
+
+def _load_map(yaml_path: Path) -> OccupancyMap:
+    meta = yaml.safe_load(read_text_capped(yaml_path))
+    if not isinstance(meta, dict):
+        raise ValueError(f"{yaml_path}: must hold a mapping")
     for key in ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh"):
         if key not in meta:
             raise ValueError(f"{yaml_path}: missing key {key!r}")
+    for key in ("resolution", "occupied_thresh", "free_thresh"):
+        v = meta[key]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+            raise ValueError(f"{yaml_path}: {key} {v!r} must be a finite number")
     img = cv2.imread(str(yaml_path.parent / meta["image"]), cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise ValueError(f"{yaml_path}: cannot read image {meta['image']!r}")

@@ -75,6 +75,14 @@ class RecorderNode(Node):
             del self.images[min(self.images)]
 
     def on_truth(self, msg: String) -> None:
+        try:
+            self._on_truth(msg)
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
+            self.get_logger().warning(
+                f"on_truth: message skipped ({exc!r})", throttle_duration_sec=5.0
+            )
+
+    def _on_truth(self, msg: String) -> None:
         self.truth = _json(msg.data)
         t = (self.truth or {}).get("t")
         if isinstance(t, int | float) and t - self.last_t >= TRUTH_GAP_S - 1e-9:
@@ -88,6 +96,14 @@ class RecorderNode(Node):
             self.odom = None
 
     def on_legs(self, msg: String) -> None:
+        try:
+            self._on_legs(msg)
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
+            self.get_logger().warning(
+                f"on_legs: message skipped ({exc!r})", throttle_duration_sec=5.0
+            )
+
+    def _on_legs(self, msg: String) -> None:
         data = _json(msg.data) or {}
         tracks = data.get("tracks", [])
         self.legs = [t["position_m"] for t in tracks if t.get("confirmed") and "position_m" in t]
@@ -96,6 +112,14 @@ class RecorderNode(Node):
         self.speech.append(msg.data or "warning")  # every one: two may come between records
 
     def on_speech_done(self, msg: String) -> None:
+        try:
+            self._on_speech_done(msg)
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
+            self.get_logger().warning(
+                f"on_speech_done: message skipped ({exc!r})", throttle_duration_sec=5.0
+            )
+
+    def _on_speech_done(self, msg: String) -> None:
         # an utterance's end comes on wall-clock time (espeak-ng): logged, not traced,
         # so that the trace of a lock-step run is the same on every machine
         data = _json(msg.data) or {}
@@ -103,6 +127,14 @@ class RecorderNode(Node):
             self.get_logger().warning(f"speech failed: {data.get('error')}")
 
     def on_person(self, msg: String) -> None:
+        try:
+            self._on_person(msg)
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
+            self.get_logger().warning(
+                f"on_person: message skipped ({exc!r})", throttle_duration_sec=5.0
+            )
+
+    def _on_person(self, msg: String) -> None:
         camera = _json(msg.data)
         if camera is None:
             return
@@ -156,11 +188,13 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
-def _json(text: str):
+def _json(text: str) -> dict | None:
+    """A JSON object, or None for anything else (malformed, or not an object)."""
     try:
-        return json.loads(text)
+        data = json.loads(text)
     except ValueError:
         return None
+    return data if isinstance(data, dict) else None
 
 
 def main(args=None) -> None:

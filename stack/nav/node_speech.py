@@ -90,7 +90,7 @@ class SpeechNode(Node):
         self.warning_pub = ls.publisher(String, topics["warning"], 10)
         ls.subscription(String, topics["observations"], self.on_observation, 10)
         ls.subscription(String, topics["say"], self.on_say, 10)
-        self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
+        ls.timer(1.0 / rate_hz, self.on_timer)  # the lock-step clock, like every node
         self.get_logger().info(
             f"speech: voice {config.voice!r}, policy {config.policy}, "
             f"{'WAV into ' + out_dir if out_dir else 'sound card'}"

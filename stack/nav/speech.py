@@ -126,6 +126,8 @@ def check_voice(voice: str, espeak_path: str = "espeak-ng") -> None:
 def _check_text(text: str | None) -> str:
     if text is None or not str(text).strip():
         raise EmptyTextError(f"nothing to say: text {text!r} is empty")
+    if any(ord(c) < 32 and c not in "\t\n\r" for c in str(text)):
+        raise SpeechError(f"text {str(text)[:40]!r} holds control characters")
     return " ".join(str(text).split())
 
 

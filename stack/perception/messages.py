@@ -150,7 +150,7 @@ def tracks_from_dict(data: dict[str, Any], now_s: float) -> tuple[TrackEstimate,
             )
             for t in data["tracks"]
         )
-    except (KeyError, TypeError, IndexError) as err:
+    except (KeyError, TypeError, IndexError, OverflowError) as err:
         raise ValueError(f"malformed legs message: {err!r}") from err
 
 
@@ -174,5 +174,12 @@ def camera_state_from_json(text: str, now_s: float) -> CameraPersonState:
             missed_frames=int(d.get("missed_frames", 0)),
             warning=d.get("warning"),
         )
-    except (json.JSONDecodeError, KeyError, TypeError, IndexError, ValueError) as err:
+    except (
+        json.JSONDecodeError,
+        KeyError,
+        TypeError,
+        IndexError,
+        ValueError,
+        OverflowError,
+    ) as err:
         raise ValueError(f"malformed person message: {err!r}") from err

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from stack.config import read_text_capped
 from stack.planning import belief as belief_ops
 from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
@@ -311,9 +312,7 @@ class PlannerAgent:
         if not path.exists():
             return False
         try:
-            if path.stat().st_size > 50_000_000:
-                raise ValueError("larger than 50 MB")
-            data = json.loads(path.read_text())
+            data = json.loads(read_text_capped(path))
             if not isinstance(data, dict):
                 raise TypeError("not a JSON object")
             belief = np.asarray(data["belief"], float)

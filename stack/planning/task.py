@@ -26,6 +26,7 @@ from typing import Any
 import yaml
 
 from stack.cells import CellGrid, ConfigError
+from stack.config import read_text_capped
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
@@ -260,7 +261,10 @@ def load_task(path: str | Path) -> Task:
         ConfigError: the file is not valid YAML or a value breaks a rule.
     """
     path = Path(path)
-    text = path.read_text()
+    try:
+        text = read_text_capped(path)
+    except ValueError as exc:
+        raise ConfigError(str(path), "<file>", str(exc)) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
