@@ -8,7 +8,12 @@ each other. MuJoCo renders headless through EGL.
 import os
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+if "ROS_DOMAIN_ID" not in os.environ:
+    # a domain no other vigil run or test session on this machine holds (released at exit)
+    from vigil.ros_domain import claim_domain
+
+    _DOMAIN = claim_domain()
+    os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN.domain_id)
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
