@@ -38,8 +38,12 @@ def twin_runs(tmp_path_factory):
 
 def test_scenario_outcome(twin_runs):
     run_dir, summary = twin_runs[0]
-    assert summary["steps"] == 20
+    assert summary["steps"] == yaml.safe_load(SCENARIO.read_text())["steps"]
     assert summary["left_map"] is False
+    # guarding (issue 11): every visit guarded, none abandoned, no warning late
+    m = summary["metrics"]
+    assert m["n_visits"] >= 1 and m["guarded"] == m["n_visits"], m["visits"]
+    assert m["abandoned"] == 0 and m["late_warnings"] == 0 and m["n_false_trips"] == 0
     visits = [v for v in summary["visits"] if v["cell"] == 1]
     assert visits, "the person never reached the restricted cell"
     # the robot reaches the restricted cell while the person is there (or approaching)
