@@ -112,14 +112,14 @@ class Participant:
         if not self.enabled:
             self.node.create_timer(period_s, callback)
             return
-        due = {"next": None}
+        due: list[float] = []  # the next due time, once the first tick has come
 
         def on_tick(t_s: float) -> None:
-            if due["next"] is None:
-                due["next"] = t_s
-            if t_s + 1e-9 >= due["next"]:
-                while due["next"] <= t_s + 1e-9:
-                    due["next"] += period_s
+            if not due:
+                due.append(t_s)
+            if t_s + 1e-9 >= due[0]:
+                while due[0] <= t_s + 1e-9:
+                    due[0] += period_s
                 callback()
 
         self._on_clock.append(on_tick)

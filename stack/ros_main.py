@@ -18,6 +18,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
+from typing import TypeVar
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -34,10 +35,13 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
+N = TypeVar("N", bound=Node)
+
+
 def spin_node(
-    make_node: Callable[[], Node],
+    make_node: Callable[[], N],
     args: list[str] | None = None,
-    on_exit: Callable[[Node], None] | None = None,
+    on_exit: Callable[[N], None] | None = None,
 ) -> None:
     """Init rclpy, spin the node until SIGINT/SIGTERM or external shutdown, then clean up.
 

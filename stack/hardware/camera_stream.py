@@ -171,6 +171,7 @@ class CameraStream:
             failed = self._open()
             if failed is not None:
                 return self._fail("cannot_open", failed, now)
+        assert self._cap is not None  # opened above
         try:
             ok, frame = self._cap.read()
         except Exception as exc:  # a backend error is stream trouble

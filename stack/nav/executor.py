@@ -120,6 +120,7 @@ class ActionExecutor:
         cell = self.waypoints.cell_of(self.pose.x_m, self.pose.y_m)
         target = self.waypoints.target(cell, action)
         self.task.update(from_cell=cell, target_cell=target.cell)
+        waypoint = target.waypoint_m
         if target.outcome is ActionOutcome.REFUSED:
             return [
                 Output("log", text=f"refusing action: {target.reason}"),
@@ -141,8 +142,8 @@ class ActionExecutor:
                 out.append(
                     self._result(NavResult.SUCCEEDED, NavErrorCode.NONE, "in the target cell")
                 )
-        else:
-            out += self._begin(target.waypoint_m, now_s, target.cell)
+        elif waypoint is not None:
+            out += self._begin(waypoint, now_s, target.cell)
         return out
 
     def goal(self, x: float, y: float, now_s: float) -> list[Output]:
