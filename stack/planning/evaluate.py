@@ -30,6 +30,21 @@ class Evaluation:
         }
 
 
+def _update(pomdp: POMDP, OTa, b: np.ndarray, a: int, z: int) -> np.ndarray:
+    """The exact belief update (eq. 2.14), reading O's column z as a row of O^T."""
+    pred = pomdp.TT(a) @ b
+    lo, hi = OTa.indptr[z], OTa.indptr[z + 1]
+    post = np.zeros_like(pred)
+    cols = OTa.indices[lo:hi]
+    post[cols] = OTa.data[lo:hi] * pred[cols]
+    total = post.sum()
+    if not total > 0.0:
+        raise belief_ops.ZeroProbabilityObservation(
+            f"observation {pomdp.observations[z]!r} after {pomdp.actions[a]!r} has probability 0"
+        )
+    return post / total
+
+
 def default_horizon(discount: float, tolerance: float = 0.01) -> int:
     """Steps after which gamma^t falls below ``tolerance``."""
     return int(math.ceil(math.log(tolerance) / math.log(discount))) if discount < 1 else 100
@@ -54,6 +69,7 @@ def evaluate(
     horizon = horizon or default_horizon(pomdp.discount)
     T = [pomdp.T[a].tocsr() for a in range(pomdp.n_actions)]
     O = [pomdp.O[a].tocsr() for a in range(pomdp.n_actions)]
+    OT = [pomdp.OT(a) for a in range(pomdp.n_actions)]  # rows: P(z | s') for one z
     returns = []
     for _ in range(episodes):
         b = b0
@@ -65,7 +81,7 @@ def evaluate(
             g *= pomdp.discount
             s = draw_row(T[a], s, rng)
             z = draw_row(O[a], s, rng)
-            b = belief_ops.update(pomdp, b, a, z)
+            b = _update(pomdp, OT[a], b, a, z)
         returns.append(total)
     r = np.asarray(returns)
     ci = 1.96 * r.std(ddof=1) / math.sqrt(len(r)) if len(r) > 1 else float("inf")

@@ -252,7 +252,7 @@ def solve_task_model(
     pomdp = model.flat()
     seeds = task_seed_alphas(model, pomdp)
     result = solve(pomdp, config, task_starts(model, pomdp), seeds, progress, start)
-    initial = float(np.vstack([blind_lower_bound(pomdp), seeds[0]]) @ pomdp.b0).max()
+    initial = float((np.vstack([blind_lower_bound(pomdp), seeds[0]]) @ pomdp.b0).max())
     if result.lower_bound <= initial + 1e-9 * max(1.0, abs(initial)):
         raise DegenerateSolveError(
             f"task {task.name}: the solve left V(b0) = {result.lower_bound:.4f} at its "
