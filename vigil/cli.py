@@ -52,8 +52,9 @@ def _solver_args(
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
-# share of --time-limit kept for writing the policy and exiting
+# kept from --time-limit for writing the policy and exiting: 2 %, at least 0.3 s
 WRITE_RESERVE = 0.02
+WRITE_RESERVE_MIN_S = 0.3
 
 
 def _solver_config(args: argparse.Namespace):
@@ -63,7 +64,7 @@ def _solver_config(args: argparse.Namespace):
     if limit is not None:
         if not (limit > 0 and limit < 1e9):
             raise ValueError(f"--time-limit must be a positive number of seconds, got {limit}")
-        limit = limit * (1.0 - WRITE_RESERVE)
+        limit = max(limit * 0.5, limit - max(limit * WRITE_RESERVE, WRITE_RESERVE_MIN_S))
     # a hand-made Namespace (older callers) gets the task defaults for what it lacks
     return SolverConfig(
         algorithm=getattr(args, "solver", "perseus"),

@@ -48,7 +48,7 @@ def write_policy_xml(policy: AlphaPolicy, path: str | os.PathLike, model: str = 
         f'<AlphaVector vectorLength="{S}" numObsValue="1" numVectors="{K}">',
     ]
     for alpha, a in zip(policy.alphas, policy.actions, strict=True):
-        values = " ".join(repr(float(x)) for x in alpha)
+        values = " ".join(map(repr, alpha.tolist()))  # shortest round-trip text
         lines.append(f'<Vector action="{int(a)}" obsValue="0">{values} </Vector>')
     lines.append("</AlphaVector> </Policy>")
     path.parent.mkdir(parents=True, exist_ok=True)
