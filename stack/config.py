@@ -1,23 +1,119 @@
-"""What every component's config validation shares: typed values and YAML files.
+"""One validation mechanism for every configuration: :class:`Config`.
 
-Each component keeps its own frozen dataclasses and rules; this module holds the
-pieces they share (a dataclass from a mapping by its type hints, a value checked
-against a default's type, a YAML file), so that an error reads the same everywhere:
+Every component's configuration is a frozen dataclass deriving from :class:`Config`.
+Whether it is built from YAML (``Cls.from_dict(mapping, key)``) or in code
+(``Cls(x=...)``), the constructor checks each field against its type hint (numbers
+finite, integers integral, booleans boolean, tuples of the right length, nested
+configurations of their class) and then the class's own rules: ``_rules`` (field ->
+(predicate, rule text)) and ``check()`` (cross-field rules, raising through
+:func:`require`). Unknown keys are refused by ``from_dict``. An error is always
 :class:`stack.cells.ConfigError` with the dotted key, the value and the rule.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from stack.cells import ConfigError
 
 T = TypeVar("T")
+Rule = tuple[Any, str]  # (predicate on the value, rule text)
+
+
+class Config:
+    """Base of every configuration dataclass: checked whenever it is built.
+
+    Subclasses are ``@dataclass(frozen=True)``; they may define ``_rules`` and
+    ``check()``; their own ``__post_init__`` (if any) runs after the field checks.
+    """
+
+    _rules: ClassVar[dict[str, Rule]] = {}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("__post_init__")
+
+        def __post_init__(self: Any) -> None:
+            check_fields(self)
+            for name, (predicate, rule) in type(self)._rules.items():
+                value = getattr(self, name)
+                if value is not None and not predicate(value):
+                    raise ConfigError(name, value, rule)
+            if own is not None:
+                own(self)
+            self.check()
+
+        cls.__post_init__ = __post_init__  # type: ignore[attr-defined]
+
+    def check(self) -> None:
+        """Cross-field rules; override (raise with :func:`require`)."""
+
+    @classmethod
+    def from_dict(cls: type[T], data: Mapping[str, Any] | None, key: str = "") -> T:
+        """Build from a mapping (a YAML section); missing keys keep their defaults.
+
+        Raises:
+            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
+        """
+        return from_mapping(cls, data, key)
+
+
+def check_fields(obj: Any) -> None:
+    """Check each field of a dataclass instance against its type hint.
+
+    Raises:
+        ConfigError: the first field whose value does not fit (key: the field's name).
+    """
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        if f.name.startswith("_") or f.name not in hints:
+            continue
+        _check_value(f.name, getattr(obj, f.name), hints[f.name])
+
+
+def _check_value(key: str, value: Any, hint: Any) -> None:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return
+        inner = [a for a in args if a is not type(None)]
+        if len(inner) == 1:
+            _check_value(key, value, inner[0])
+        return
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(key, value, "must be a number")
+        if not math.isfinite(value):
+            raise ConfigError(key, value, "must be finite")
+    elif hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(key, value, "must be an integer")
+    elif hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(key, value, "must be true or false")
+    elif hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(key, value, "must be a string")
+    elif origin is tuple:
+        if not isinstance(value, tuple):
+            raise ConfigError(key, value, "must be a tuple")
+        if len(args) == 2 and args[1] is Ellipsis:
+            for i, v in enumerate(value):
+                _check_value(f"{key}[{i}]", v, args[0])
+        elif args:
+            if len(value) != len(args):
+                raise ConfigError(key, value, f"must have {len(args)} elements")
+            for i, (v, a) in enumerate(zip(value, args, strict=True)):
+                _check_value(f"{key}[{i}]", v, a)
+    elif isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        if not isinstance(value, hint):
+            raise ConfigError(key, value, f"must be a {hint.__name__}")
 
 
 def coerce_like(key: str, value: Any, default: Any) -> Any:
@@ -91,18 +187,22 @@ def from_mapping(cls: type[T], data: Mapping[str, Any] | None, key: str) -> T:
         raise ConfigError(key, data, "must be a mapping")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+
+    def path(name: str) -> str:
+        return f"{key}.{name}" if key else str(name)
+
     for k in data:
         if k not in fields:
-            raise ConfigError(f"{key}.{k}", data[k], f"unknown key (known: {sorted(fields)})")
+            raise ConfigError(path(k), data[k], f"unknown key (known: {sorted(fields)})")
     kwargs = {}
     for name, value in data.items():
-        kwargs[name] = _coerce(hints[name], value, f"{key}.{name}")
+        kwargs[name] = _coerce(hints[name], value, path(name))
     try:
         return cls(**kwargs)
     except ConfigError as err:
         # Rules raised in __post_init__ name the bare field: prefix the section.
-        if not err.key.startswith(key + "."):
-            raise ConfigError(f"{key}.{err.key}", err.value, err.rule) from None
+        if key and not err.key.startswith(key + "."):
+            raise ConfigError(path(err.key), err.value, err.rule) from None
         raise
 
 
@@ -116,6 +216,8 @@ def _coerce(hint: Any, value: Any, key: str) -> Any:
         if len(inner) == 1:
             return _coerce(inner[0], value, key)
         raise ConfigError(key, value, f"unsupported type {hint}")
+    if isinstance(hint, type) and hasattr(hint, "from_mapping"):  # e.g. CellGrid
+        return hint.from_mapping(value, key)
     if dataclasses.is_dataclass(hint):
         return from_mapping(hint, value, key)  # type: ignore[arg-type]
     if hint is bool:
@@ -129,6 +231,8 @@ def _coerce(hint: Any, value: Any, key: str) -> Any:
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(key, value, "must be a number")
+        if not math.isfinite(value):
+            raise ConfigError(key, value, "must be finite")
         return float(value)
     if hint is str:
         if not isinstance(value, str):
@@ -140,7 +244,7 @@ def _coerce(hint: Any, value: Any, key: str) -> Any:
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_coerce(args[0], v, f"{key}[{i}]") for i, v in enumerate(value))
         if len(value) != len(args):
-            raise ConfigError(key, value, f"must be a list of {len(args)} values")
+            raise ConfigError(key, value, f"must be a list of {len(args)} elements")
         return tuple(
             _coerce(a, v, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True))
         )

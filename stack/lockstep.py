@@ -17,6 +17,14 @@ Every chain of work starts at the coordinator's publications (its clock and sens
 messages), so a stale acknowledgement can only under-count receives, never make an
 unfinished system look finished.
 
+Each tick has three phases, each waiting for quiescence before the next: ``/clock``
+(every participant learns the new time, and does nothing else), ``/lockstep/tick``
+(timers run: the planner's poll, navigation's control step, watchdogs) and the
+sensors. Splitting the first two matters: otherwise a message caused by one node's
+timer (the planner's observation request, say) can reach another node before that
+node has processed the new ``/clock``, and it would act at the previous tick's time,
+or not, depending on the machine's load.
+
 Faults: a participant that restarts (new ``incarnation``) or loses messages would
 leave the sums unbalanced forever; :meth:`Ledger.forgive` rebases it after a stall,
 and a participant silent for too long is excused until it speaks again.
@@ -30,6 +38,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 ACK_TOPIC = "/lockstep/ack"
+TICK_TOPIC = "/lockstep/tick"  # after /clock has reached everyone: run the timers
+RUN_ID_ENV = "VIGIL_RUN_ID"  # every node of a run has the run's id in this variable
+MAX_FOREIGN = 64  # names of other runs' participants remembered (a hostile peer is bounded)
 CATCH_UP_S = 5.0
 
 
@@ -43,6 +54,7 @@ class Ack:
         recv: topic -> messages received and processed.
         sent: topic -> messages published.
         matched: topic -> subscriptions matched by this participant's publisher.
+        run: the run this participant belongs to (``VIGIL_RUN_ID``; "" outside a run).
     """
 
     node: str
@@ -50,11 +62,13 @@ class Ack:
     recv: dict[str, int] = field(default_factory=dict)
     sent: dict[str, int] = field(default_factory=dict)
     matched: dict[str, int] = field(default_factory=dict)
+    run: str = ""
 
     def to_json(self) -> str:
         return json.dumps(
             {
                 "node": self.node,
+                "run": self.run,
                 "incarnation": self.incarnation,
                 "recv": self.recv,
                 "sent": self.sent,
@@ -73,7 +87,7 @@ class Ack:
         data = json.loads(text)
         if not isinstance(data, dict) or not isinstance(data.get("node"), str):
             raise ValueError(f"lock-step ack without a node name: {text[:80]!r}")
-        out = cls(str(data["node"]), str(data.get("incarnation", "")))
+        out = cls(str(data["node"]), str(data.get("incarnation", "")), run=str(data.get("run", "")))
         for name in ("recv", "sent", "matched"):
             counts = data.get(name, {})
             if not isinstance(counts, dict) or not all(
@@ -98,10 +112,15 @@ class Ledger:
 
     Args:
         expected: participants that must be present before the first tick.
+        run_id: this run's id: acknowledgements of any other run are ignored (and
+            counted in :attr:`foreign`), so two runs that can hear each other never
+            take each other's nodes for their own.
     """
 
-    def __init__(self, expected: tuple[str, ...] = ()):
+    def __init__(self, expected: tuple[str, ...] = (), run_id: str = ""):
         self.expected = tuple(expected)
+        self.run_id = run_id
+        self.foreign: dict[str, int] = defaultdict(int)  # "node@run" -> acks ignored
         self.members: dict[str, _Member] = {}
         self.own_sent: dict[str, int] = defaultdict(int)
         self.own_recv: dict[str, int] = defaultdict(int)
@@ -124,13 +143,22 @@ class Ledger:
         self.own_subscribes.add(topic)
 
     # -- participants ---------------------------------------------------------------
-    def update(self, ack: Ack, now_s: float) -> None:
-        """Record a participant's latest counts (a restart is noticed and rebased)."""
+    def update(self, ack: Ack, now_s: float) -> bool:
+        """Record a participant's latest counts (a restart is noticed and rebased).
+
+        Returns:
+            False (and nothing recorded) for an acknowledgement of another run.
+        """
+        if ack.run != self.run_id:
+            key = f"{ack.node[:40]}@{ack.run[:40] or '?'}"
+            if key in self.foreign or len(self.foreign) < MAX_FOREIGN:
+                self.foreign[key] += 1
+            return False
         self.version += 1
         member = self.members.get(ack.node)
         if member is None:
             self.members[ack.node] = _Member(ack, last_heard_s=now_s)
-            return
+            return True
         if member.ack.incarnation != ack.incarnation:
             for topic, n in member.ack.sent.items():
                 self.retired_sent[topic] += n
@@ -140,13 +168,14 @@ class Ledger:
             member.excused = False
             member.last_heard_s = now_s
             self._rebase(member)
-            return
+            return True
         member.ack = ack
         member.last_heard_s = now_s
         if member.excused:
             member.excused = False
             self._rebase(member)
             self.events.append(f"{ack.node} is back")
+        return True
 
     def total_sent(self, topic: str) -> int:
         total = self.own_sent.get(topic, 0) + self.retired_sent.get(topic, 0)

@@ -7,7 +7,9 @@ through it. Disabled (real time, the robot), they are the plain rclpy objects.
 Enabled, every subscription callback is followed by an acknowledgement of the counts,
 subscriptions are made reliable (a lost message would stall the twin), and the node's
 time is the coordinator's ``/clock`` as this participant last processed it, so a
-callback reads the same time whatever the machine's speed::
+callback reads the same time whatever the machine's speed. Timers (:meth:`timer`,
+:meth:`on_clock`) run on the coordinator's ``/lockstep/tick``, which follows only
+once every participant has processed the ``/clock``::
 
     self.lockstep = Participant(self, enabled=p("lockstep", False).value)
     self.pub = self.lockstep.publisher(String, "/out", 10)
@@ -29,7 +31,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import String
 
-from stack.lockstep import ACK_TOPIC, Ack
+from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack
 
 HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
 
@@ -81,11 +83,13 @@ class Participant:
         self._clock_s: float | None = None
         self._on_clock: list[Callable[[float], None]] = []
         self.incarnation = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self.run_id = os.environ.get(RUN_ID_ENV, "")
         self.in_callback = False
         if not self.enabled:
             return
         self._ack_pub = node.create_publisher(String, ACK_TOPIC, 50)
         self.subscription(ClockMsg, clock_topic, self._clock_cb, 10)
+        self.subscription(ClockMsg, TICK_TOPIC, self._tick_cb, 10)
         wall = Clock(clock_type=ClockType.STEADY_TIME)
         node.create_timer(HEARTBEAT_S, self.ack, clock=wall)
 
@@ -119,6 +123,9 @@ class Participant:
         self._on_clock.append(on_tick)
 
     def _clock_cb(self, msg: ClockMsg) -> None:
+        self._clock_s = msg.clock.sec + msg.clock.nanosec * 1e-9
+
+    def _tick_cb(self, msg: ClockMsg) -> None:
         self._clock_s = msg.clock.sec + msg.clock.nanosec * 1e-9
         for cb in self._on_clock:
             cb(self._clock_s)
@@ -161,6 +168,7 @@ class Participant:
                 dict(self.recv),
                 dict(self.sent),
                 {p.topic_name: p.get_subscription_count() for p in self._publishers},
+                run=self.run_id,
             )
             self._ack_pub.publish(String(data=ack.to_json()))
         except Exception:  # a callback finishing while Ctrl-C shuts the context down

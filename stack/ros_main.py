@@ -1,15 +1,34 @@
 """The one way every vigil node process starts and stops (ros2/examples talker.py).
 
 Kept apart from the algorithm packages: only node files import it.
+
+Shutdown: rclpy's own signal handler shuts the context down from inside the signal,
+while a callback may still be publishing ("publisher's context is invalid", exit 1)
+and before the node's last words (a zero velocity) can go out. So rclpy installs
+no handler here: SIGINT and SIGTERM raise :class:`KeyboardInterrupt` in the spinning
+thread, the executor returns, ``on_exit`` publishes with the context still valid,
+and only then is the node destroyed and the context shut down. A clean stop exits 0;
+a node that cannot start (bad configuration or file) prints one ``[FATAL]`` line
+naming what is wrong and exits 2.
 """
 
 from __future__ import annotations
 
+import signal
+import sys
+import threading
 from collections.abc import Callable
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+EXIT_BAD_CONFIG = 2
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 def spin_node(
@@ -17,23 +36,44 @@ def spin_node(
     args: list[str] | None = None,
     on_exit: Callable[[Node], None] | None = None,
 ) -> None:
-    """Init rclpy, spin the node until Ctrl-C or external shutdown, then clean up.
+    """Init rclpy, spin the node until SIGINT/SIGTERM or external shutdown, then clean up.
 
     Args:
         make_node: builds the node (called after rclpy.init).
         args: ROS command-line arguments.
-        on_exit: last words while the context is still up (e.g. a zero velocity).
+        on_exit: last words while the context is still up (e.g. a zero velocity); runs
+            on every way out once the node exists, a crash included.
     """
-    rclpy.init(args=args)
+    from stack.cells import ConfigError
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
+        signal.signal(signal.SIGINT, _interrupt)
+        signal.signal(signal.SIGTERM, _interrupt)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
+    code = 0
     try:
         node = make_node()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    finally:
+    except (ConfigError, OSError) as err:
         if node is not None:
-            if on_exit is not None and rclpy.ok():
-                on_exit(node)
-            node.destroy_node()
-        rclpy.try_shutdown()
+            raise
+        print(f"[FATAL] {getattr(make_node, '__name__', 'node')}: {err}", file=sys.stderr)
+        code = EXIT_BAD_CONFIG
+    finally:
+        # a second signal during the cleanup must not cut the last words short
+        if main_thread:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        try:
+            if node is not None:
+                if on_exit is not None and rclpy.ok():
+                    on_exit(node)
+                node.destroy_node()
+        finally:
+            rclpy.try_shutdown()
+    if code:
+        sys.exit(code)

@@ -27,3 +27,25 @@ def ros():
     yield executor
     executor.shutdown()
     rclpy.shutdown()
+
+
+# Files whose tests run the twin end to end, render through EGL or run HOG on rendered
+# frames: `pytest -m "not slow"` leaves them out (the quick loop), CI runs everything.
+SLOW_FILES = {
+    "test_system_twin.py",
+    "test_twin_hog.py",
+    "test_perception_twin.py",
+    "test_nav_twin.py",
+    "test_twin_snapshot.py",
+    "test_twin_determinism.py",
+    "test_twin_bridge.py",
+}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test that uses the ``ros`` fixture ``ros``, and those above ``slow``."""
+    for item in items:
+        if "ros" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.ros)
+        if item.path.name in SLOW_FILES:
+            item.add_marker(pytest.mark.slow)

@@ -62,9 +62,11 @@ def test_hardware_mode_needs_calibration_and_a_valid_stream(tmp_path):
         parse_deployment(base(mode="hardware", hardware=hw), None)
     assert err.value.key == "perception.calibration"
     ok = base(mode="hardware", hardware=hw, perception={"calibration": "cal.yaml"})
+    ok["ros"] = {"domain_id": 42}
     assert parse_deployment(ok, None).hardware["camera_stream"]["url"] == "rtsp://cam/stream"
     bad = base(mode="hardware", hardware={"camera_stream": {"url": "x", "rate_hz": -1}})
     bad["perception"] = {"calibration": "cal.yaml"}
+    bad["ros"] = {"domain_id": 42}
     with pytest.raises(ConfigError):
         parse_deployment(bad, None)
 
@@ -218,7 +220,7 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
     assert p["velocity_gate"]["armed"] is False
     assert p["navigation"]["pose_source"] == "amcl"
     assert not any(v.get("lockstep") for v in p.values())
-    assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in system.env
+    assert "192.168.1.10" in Path(system.env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()
     stack_cfg = yaml.safe_load((tmp_path / "run" / "stack.yaml").read_text())
     assert stack_cfg["speech"]["restricted_cells"] == [1, 12]  # the task's, for the warning
     params = yaml.safe_load((tmp_path / "run" / "params.yaml").read_text())
@@ -238,7 +240,10 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path):
     p = system.params
     assert p["twin_bridge"]["lockstep"] is True
     assert set(p["twin_bridge"]["participants"]) == {s.name for s in system.specs} - {"twin_bridge"}
-    assert system.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert (
+        "<address>127.0.0.1</address></interfaceWhiteList>"
+        in Path(system.env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()
+    )
     twin = yaml.safe_load((tmp_path / "run" / "twin.yaml").read_text())["twin"]
     assert twin["robot"]["start_cell"] == scenario.robot_cell
     assert len(twin["person"]["waypoints"]) == len(scenario.walk) + 1

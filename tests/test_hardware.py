@@ -17,7 +17,7 @@ from stack.hardware.camera_stream import (
     load_calibration,
     redact_url,
 )
-from stack.hardware.velocity_gate import GateConfig, VelocityGate
+from stack.hardware.velocity_gate import MAX_DT_S, PLATFORM, GateConfig, VelocityGate
 
 # -- the velocity gate -----------------------------------------------------------------
 
@@ -28,40 +28,54 @@ def armed_gate(**kw) -> VelocityGate:
     return gate
 
 
+def settle(gate: VelocityGate, cmd, t: float, duration_s: float = 3.0):
+    """Send ``cmd`` every 50 ms for ``duration_s`` (past any acceleration ramp); the
+    last output and the time after."""
+    out = None
+    for _ in range(round(duration_s / 0.05)):
+        t += 0.05
+        out = gate.command(*cmd, t)
+    return out, t
+
+
 def test_gate_outputs_zeros_until_armed_and_after_disarming():
     gate = VelocityGate()
     assert not gate.armed and gate.state.reason == "not armed"
     assert gate.command(0.1, 0.0, 0.1, 0.0) == (0.0, 0.0, 0.0)
     assert gate.tick(0.1) == (0.0, 0.0, 0.0) and gate.state.reason == "not armed"
     gate.arm(True, 1.0)
-    assert gate.command(0.1, -0.05, 0.2, 1.0) == (0.1, -0.05, 0.2)
+    out, t = settle(gate, (0.1, -0.05, 0.2), 1.0)
+    assert out == pytest.approx((0.1, -0.05, 0.2))
     assert gate.state.reason == "ok" and gate.state.armed
-    assert gate.tick(1.2) == (0.1, -0.05, 0.2)
-    assert gate.arm(False, 1.3) == (0.0, 0.0, 0.0)
-    assert gate.tick(1.3) == (0.0, 0.0, 0.0) and gate.state.reason == "not armed"
-    assert gate.command(0.1, 0.0, 0.0, 1.4) == (0.0, 0.0, 0.0)
+    assert gate.tick(t + 0.2) == pytest.approx((0.1, -0.05, 0.2))
+    assert gate.arm(False, t + 0.3) == (0.0, 0.0, 0.0)
+    assert gate.tick(t + 0.3) == (0.0, 0.0, 0.0) and gate.state.reason == "not armed"
+    assert gate.command(0.1, 0.0, 0.0, t + 0.4) == (0.0, 0.0, 0.0)
 
 
 def test_gate_caps_the_planar_speed_keeping_its_direction_and_the_yaw_rate():
     gate = armed_gate(max_linear_mps=0.3, max_angular_radps=0.6)
-    vx, vy, wz = gate.command(0.6, -0.8, -2.0, 0.0)
+    (vx, vy, wz), t = settle(gate, (0.6, -0.8, -2.0), 0.0)
     assert gate.state.reason == "capped"
     assert math.hypot(vx, vy) == pytest.approx(0.3)
     assert (vx, vy) == pytest.approx((0.18, -0.24))  # both scaled by the same factor
     assert wz == pytest.approx(-0.6)
-    assert gate.command(0.0, 0.0, 5.0, 0.1) == pytest.approx((0.0, 0.0, 0.6))
-    assert gate.command(0.0, 0.5, 0.0, 0.2) == pytest.approx((0.0, 0.3, 0.0))
+    out, t = settle(gate, (0.0, 0.0, 5.0), t)
+    assert out == pytest.approx((0.0, 0.0, 0.6))
+    out, t = settle(gate, (0.0, 0.5, 0.0), t)
+    assert out == pytest.approx((0.0, 0.3, 0.0))
     # within the caps: as given (the planar norm, not each axis, is capped)
-    assert gate.command(0.2, 0.2, 0.5, 0.3) == (0.2, 0.2, 0.5)
+    out, t = settle(gate, (0.2, 0.2, 0.5), t)
+    assert out == pytest.approx((0.2, 0.2, 0.5))
     assert gate.state.reason == "ok"
 
 
 def test_gate_zeros_a_stale_command_and_arming_forgets_the_last_one():
     gate = armed_gate(cmd_timeout_s=0.5)
     assert gate.tick(0.0) == (0.0, 0.0, 0.0) and gate.state.reason == "stale"  # none yet
-    gate.command(0.2, 0.0, 0.0, 10.0)
-    assert gate.tick(10.5) == (0.2, 0.0, 0.0)
-    assert gate.tick(10.51) == (0.0, 0.0, 0.0) and gate.state.reason == "stale"
+    out, t = settle(gate, (0.2, 0.0, 0.0), 8.0)
+    assert gate.tick(t + 0.5) == pytest.approx((0.2, 0.0, 0.0))
+    assert gate.tick(t + 0.51) == (0.0, 0.0, 0.0) and gate.state.reason == "stale"
     gate.command(0.2, 0.0, 0.0, 11.0)
     gate.arm(False, 11.1)
     gate.arm(True, 11.2)
@@ -72,20 +86,63 @@ def test_gate_zeros_a_stale_command_and_arming_forgets_the_last_one():
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_gate_zeros_a_non_finite_command_and_cancels_the_previous_one(bad):
     gate = armed_gate()
-    gate.command(0.2, 0.1, 0.1, 0.0)
-    assert gate.command(0.1, bad, 0.0, 0.1) == (0.0, 0.0, 0.0)
+    out, t = settle(gate, (0.2, 0.1, 0.1), 0.0)
+    assert out == pytest.approx((0.2, 0.1, 0.1))
+    assert gate.command(0.1, bad, 0.0, t + 0.1) == (0.0, 0.0, 0.0)
     assert gate.state.reason == "non-finite command"
-    assert gate.tick(0.2) == (0.0, 0.0, 0.0)
-    assert gate.command(0.1, 0.0, 0.0, 0.3) == (0.1, 0.0, 0.0)  # a good one works again
+    assert gate.tick(t + 0.2) == (0.0, 0.0, 0.0)
+    out, t = settle(gate, (0.1, 0.0, 0.0), t + 0.2)  # a good one works again
+    assert out == pytest.approx((0.1, 0.0, 0.0))
+
+
+def test_gate_limits_acceleration_but_never_delays_a_stop():
+    gate = armed_gate(max_linear_accel_mps2=0.5, max_angular_accel_radps2=1.0)
+    # 50 ms after arming: at most 0.025 m/s and 0.05 rad/s
+    assert gate.command(0.3, 0.0, 0.6, 0.05) == pytest.approx((0.025, 0.0, 0.05))
+    assert gate.state.reason == "capped"
+    # the ramp: each 50 ms adds 0.025 m/s; a long gap grants no more than MAX_DT_S
+    assert gate.command(0.3, 0.0, 0.6, 0.10) == pytest.approx((0.05, 0.0, 0.1))
+    assert gate.command(0.3, 0.0, 0.6, 5.0)[0] == pytest.approx(0.05 + 0.5 * MAX_DT_S)
+    out, t = settle(gate, (0.3, 0.0, 0.6), 5.0)
+    assert out == pytest.approx((0.3, 0.0, 0.6))
+    # slowing down and stopping pass at once
+    assert gate.command(0.1, 0.0, 0.2, t + 0.01) == pytest.approx((0.1, 0.0, 0.2))
+    assert gate.command(0.0, 0.0, 0.0, t + 0.02) == (0.0, 0.0, 0.0)
+    # reversing is a change of 0.6 m/s: slewed, first through zero
+    settle(gate, (0.3, 0.0, 0.0), t + 0.02)
+    vx, _, _ = gate.command(-0.3, 0.0, 0.0, t + 10.0)
+    assert vx == pytest.approx(0.3 - 0.5 * MAX_DT_S)
+    # a stale command drops the speed to zero, and the ramp starts again from zero
+    assert gate.tick(t + 20.0) == (0.0, 0.0, 0.0)
+    assert gate.command(0.3, 0.0, 0.0, t + 20.05)[0] == pytest.approx(0.025)
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("max_linear_mps", 50.0),
+        ("max_linear_mps", PLATFORM.max_linear_mps + 0.01),
+        ("max_angular_radps", 10.0),
+        ("cmd_timeout_s", 30.0),
+        ("max_linear_accel_mps2", 100.0),
+        ("max_angular_accel_radps2", 0.0),
+        ("max_linear_accel_mps2", math.inf),
+    ],
+)
+def test_gate_caps_beyond_the_platform_limits_are_refused(key, value):
+    with pytest.raises(ConfigError) as err:
+        GateConfig.from_dict({key: value})
+    assert err.value.key == f"velocity_gate.{key}"
+    GateConfig.from_dict({"max_linear_mps": PLATFORM.max_linear_mps})  # the limit itself is fine
 
 
 def test_gate_config_from_dict_and_require_arming_false():
-    cfg = GateConfig.from_dict({"max_linear_mps": 1, "require_arming": False})
-    assert cfg.max_linear_mps == 1.0 and isinstance(cfg.max_linear_mps, float)
+    cfg = GateConfig.from_dict({"max_linear_mps": 0.5, "require_arming": False})
+    assert cfg.max_linear_mps == 0.5 and isinstance(cfg.max_linear_mps, float)
     gate = VelocityGate(cfg)
-    assert gate.armed and gate.command(0.5, 0.0, 0.0, 0.0) == (0.5, 0.0, 0.0)
-    gate.arm(False, 0.1)  # an explicit disarm holds even without require_arming
-    assert gate.command(0.5, 0.0, 0.0, 0.2) == (0.0, 0.0, 0.0)
+    assert gate.armed and settle(gate, (0.5, 0.0, 0.0), 0.0)[0] == pytest.approx((0.5, 0.0, 0.0))
+    gate.arm(False, 5.0)  # an explicit disarm holds even without require_arming
+    assert gate.command(0.5, 0.0, 0.0, 5.1) == (0.0, 0.0, 0.0)
     assert GateConfig.from_dict(None) == GateConfig()
     with pytest.raises(ConfigError, match=r"velocity_gate.max_angular_radps: -1.0 is invalid"):
         GateConfig.from_dict({"max_angular_radps": -1.0})
@@ -368,7 +425,10 @@ class Probe(Node):
 @pytest.mark.ros
 def test_velocity_gate_node_holds_until_armed_then_caps_and_times_out(ros, tmp_path):
     config = tmp_path / "hardware.yaml"
-    config.write_text("velocity_gate:\n  max_linear_mps: 0.3\n  cmd_timeout_s: 0.3\n")
+    config.write_text(
+        "velocity_gate:\n  max_linear_mps: 0.3\n  cmd_timeout_s: 0.3\n"
+        "  max_linear_accel_mps2: 2.0\n  max_angular_accel_radps2: 6.0\n"
+    )
     probe = Probe()
     gate = VelocityGateNode(parameter_overrides=[Parameter("config_file", value=str(config))])
     assert gate.config.cmd_timeout_s == 0.3
@@ -389,10 +449,14 @@ def test_velocity_gate_node_holds_until_armed_then_caps_and_times_out(ros, tmp_p
         assert spin_until(ros, lambda: gate.gate.armed, 3.0), "/arm true did not arm"
         assert gate.get_parameter("armed").value is True
         n = len(probe.out)
-        probe.send(0.6, 0.8, 2.0)
-        assert spin_until(ros, lambda: any(o != (0.0,) * 3 for o in probe.out[n:]), 3.0)
+        at_cap = lambda: probe.out[-1] == pytest.approx((0.18, 0.24, 0.6))  # noqa: E731
+        for _ in range(40):  # at 20 Hz: past the acceleration ramp (0.1 m/s per step)
+            probe.send(0.6, 0.8, 2.0)
+            if spin_until(ros, at_cap, 0.05):
+                break
         moving = [o for o in probe.out[n:] if o != (0.0,) * 3]
-        assert moving[0] == pytest.approx((0.18, 0.24, 0.6))
+        assert moving and at_cap()
+        assert all(math.hypot(o[0], o[1]) <= 0.3 + 1e-9 for o in moving)
         # commands stop: a zero within the timeout plus a tick
         n = len(probe.out)
         assert spin_until(ros, lambda: len(probe.out) > n, 1.0)
@@ -405,8 +469,11 @@ def test_velocity_gate_node_holds_until_armed_then_caps_and_times_out(ros, tmp_p
             "max_angular_radps": 0.6,
         }
         # disarm by parameter: a zero at once, and the gate holds
-        probe.send(0.1, 0.0, 0.0)
-        assert spin_until(ros, lambda: probe.out[-1] == (0.1, 0.0, 0.0), 2.0)
+        for _ in range(20):
+            probe.send(0.1, 0.0, 0.0)
+            if spin_until(ros, lambda: probe.out[-1] == pytest.approx((0.1, 0.0, 0.0)), 0.05):
+                break
+        assert probe.out[-1] == pytest.approx((0.1, 0.0, 0.0))
         n = len(probe.out)
         gate.set_parameters([Parameter("armed", value=False)])
         assert probe.out[n:] == [] and not gate.gate.armed

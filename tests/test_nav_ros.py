@@ -96,8 +96,13 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
         result = sim.results[1]
         assert result["result"] == "succeeded", result
         assert (result["from_cell"], result["target_cell"], result["cell"]) == (3, 1, 1)
+        # reported on entering the cell; the robot goes on to settle on its waypoint
+        assert result["message"] == "in the target cell"
+        assert spin_until(ros, lambda: not nav.follower.active, 10.0), "never settled"
         pose = sim.base.pose
         assert math.dist((pose.x_m, pose.y_m), GRID.center(1)) < 0.1
+        assert len(sim.results) == 2  # one result per action
+        spin_until(ros, lambda: False, 0.2)
         n_cmds = len(sim.cmds)
         sim.action_pub.publish(String(data="East"))
         assert spin_until(ros, lambda: len(sim.results) == 3, 3.0)
@@ -124,21 +129,30 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
 
 
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="needs espeak-ng")
-def test_speech_node_warns_in_a_restricted_cell_with_the_person_near(ros, tmp_path):
+def test_speech_node_warns_a_person_in_the_restricted_cell_with_the_robot(ros, tmp_path):
     sim = SimBase(GRID.center(1))
     speech = SpeechNode(parameter_overrides=[Parameter("out_dir", value=str(tmp_path))])
-    result_pub = sim.create_publisher(String, "/nav/result", 10)
+    obs_pub = sim.create_publisher(String, "/observations", 10)
     for node in (sim, speech):
         ros.add_node(node)
+
+    def observe(robot, person):
+        obs_pub.publish(String(data=json.dumps({"robot": robot, "person": person})))
+
     try:
         spin_until(ros, lambda: False, 0.3)  # discovery
-        sim.person_cell_pub.publish(String(data="No person"))
-        sim.person_cell_pub.publish(String(data="3"))
+        # robot in 7 (not restricted) with the person: silence; robot in 1, person in 3
+        # (only near): silence; a malformed message is skipped
+        observe("7", "7")
+        observe("1", "3")
+        obs_pub.publish(String(data="not json"))
         assert spin_until(ros, lambda: speech.person_cell == 3, 3.0)
-        # arriving in cell 7 (not restricted): silence; cell 1 with the person in 3: warn
-        result_pub.publish(String(data=json.dumps({"result": "succeeded", "cell": 7})))
-        result_pub.publish(String(data="not json"))
-        result_pub.publish(String(data=json.dumps({"result": "succeeded", "cell": 1})))
+        spin_until(ros, lambda: False, 0.3)
+        assert sim.speech == []
+        observe("1", "1")  # together in restricted cell 1 ...
+        spin_until(ros, lambda: False, 0.7)
+        assert sim.speech == []
+        observe("1", "1")  # ... for confirm_s (0.5 s): warn
         assert spin_until(ros, lambda: len(sim.speech) >= 1, 10.0), "no speech report"
         done = sim.speech[0]
         assert done["kind"] == "finished" and done["voice"] == "en"

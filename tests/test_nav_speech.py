@@ -4,14 +4,15 @@ import shutil
 
 import pytest
 
-from stack.cells import CellGrid, ConfigError
+from stack.cells import ConfigError
 from stack.nav.config import SpeechConfig
 from stack.nav.speech import (
     EmptyTextError,
     EspeakNotFoundError,
     Speaker,
+    SpeechError,
     UnknownVoiceError,
-    should_warn,
+    WarningGate,
     synthesize,
     wav_duration_s,
 )
@@ -105,12 +106,27 @@ def test_config_defaults_and_validation():
         SpeechConfig.from_dict({"voice": "de"})
 
 
-def test_should_warn_only_in_a_restricted_cell_with_the_person_near():
-    grid = CellGrid()
-    cfg = SpeechConfig(restricted_cells=(1, 12), near_cells=1)
-    assert should_warn(grid, 1, 1, cfg)
-    assert should_warn(grid, 1, 4, cfg)  # diagonal neighbour of 1
-    assert not should_warn(grid, 1, 7, cfg)
-    assert not should_warn(grid, 7, 7, cfg)
-    assert not should_warn(grid, 12, None, cfg)
-    assert not should_warn(grid, 12, 99, cfg)
+def test_warning_only_while_the_person_is_in_the_restricted_cell_with_the_robot():
+    gate = WarningGate((1, 12), grace_s=2.0, repeat_s=8.0, confirm_s=0.5)
+    assert gate.update(0.0, 7, 7, False) is None  # not a restricted cell
+    assert gate.update(0.5, 1, 3, False) is None  # the person only near
+    assert gate.update(1.0, 1, None, False) is None  # nobody
+    assert gate.update(1.1, 1, 1, False) is None  # just seen in the cell: a border flicker?
+    assert gate.update(1.2, 1, 3, False) is None  # it was
+    assert gate.update(1.25, 1, 1, False) is None
+    assert gate.update(1.5, 1, 1, False) is None
+    assert gate.update(1.75, 1, 1, False) == "say"  # in the cell for 0.5 s
+    assert gate.update(2.0, 1, 1, True) is None  # speaking: nothing queued
+    assert gate.update(4.0, 1, 1, False) is None  # said 2.5 s ago: not again yet
+    assert gate.update(9.6, 1, 1, False) == "say"  # still there after repeat_s
+    assert gate.update(10.0, 1, None, True) is None  # left 0.4 s ago: let it finish
+    assert gate.update(11.7, 1, None, True) == "stop"  # stale: cut, never played to nobody
+    assert gate.update(12.0, 1, None, False) is None
+    assert gate.update(13.0, 12, 12, False) is None
+    assert gate.update(13.5, 12, 12, False) == "say"
+
+
+def test_speech_refuses_a_text_longer_than_the_cap(tmp_path):
+    speaker = Speaker(SpeechConfig(max_text_chars=40), tmp_path)
+    with pytest.raises(SpeechError, match="max_text_chars"):
+        speaker.say("x " * 100, 0.0)

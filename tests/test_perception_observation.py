@@ -66,15 +66,57 @@ def test_no_person_and_out_of_map_labels_and_invariants():
         Observation.from_labels(1.0, "3", "somewhere", "Not moving")
 
 
-def test_no_person_from_the_camera_ignores_the_laser():
+def test_no_person_from_a_camera_that_sees_the_cell_ignores_the_laser():
     comb = ObservationCombiner(GRID)
     fast_leg = track(GRID.center(4), 1.5)
-    for status in (PersonStatus.NO_PERSON, PersonStatus.UNKNOWN):
-        cam = CameraPersonState(stamp_s=10.0, status=status)
-        obs = comb.combine(10.0, cam, [fast_leg], Pose2D(*GRID.center(7)))
-        assert obs.person_label == "No person" and obs.velocity_label == "Not moving"
-        assert obs.robot_cell == 7
-    assert comb.combine(10.0, None, [fast_leg]).person_cell is None
+    cam = CameraPersonState(stamp_s=10.0, status=PersonStatus.NO_PERSON)
+    obs = comb.combine(10.0, cam, [fast_leg], Pose2D(*GRID.center(7)))
+    assert obs.person_label == "No person" and obs.velocity_label == "Not moving"
+    assert obs.robot_cell == 7 and obs.hidden == () and obs.source == "none"
+
+
+@pytest.mark.parametrize("camera", ["unknown", "none", "stale"])
+def test_a_camera_that_cannot_see_gives_unseen_never_no_person(camera):
+    comb = ObservationCombiner(GRID)
+    cam = {
+        "unknown": CameraPersonState(stamp_s=10.0, status=PersonStatus.UNKNOWN),
+        "none": None,
+        "stale": CameraPersonState(stamp_s=5.0, status=PersonStatus.NO_PERSON),  # frozen
+    }[camera]
+    obs = comb.combine(10.0, cam, [], Pose2D(*GRID.center(7)))
+    assert obs.person_label == "Unseen" and obs.person_cell is None
+    assert dict(obs.hidden) == {c: 1.0 for c in GRID.cells}
+    back = Observation.from_dict(json.loads(obs.to_json()))
+    assert back.person_label == "Unseen" and back.hidden == obs.hidden
+
+
+def test_laser_alone_gives_the_cell_and_velocity_when_the_camera_cannot_see():
+    comb = ObservationCombiner(GRID)
+    fast_leg = TrackEstimate(1, GRID.center(4), (-1.3, 0.1), 1.3, 9, 10.0, True)
+    obs = comb.combine(10.0, None, [fast_leg], Pose2D(*GRID.center(7)))
+    assert obs.person_cell == 4 and obs.velocity_label == "West higher"
+    assert obs.source == "laser"
+    still = TrackEstimate(2, GRID.center(3), (0.05, 0.0), 0.05, 9, 10.0, True)
+    obs = comb.combine(10.0, None, [still], Pose2D(*GRID.center(7)))
+    assert obs.person_cell == 3 and obs.velocity_label == "Not moving"
+    # an unconfirmed or NaN track is not a person
+    bad = TrackEstimate(3, (float("nan"), 1.0), (0.0, 0.0), float("nan"), 9, 10.0, True)
+    young = TrackEstimate(4, GRID.center(3), (0.5, 0.0), 0.5, 1, 10.0, False)
+    assert comb.combine(10.0, None, [bad, young]).person_label == "Unseen"
+
+
+def test_camera_foot_point_the_laser_contradicts_is_fused_not_dropped():
+    comb = ObservationCombiner(GRID)
+    # the case: the camera puts a half-hidden person at x = 6.1 (past the grid's
+    # east edge), the laser at 5.43 in cell 1
+    cam = person((6.1, 0.7), Direction.NOT_MOVING)
+    obs = comb.combine(10.0, cam, [track((5.43, 0.7), 0.0)], Pose2D(*GRID.center(5)))
+    assert obs.person_cell == 1 and obs.source == "fused"
+    assert 5.43 < obs.person_position_m[0] < 5.6
+    # just past the edge without the laser: the nearest cell (foot-point error)
+    assert comb.combine(10.0, person((6.2, 0.7), Direction.NOT_MOVING), []).person_cell == 1
+    # well outside: not in the environment
+    assert comb.combine(10.0, person((6.8, 0.7), Direction.NOT_MOVING), []).person_cell is None
 
 
 def test_speed_comes_from_the_track_at_the_camera_person():
@@ -112,7 +154,7 @@ def test_not_moving_camera_wins_over_laser_speed_and_outside_is_no_person():
     outside = comb.combine(10.0, person((-1.0, 1.0), Direction.EAST), [track((-1.0, 1.0), 1.0)])
     assert outside.person_label == "No person" and outside.velocity_label == "Not moving"
     old = comb.combine(20.0, person(xy, Direction.EAST, stamp_s=10.0), [])
-    assert old.person_label == "No person"
+    assert old.person_label == "Unseen"
 
 
 def test_combiner_config_validation():

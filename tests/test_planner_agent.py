@@ -113,3 +113,81 @@ def test_state_file_round_trip_and_refusals(solved, tmp_path):
     with pytest.raises(StateFileError, match="unreadable"):
         other.restore(path)
     np.testing.assert_array_equal(other.belief, agent.belief)  # untouched by failures
+
+
+def _after(solved, observed_, robot=3, person=1):
+    model, pomdp, policy = solved
+    agent = PlannerAgent(
+        model, pomdp, policy, model.initial_belief(robot, [(person, "Not moving")])
+    )
+    agent.action = 4  # Do nothing
+    agent.observe(observed_)
+    return agent
+
+
+def test_no_person_where_the_camera_cannot_see_keeps_the_person(solved):
+    seen_empty = _after(solved, Observed("3", "No person", "Not moving"))
+    hidden = _after(solved, Observed("3", "No person", "Not moving", ((1, 1.0),)))
+    # the robot hid cell 1: the person is still most likely there, and "No person"
+    # barely moved from what the transition alone gives
+    p = hidden.marginals()["person"]
+    assert p["1"] > 0.5 and p["1"] > 2 * p["No person"]
+    # the camera could see cell 1 and saw nobody: the person is far likelier gone
+    assert seen_empty.marginals()["person"]["No person"] > 3 * p["No person"]
+    # a half-hidden cell keeps less than a hidden one, more than a visible one
+    half = _after(solved, Observed("3", "No person", "Not moving", ((1, 0.5),)))
+    assert seen_empty.marginals()["person"]["1"] < half.marginals()["person"]["1"] < p["1"]
+
+
+def test_unseen_follows_the_transition_alone(solved):
+    model, pomdp, _ = solved
+    agent = _after(solved, Observed("3", "Unseen", "Not moving"))
+    b0 = model.initial_belief(3, [(1, "Not moving")])
+    pred = (pomdp.TT(4) @ b0).reshape(model.state_shape)
+    pred = pred[model.robot_index(3)]  # the robot's cell is still observed exactly
+    want = pred.sum(axis=1) / pred.sum()
+    got = agent.belief.reshape(model.state_shape)[model.robot_index(3)].sum(axis=1)
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    assert agent.record(None)["belief"]["robot"]["3"] == pytest.approx(1.0)
+
+
+def test_malformed_hidden_and_impossible_out_of_map_are_refused(solved):
+    with pytest.raises(ObservationError):
+        Observed.from_dict({"robot": "3", "person": "No person", "velocity": "Not moving",
+                            "hidden": {"1": 7.0}})  # fmt: skip
+    with pytest.raises(ObservationError):
+        Observed.from_dict({"robot": 3, "person": "No person", "velocity": "Not moving"})
+    model, pomdp, policy = solved
+    agent = PlannerAgent(model, pomdp, policy, model.initial_belief(7, [(None, "Not moving")]))
+    agent.action = 4
+    before = agent.belief.copy()
+    with pytest.raises(ObservationError, match="Out of the map"):
+        agent.observe(Observed("Out of the map", "No person", "Not moving"))
+    np.testing.assert_array_equal(agent.belief, before)
+
+
+@pytest.mark.parametrize(
+    "mutate",
+    [
+        lambda d: d.update(action=99),
+        lambda d: d.update(action="East"),
+        lambda d: d.update(step=-1),
+        lambda d: d.update(values=["x"]),
+        lambda d: d["belief"].__setitem__(0, float("nan")),
+        lambda d: d.update(belief=[1.0]),
+        lambda d: d.update(phase="dancing"),
+    ],
+)
+def test_a_corrupt_state_file_is_refused_not_crashed_on(solved, tmp_path, mutate):
+    agent, _ = table_agent(solved)
+    path = tmp_path / "state.json"
+    agent.save(path)
+    data = json.loads(path.read_text())
+    mutate(data)
+    path.write_text(json.dumps(data))
+    fresh, _ = table_agent(solved)
+    with pytest.raises(StateFileError):
+        fresh.restore(path)
+    path.write_text("[1, 2]")
+    with pytest.raises(StateFileError):
+        fresh.restore(path)

@@ -1,10 +1,9 @@
-"""The run report of a scenario (vigil.run_report) on small synthetic run folders."""
+"""The run report of a scenario (vigil.report) on small synthetic run folders."""
 
 from __future__ import annotations
 
 import csv
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -14,13 +13,8 @@ from stack.cells import CellGrid
 from stack.planning.model import ACTIONS, VELOCITIES, build_model
 from stack.planning.replay import TABLES
 from stack.planning.task import load_task
-from vigil.run_report import (
-    RunRecordError,
-    VideoComposer,
-    read_jsonl,
-    true_velocity_label,
-    write_report,
-)
+from vigil.report import RunRecordError, read_jsonl, true_velocity_label, write_report
+from vigil.report.video import VideoComposer, video_codec
 
 ROOT = Path(__file__).resolve().parents[1]
 TASK = ROOT / "config" / "task-r1.yaml"
@@ -244,19 +238,21 @@ def test_visit_delay_rest_and_warnings(report):
     assert s["ground_truth"] is True
 
 
-def test_robot_already_there_gives_negative_delay_and_late_robot_none(tmp_path):
+def test_robot_already_there_gives_zero_delay_and_late_robot_none(tmp_path):
     trace = make_trace()
     for rec in trace:  # the robot waits in cell 1 from the start, never returns to 7
         rec["robot"] = [5.5, 0.75, 0.0]
         rec["robot_cell"] = 1
     s = write_report(write_run(tmp_path / "early", trace=trace), TASK, plots=False)
-    assert s["visits"][0]["robot_arrival_t"] == 0.0 and s["visits"][0]["delay_s"] == -7.0
+    assert s["visits"][0]["robot_arrival_t"] == 7.0 and s["visits"][0]["delay_s"] == 0.0
+    assert s["visits"][0]["guarded"] is True
     assert s["returned_to_rest"] is False
     trace = make_trace()
     for rec in trace:  # the robot never moves
         rec["robot"], rec["robot_cell"] = [2.5, 0.75, 0.0], 7
     s = write_report(write_run(tmp_path / "never", trace=trace), TASK, plots=False)
     assert s["visits"][0]["robot_arrival_t"] is None and s["visits"][0]["delay_s"] is None
+    assert s["visits"][0]["guarded"] is False and s["robot_reached_every_visit"] is False
     assert s["warning_in_restricted"] is False
 
 
@@ -337,8 +333,8 @@ def test_deterministic_and_thesis_table(tmp_path):
     assert s1["thesis"] == {"table": "5.1", "thesis_steps": 12, "same_action": same, "compared": 12}
 
 
-def test_video_composer_frame_count_and_speed(tmp_path):
-    import cv2
+def test_video_composer_writes_h264(tmp_path):
+    import imageio_ffmpeg
 
     path = tmp_path / "video" / "run.mp4"
     trace = make_trace()
@@ -346,10 +342,8 @@ def test_video_composer_frame_count_and_speed(tmp_path):
     frame = rng.integers(0, 255, (400, 640, 3), dtype=np.uint8)
     n = 20
     with VideoComposer(path, GRID, (1,), room_bounds_m=(-0.5, -0.5, 6.5, 3.5)) as video:
-        took = []
         for k in range(n):
             rec = trace[k]
-            t0 = time.perf_counter()
             video.add(
                 rec["t"],
                 None if k == 3 else frame,
@@ -359,20 +353,12 @@ def test_video_composer_frame_count_and_speed(tmp_path):
                 rec["person"],
                 belief_person(str(rec["person_cell"] or "No person")),
             )
-            took.append(time.perf_counter() - t0)
         assert video.frames == n
         small = video.render(0.0, frame[:100, :300], None, [], None, None)
         assert small.shape == (video.height, video.width, 3)
     video.close()  # twice is fine
-    cap = cv2.VideoCapture(str(path))
-    assert cap.isOpened()
-    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == n
-    assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 960
-    assert int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == 360
-    read = 0
-    while cap.read()[0]:
-        read += 1
-    cap.release()
-    assert read == n
-    # < ~10 ms a frame on a quiet machine; generous here for shared CI cores
-    assert float(np.median(took)) < 0.05
+    assert video_codec(path) == "h264"
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    assert tuple(meta["size"]) == (960, 360)
+    assert sum(1 for _ in reader) == n

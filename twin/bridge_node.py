@@ -9,7 +9,9 @@ when commands are older than ``cmd_timeout_s`` of simulated time.
 Time, three modes:
     lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
         coordinator of :mod:`stack.lockstep`. Each sensor tick it publishes ``/clock``,
-        waits until every participant has processed it, publishes the sensors, waits
+        waits until every participant has processed it, publishes ``/lockstep/tick``
+        (the participants' timers run), waits for that and everything it caused,
+        publishes the sensors, waits
         until every participant has processed them and everything that followed
         (detections, observations, the planner's decision, the next ``/cmd_vel``),
         and only then steps the physics. Results do not depend on the machine's speed.
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 
 import numpy as np
@@ -40,7 +43,7 @@ from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
 
 from stack.cells import ConfigError
-from stack.lockstep import ACK_TOPIC, Ack, Ledger
+from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
@@ -48,11 +51,17 @@ from twin.sensors import CameraInfo
 from twin.sensors import LaserScan as Scan
 from twin.twin import GroundTruth, Odometry, Twin, VelocityCommand
 
+EXIT_STALLED = 3  # the bridge's exit code when the lock-step stalled for good
+
 
 def stamp_of(t_s: float) -> Time:
-    """builtin_interfaces/Time of a simulation time [s]."""
-    sec = int(math.floor(t_s))
-    return Time(sec=sec, nanosec=int(round((t_s - sec) * 1e9)) % 1_000_000_000)
+    """builtin_interfaces/Time of a simulation time [s], rounded to the nanosecond.
+
+    Rounded as a whole number of nanoseconds first, so that 2.9999999999 s is
+    3.000000000 s (not 2 s with the nanoseconds wrapped to 0).
+    """
+    sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def _quat_z(yaw: float) -> tuple[float, float, float, float]:
@@ -169,7 +178,10 @@ class TwinBridge(Node):
     (0: every control period), ``lockstep``, ``participants`` (node names that must
     be up before the first lock-step tick), ``stall_warn_s`` and ``stall_timeout_s``
     (wall-clock seconds: when to log a lock-step wait, and when to stop waiting for a
-    participant that lost messages or died), ``sensor_outages`` (JSON list of
+    participant that lost messages or died), ``stall_abort_s`` (default three times
+    ``stall_timeout_s``: no tick for this long, forgiving included, ends the bridge with
+    exit code :data:`EXIT_STALLED` and an error naming what it waited for),
+    ``sensor_outages`` (JSON list of
     [sensor, t0_s, t1_s] with sensor "camera" or "lidar": nothing is published from it
     in that simulated interval, a fault for tests and scenarios).
     """
@@ -187,6 +199,8 @@ class TwinBridge(Node):
         participants = list(p("participants", [""]).value)
         self.stall_warn_s = float(p("stall_warn_s", 5.0).value)
         self.stall_timeout_s = float(p("stall_timeout_s", 30.0).value)
+        # no tick for this long (forgiving included): the run ends with EXIT_STALLED
+        self.stall_abort_s = float(p("stall_abort_s", 3 * self.stall_timeout_s).value)
         self.outages = parse_outages(p("sensor_outages", "[]").value)
         if twin is None:
             path = self.get_parameter("config").value
@@ -205,11 +219,14 @@ class TwinBridge(Node):
             "camera": 1.0 / cfg.camera.rate_hz,
         }
         self._next = dict.fromkeys(self._periods, 0.0)
-        self.ledger = Ledger(tuple(n for n in participants if n))
-        self._phase = "start"  # lock-step: start -> clock -> sensors -> step -> clock ...
+        self.run_id = os.environ.get(RUN_ID_ENV, "")
+        self.ledger = Ledger(tuple(n for n in participants if n), run_id=self.run_id)
+        self._foreign_seen = 0
+        self._phase = "start"  # lock-step: start -> clock -> tick -> sensors -> step -> clock
         self._checked_version = -1  # the ledger's version when last checked
         self._waiting_for = ""  # what that check found pending
         self._wait_since = self._wall_s()
+        self._progress_s = self._wall_s()  # the last tick (or the start) [wall s]
         self._last_warn = self._wall_s()
 
         latched = QoSProfile(
@@ -223,6 +240,7 @@ class TwinBridge(Node):
         self.pub_odom = self.create_publisher(OdometryMsg, "/odom", 10)
         self.pub_map = self.create_publisher(OccupancyGrid, "/map", latched)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
         self.pub_truth = self.create_publisher(String, "/twin/truth", 10)
         self.pub_robot = self.create_publisher(PoseStamped, "/twin/robot_pose", 10)
         self.pub_person = self.create_publisher(PoseStamped, "/twin/person_pose", 10)
@@ -254,16 +272,30 @@ class TwinBridge(Node):
 
     def _on_ack(self, msg: String) -> None:
         try:
-            self.ledger.update(Ack.from_json(msg.data), self._wall_s())
+            ours = self.ledger.update(Ack.from_json(msg.data), self._wall_s())
         except ValueError as err:
             self.get_logger().warning(f"lock-step ack ignored: {err}", throttle_duration_sec=5.0)
+            ours = True
+        if not ours and len(self.ledger.foreign) > self._foreign_seen:
+            self._foreign_seen = len(self.ledger.foreign)
+            self.get_logger().warning(
+                f"lock-step: ignoring another run's participants ({', '.join(self.ledger.foreign)}"
+                f"); this run is {self.run_id or '(no run id)'}"
+            )
         for event in self.ledger.events:
             self.get_logger().warning(f"lock-step: {event}")
         self.ledger.events.clear()
 
     # -- lock-step ----------------------------------------------------------------------
     def _own_matched(self) -> dict[str, int]:
-        pubs = (self.pub_clock, self.pub_odom, self.pub_scan, self.pub_image, self.pub_truth)
+        pubs = (
+            self.pub_clock,
+            self.pub_tick,
+            self.pub_odom,
+            self.pub_scan,
+            self.pub_image,
+            self.pub_truth,
+        )
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
     def _lockstep_poll(self) -> None:
@@ -288,7 +320,10 @@ class TwinBridge(Node):
             self._warn_if_slow(now, self._waiting_for, forgive=True)
             return
         self._wait_since = now
-        if self._phase == "clock":
+        if self._phase == "clock":  # everyone has the new time: now the timers
+            self._publish(self.pub_tick, Clock(clock=stamp_of(self.twin.time_s)))
+            self._phase = "tick"
+        elif self._phase == "tick":
             self._publish_sensors()
             self._phase = "sensors"
         else:  # sensors processed and everything they caused: step to the next tick
@@ -305,8 +340,17 @@ class TwinBridge(Node):
         self._publish(self.pub_clock, Clock(clock=stamp_of(tw.time_s)))
         self._phase = "clock"
         self._wait_since = now
+        self._progress_s = now
 
     def _warn_if_slow(self, now: float, what: str, forgive: bool) -> None:
+        stalled = now - self._progress_s
+        if stalled > self.stall_abort_s:
+            t = self.twin.time_s
+            self.get_logger().error(
+                f"lock-step stalled: no progress for {stalled:.0f} s at t={t:.2f}: {what}; "
+                "ending the run"
+            )
+            raise SystemExit(EXIT_STALLED)
         waited = now - self._wait_since
         if waited > self.stall_warn_s and now - self._last_warn > self.stall_warn_s:
             self._last_warn = now

@@ -12,11 +12,7 @@ file's ``grid`` section, so moving ``grid.origin_m`` moves the whole room with i
 
 from __future__ import annotations
 
-import dataclasses
-import math
-import types
-import typing
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -24,6 +20,7 @@ from typing import Any, ClassVar
 import yaml
 
 from stack.cells import CellGrid, ConfigError
+from stack.config import Config
 
 Rule = tuple[Callable[[Any], bool], str]
 
@@ -45,99 +42,18 @@ NON_NEGATIVE: Rule = (_non_negative, "must be >= 0")
 RGB: Rule = (_unit_rgb, "must be three numbers in [0, 1]")
 
 
-class _FromDict:
-    """Mixin: build a frozen dataclass from a mapping, validating every key and value.
+class _FromDict(Config):
+    """The twin's configurations: :class:`stack.config.Config` (checked whenever built,
+    from YAML or in code) with per-field ``_rules`` and cross-field ``_check``."""
 
-    Subclasses list per-field rules in ``_rules`` (predicate, rule text) and may add
-    cross-field checks in ``_check``.
-    """
-
-    _rules: ClassVar[dict[str, Rule]] = {}
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "") -> Any:
-        """Build from a mapping (a YAML section); missing keys keep their defaults.
-
-        Args:
-            data: the section; None means all defaults.
-            key: the dotted path of this section, used in error messages.
-
-        Returns:
-            The validated, frozen configuration.
-
-        Raises:
-            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
-        """
-        data = {} if data is None else data
-        if not isinstance(data, Mapping):
-            raise ConfigError(key or cls.__name__, data, "must be a mapping")
-        hints = typing.get_type_hints(cls)
-        fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-        kwargs: dict[str, Any] = {}
-        for k, v in data.items():
-            path = f"{key}.{k}" if key else str(k)
-            if k not in fields:
-                raise ConfigError(path, v, f"unknown key (known: {sorted(fields)})")
-            kwargs[k] = _coerce(path, v, hints[k])
-        obj = cls(**kwargs)
-        obj._validate(key)  # type: ignore[attr-defined]
-        return obj
-
-    def _validate(self, key: str) -> None:
-        for name, (check, rule) in self._rules.items():
-            value = getattr(self, name)
-            if value is None:
-                continue
-            if not check(value):
-                raise ConfigError(f"{key}.{name}" if key else name, value, rule)
-        self._check(key)
+    def check(self) -> None:
+        try:
+            self._check("")
+        except ConfigError as err:  # _check names keys under a section: none here
+            raise ConfigError(err.key.lstrip("."), err.value, err.rule) from None
 
     def _check(self, key: str) -> None:
         """Cross-field rules; override in subclasses."""
-
-
-def _coerce(path: str, value: Any, hint: Any) -> Any:
-    """Convert a YAML value to the annotated type or raise ConfigError."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _coerce(path, value, inner[0])
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(path, value, "must be a number")
-        if not math.isfinite(value):
-            raise ConfigError(path, value, "must be finite")
-        return float(value)
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(path, value, "must be an integer")
-        return value
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(path, value, "must be true or false")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(path, value, "must be a string")
-        return value
-    if origin is tuple:
-        if not isinstance(value, Sequence) or isinstance(value, str):
-            raise ConfigError(path, value, "must be a list")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(f"{path}[{i}]", v, args[0]) for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise ConfigError(path, value, f"must have {len(args)} elements")
-        return tuple(
-            _coerce(f"{path}[{i}]", v, a) for i, (v, a) in enumerate(zip(value, args, strict=True))
-        )
-    if hint is CellGrid:
-        return CellGrid.from_mapping(value, path)
-    if isinstance(hint, type) and issubclass(hint, _FromDict):
-        return hint.from_dict(value, path)
-    raise TypeError(f"{path}: no coercion for {hint!r}")  # a bug in this module, not the YAML
 
 
 @dataclass(frozen=True)

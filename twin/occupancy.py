@@ -74,7 +74,8 @@ class OccupancyMap:
         img[self.data == OCCUPIED] = _PGM_OCCUPIED
         img = img[::-1]  # PGM row 0 is the top (north) edge
         pgm = directory / f"{name}.pgm"
-        header = f"P5\n# vigil twin occupancy map\n{img.shape[1]} {img.shape[0]}\n255\n"
+        height, width = int(img.shape[0]), int(img.shape[1])  # type: ignore[misc]
+        header = f"P5\n# vigil twin occupancy map\n{width} {height}\n255\n"
         pgm.write_bytes(header.encode("ascii") + img.tobytes())
         meta = {
             "image": pgm.name,

@@ -18,6 +18,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from stack.geometry import Pose2D
 from twin.config import TwinConfig
 from twin.occupancy import OccupancyMap, occupancy_from_model
 from twin.person import PersonPose, PersonScript, default_waypoints
@@ -53,15 +54,6 @@ class VelocityCommand:
     vx_mps: float = 0.0
     vy_mps: float = 0.0
     wz_radps: float = 0.0
-
-
-@dataclass(frozen=True)
-class Pose2D:
-    """A planar pose in the map frame: x, y [m], yaw [rad] (0 = east, CCW)."""
-
-    x_m: float
-    y_m: float
-    yaw_rad: float
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ vigil evaluate TASK.yaml --policy P      mean discounted return by simulation
 vigil replay --table all                 chapter 5's tables against our planner
 vigil main --out DIR                     the main job: solve, replay, report
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
+vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
 vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
 """
@@ -327,7 +328,7 @@ def cmd_main(args: argparse.Namespace) -> int:
     """Until the twin scenarios land: solve both task models, replay chapter 5, report."""
     from stack.planning.evaluate import evaluate
     from stack.planning.replay import TABLES
-    from vigil.report import plot_replay
+    from vigil.report.figures import plot_replay
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -436,6 +437,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=1800.0, help="wall-clock seconds")
     p.set_defaults(func=cmd_run)
 
+    p = sub.add_parser(
+        "experiments",
+        help="run a folder of scenarios; metric table per scenario and totals, and a figure",
+    )
+    p.add_argument("scenarios", help="folder of scenario files (or one file), e.g. scenarios/guard")
+    p.add_argument("--out", required=True, help="the set's folder, e.g. runs/guard")
+    p.add_argument("--config", default=None, help="deployment file (default config/twin.yaml)")
+    p.add_argument("--seed", type=int, default=None, help="override every scenario's seed")
+    p.add_argument("--only", nargs="+", default=(), help="these file stems only")
+    p.add_argument(
+        "--report-only",
+        action="store_true",
+        help="recompute the reports of the run folders in --out; run nothing",
+    )
+    p.add_argument("--docs", default=None, help="update a marked section of this Markdown file")
+    p.add_argument("--label", default="guard", help="the section's marker label (default: guard)")
+    p.add_argument("--heading", default="", help="heading for a new section (default: none)")
+    p.set_defaults(func=cmd_experiments)
+
     p = sub.add_parser("launch", help="start the whole system from a deployment file")
     p.add_argument("config", help="config/twin.yaml or config/hardware.yaml")
     p.add_argument("--out", default="runs/launch", help="folder for logs and node files")
@@ -447,6 +467,16 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--points", help="YAML of clicked/measured {pixel: [u, v], map: [x, y]}")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("security", help="SROS2 for hardware mode (docs/SAFETY.md)")
+    sec = p.add_subparsers(dest="security_command", required=True)
+    q = sec.add_parser("keystore", help="write a keystore: CA, enclaves, governance, permissions")
+    q.add_argument("path", help="a new or empty folder")
+    q.add_argument("--domain", type=int, required=True, help="the deployment's ros.domain_id")
+    q.add_argument("--base-topic", default="/cmd_vel", help="the base driver's velocity topic")
+    q.set_defaults(func=cmd_security_keystore)
+    q = sec.add_parser("check", help="can the installed DDS enforce a keystore?")
+    q.set_defaults(func=cmd_security_check)
 
     p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
     p.add_argument("--out", default="runs/main")
@@ -472,6 +502,42 @@ def cmd_run(args: argparse.Namespace) -> int:
     keys = ("steps", "total_discounted_reward", "left_map", "returned_to_rest")
     print(json.dumps({k: summary.get(k) for k in keys}, sort_keys=True))
     return 0
+
+
+def cmd_experiments(args: argparse.Namespace) -> int:
+    from vigil.experiments import run_set, write_docs
+
+    record = run_set(
+        args.scenarios,
+        args.out,
+        config=args.config,
+        seed=args.seed,
+        report_only=args.report_only,
+        only=args.only,
+    )
+    if args.docs:
+        doc = write_docs(args.docs, args.out, args.label, args.heading)
+        print(f"updated the section {args.label!r} of {doc}")
+    print(json.dumps(record["totals"], sort_keys=True))
+    return 1 if any(e["error"] for e in record["scenarios"]) else 0
+
+
+def cmd_security_keystore(args: argparse.Namespace) -> int:
+    from vigil.security import KeystoreError, main_keystore
+
+    try:
+        return main_keystore(args.path, args.domain, args.base_topic)
+    except KeystoreError as exc:
+        print(f"vigil security: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def cmd_security_check(args: argparse.Namespace) -> int:
+    from vigil.security import security_support
+
+    ok, why = security_support()
+    print(("enforceable: " if ok else "NOT enforceable: ") + why)
+    return 0 if ok else 1
 
 
 def cmd_launch(args: argparse.Namespace) -> int:
@@ -503,6 +569,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from stack.perception.errors import CalibrationError
     from stack.planning.clock import process_start
 
     start = process_start() if argv is None else None  # in-process calls: from here
@@ -515,9 +582,9 @@ def main(argv: list[str] | None = None) -> int:
     args.standalone = argv is None  # a process of its own, not a call from Python
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        # config, model and file errors: one line, no traceback
-        print(f"vigil {args.command}: error: {exc}", file=sys.stderr)
+    except (ValueError, OSError, CalibrationError) as exc:  # config, model and file errors
+        text = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"vigil {args.command}: error: {text}", file=sys.stderr)
         return 2
 
 

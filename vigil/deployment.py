@@ -33,17 +33,42 @@ from stack.cells import ConfigError
 from stack.config import from_mapping, read_yaml
 
 MODES = ("twin", "hardware")
+NAV_CMD_VEL = "/nav/cmd_vel"  # hardware mode: navigation -> gate; only the gate drives the base
 TWIN_ONLY = ("twin", "lockstep")
 
 
 @dataclass(frozen=True)
 class RosSection:
-    domain_id: int = -1  # -1: keep ROS_DOMAIN_ID of the environment
+    """Who can hear the system.
+
+    Attributes:
+        domain_id: -1: a private domain per run in the twin (:mod:`vigil.ros_domain`);
+            hardware mode needs an explicit id other than 0 (the default domain every
+            other ROS 2 system on the network shares).
+        localhost_only: DDS on the loopback interface only (Fast DDS profile
+            :data:`vigil.dds.PROFILE`): no other host can reach the nodes.
+        interfaces: with ``localhost_only: false``, the only addresses DDS may use
+            (e.g. the robot's wired address); empty: refused in hardware mode.
+        keystore: an SROS2 keystore (``vigil security keystore``); hardware mode runs
+            with security enforced when set.
+    """
+
+    domain_id: int = -1
     localhost_only: bool = True
+    interfaces: tuple[str, ...] = ()
+    keystore: str = ""
 
     def __post_init__(self) -> None:
         if not -1 <= self.domain_id <= 232:
             raise ConfigError("domain_id", self.domain_id, "must be in [0, 232] (or -1)")
+        for ip in self.interfaces:
+            if not _is_ipv4(ip):
+                raise ConfigError("interfaces", ip, "must be IPv4 addresses like 10.0.0.2")
+
+
+def _is_ipv4(text: str) -> bool:
+    parts = text.split(".")
+    return len(parts) == 4 and all(p.isdigit() and 0 <= int(p) <= 255 for p in parts)
 
 
 @dataclass(frozen=True)
@@ -219,6 +244,29 @@ def _check_hardware(dep: Deployment) -> None:
         raise ConfigError(
             "perception.calibration", "", "hardware mode needs the camera's calibration file"
         )
+    ros = dep.ros
+    if ros.domain_id <= 0:
+        raise ConfigError(
+            "ros.domain_id",
+            ros.domain_id,
+            "hardware mode needs its own domain (1..232), not the shared default",
+        )
+    if not ros.localhost_only and not ros.interfaces:
+        raise ConfigError(
+            "ros.interfaces", [], "hardware mode off localhost must list the addresses DDS may use"
+        )
+    if dep.topics.cmd_vel in (NAV_CMD_VEL, "/arm", "/safety/state"):
+        raise ConfigError(
+            "topics.cmd_vel",
+            dep.topics.cmd_vel,
+            f"is the gate's own input or state: the base's topic must differ from {NAV_CMD_VEL}",
+        )
+    if ros.keystore:
+        if not Path(dep.resolve(ros.keystore)).is_dir():
+            raise ConfigError("ros.keystore", ros.keystore, "no such keystore folder")
+        from vigil.security import require_support
+
+        require_support()  # a keystore DDS would not enforce is refused, not ignored
 
 
 def load_deployment(path: str | Path) -> Deployment:

@@ -16,9 +16,12 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from stack.lockstep import RUN_ID_ENV
 
 
 def _die_with_parent() -> None:
@@ -67,6 +70,7 @@ class _Running:
     proc: subprocess.Popen
     log: object
     restarts: int = 0
+    killed: bool = False  # by :meth:`Launcher.kill` (an injected fault), not a failure
 
 
 class Launcher:
@@ -96,6 +100,7 @@ class Launcher:
         self.running: dict[str, _Running] = {}
         self.stopped_because: str | None = None
         self.exit_codes: dict[str, int | None] = {}
+        self.failures: list[str] = []  # "<name> exited (code N): <last log line>"
 
     def _spawn(self, spec: ProcessSpec, restarts: int = 0) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -103,11 +108,14 @@ class Launcher:
         if restarts:
             log.write(f"\n--- restart {restarts} ---\n")
             log.flush()
+        env = {**self.env, **spec.env}
+        if env.get("ROS_SECURITY_KEYSTORE"):  # SROS2: each node in its own enclave
+            env.setdefault("ROS_SECURITY_ENCLAVE_OVERRIDE", f"/vigil/{spec.name}")
         proc = subprocess.Popen(
             spec.argv(),
             stdout=log,
             stderr=subprocess.STDOUT,
-            env={**self.env, **spec.env},
+            env=env,
             start_new_session=True,  # its own process group: Ctrl-C reaches us first
             preexec_fn=_die_with_parent,
         )
@@ -130,6 +138,8 @@ class Launcher:
             if rc is None:
                 continue
             r.log.close()
+            if not r.killed:
+                self.failures.append(self._why(name, rc))
             if r.spec.restart and r.restarts < self.max_restarts:
                 self.say(
                     f"[launch] {name} exited (code {rc}); restarting "
@@ -139,7 +149,7 @@ class Launcher:
                 continue
             self.exit_codes[name] = rc
             del self.running[name]
-            self.stopped_because = f"{name} exited (code {rc})"
+            self.stopped_because = self._why(name, rc)
             self.say(f"[launch] {self.stopped_because}: stopping the system")
             self.stop()
             return False
@@ -148,7 +158,13 @@ class Launcher:
     def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
         """Send ``sig`` to one node (fault injection); the launcher restarts it."""
         r = self.running[name]
+        r.killed = True
         os.killpg(r.proc.pid, sig)
+
+    def _why(self, name: str, rc: int | None) -> str:
+        """``<name> exited (code N)``, with the last error line of its log if any."""
+        last = last_error_line(self.log_dir / f"{name}.log")
+        return f"{name} exited (code {rc})" + (f": {last}" if last else "")
 
     def stop(self, timeout_s: float = 5.0) -> dict[str, int | None]:
         """Stop every process: SIGINT, then SIGTERM, then SIGKILL; returns exit codes."""
@@ -169,12 +185,31 @@ class Launcher:
             while time.monotonic() < deadline and any(r.proc.poll() is None for r in alive):
                 time.sleep(0.05)
         for name, r in self.running.items():
-            self.exit_codes[name] = r.proc.poll()
+            rc = r.proc.poll()
+            self.exit_codes[name] = rc
             r.log.close()
+            if rc != 0 and not r.killed:  # a node that did not leave cleanly on SIGINT
+                self.failures.append(self._why(name, rc) + " at shutdown")
         self.running.clear()
         if self.stopped_because is None:
             self.stopped_because = "stopped"
         return dict(self.exit_codes)
+
+
+def last_error_line(path: Path, tail_bytes: int = 16384) -> str:
+    """The last line of a log that reads as an error ("" if none or unreadable)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - tail_bytes))
+            lines = f.read().decode(errors="replace").splitlines()
+    except OSError:
+        return ""
+    marks = ("[ERROR]", "[FATAL]", "Error:", "Error ", "error:")
+    for line in reversed(lines):
+        if any(m in line for m in marks):
+            return line.strip()[:300]
+    return ""
 
 
 class GraphWatch:
@@ -208,16 +243,25 @@ class GraphWatch:
 
 def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = print) -> int:
     """``vigil launch CONFIG``: start the system, show each node up, run until Ctrl-C
-    or until a node dies for good; returns 0 on Ctrl-C, 1 when a node died."""
+    or until a node dies for good; returns 0 on Ctrl-C with every node leaving cleanly,
+    1 when a node died or failed to stop cleanly."""
     from vigil.deployment import load_deployment
     from vigil.system import prepare
 
     dep = load_deployment(config)
     system = prepare(dep, Path(out), say=say)
     logs = system.run_dir / "logs"
+    claim = None
+    if dep.mode == "twin" and dep.ros.domain_id < 0:  # private: a parallel run never hears it
+        from vigil.ros_domain import claim_domain
+
+        claim = claim_domain()
+        system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
+    system.env.setdefault(RUN_ID_ENV, uuid.uuid4().hex[:12])
+    say(f"[launch] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}")
     launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
     for key, value in system.env.items():
-        os.environ.setdefault(key, value)
+        os.environ[key] = value  # the graph watch must look at the system's own domain
     watch = GraphWatch([s.name for s in system.specs], say)
     launcher.start()
     say(f"[launch] {dep.mode} mode, logs in {system.run_dir / 'logs'}; Ctrl-C stops everything")
@@ -232,7 +276,11 @@ def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = pri
     finally:
         codes = launcher.stop(dep.nodes.stop_timeout_s)
         watch.close()
+        if claim is not None:
+            claim.release()
         say("[launch] stopped: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
         if launcher.stopped_because not in (None, "stopped"):
             say(f"[launch] reason: {launcher.stopped_because}")
-    return rc
+        for failure in launcher.failures:
+            say(f"[launch] failure: {failure}")
+    return 1 if rc or launcher.failures else 0

@@ -1,17 +1,20 @@
 """The recorder node: writes what a run shows into its folder, as it happens.
 
 For every camera detection record (``/perception/person``, one per frame) it appends
-one line to ``trace.jsonl`` (the instant's ground truth from ``/twin/truth`` when there
-is a twin, the odometry, the camera's detection, the leg tracks, speech) and one frame
-to ``camera.mp4`` (the camera frame with the detections beside a top view of the grid,
-:class:`vigil.run_report.VideoComposer`). :func:`vigil.run_report.write_report` turns
-the folder into the report.
+one line to ``trace.jsonl`` (and, while the camera is silent, e.g. in an outage, one
+per ``TRUTH_GAP_S`` of ground truth with ``camera`` null, so that the metrics keep
+seeing where robot and person are) (the instant's ground truth from ``/twin/truth`` when there
+is a twin, the odometry, the camera's detection, the leg tracks, the warnings decided
+since the last record) and the camera frame, JPEG-encoded, to ``camera_frames.bin``
+(:mod:`vigil.frames`). It writes raw records only and imports nothing of the report:
+:func:`vigil.report.write_report` composes the tables, figures and the video from the
+folder after the nodes have stopped, outside the lock-step.
 
 Subscribes: ``/camera/image_raw``, ``/perception/person``, ``/perception/legs``,
-``/twin/truth``, ``/odom``, ``/planner/belief``, ``/speech/warning``, ``/speech/done``.
+``/twin/truth``, ``/odom``, ``/speech/warning``, ``/speech/done``.
 
-Parameters: ``out_dir``, ``task_file`` (restricted cells), ``config_file`` (grid),
-``video`` (false: trace only), ``fps``, ``lockstep``.
+Parameters: ``out_dir``, ``task_file`` and ``config_file`` (accepted, unused: the
+report reads the task), ``video`` (false: no frames), ``jpeg_quality``, ``lockstep``.
 """
 
 from __future__ import annotations
@@ -25,49 +28,42 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
-from stack.perception._config import load_config_file
 from stack.perception.errors import BadFrameError
 from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
-from stack.planning.task import load_task
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from vigil.frames import FRAMES_FILE, FrameWriter
 
 TRACE_FILE = "trace.jsonl"
-VIDEO_FILE = "camera.mp4"
+TRUTH_GAP_S = 0.25  # camera silent this long: trace the ground truth without it
 
 
 class RecorderNode(Node):
-    """Trace and video of a run."""
+    """Trace and camera frames of a run."""
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
         p = self.declare_parameter
         out_dir = Path(p("out_dir", "runs/recording").value)
-        task_file = p("task_file", "").value
-        grid, _ = load_config_file(p("config_file", "").value)
+        p("task_file", "")  # kept so that older parameter files still load
+        p("config_file", "")
         video = bool(p("video", True).value)
-        fps = float(p("fps", 10.0).value)
+        quality = int(p("jpeg_quality", 90).value)
         out_dir.mkdir(parents=True, exist_ok=True)
         self.trace = open(out_dir / TRACE_FILE, "a")
-        self.composer = None
-        if video:
-            from vigil.run_report import VideoComposer
-
-            restricted = load_task(task_file).restricted_cells if task_file else ()
-            self.composer = VideoComposer(out_dir / VIDEO_FILE, grid, tuple(restricted), fps=fps)
+        self.frames = FrameWriter(out_dir / FRAMES_FILE, quality) if video else None
         self.images: dict[float, object] = {}
         self.truth: dict | None = None
         self.odom: list[float] | None = None
         self.legs: list = []
-        self.belief: dict | None = None
-        self.speech: str | None = None
+        self.speech: list[str] = []
+        self.last_t = 0.0  # the last trace record's time
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
         ls.subscription(Image, "/camera/image_raw", self.on_image, 5)
         ls.subscription(String, "/perception/person", self.on_person, 10)
         ls.subscription(String, "/perception/legs", self.on_legs, 10)
         ls.subscription(String, "/twin/truth", self.on_truth, 10)
         ls.subscription(Odometry, "/odom", self.on_odom, 10)
-        ls.subscription(String, "/planner/belief", self.on_belief, 10)
         ls.subscription(String, "/speech/warning", self.on_warning, 10)
         ls.subscription(String, "/speech/done", self.on_speech_done, 10)
         self.get_logger().info(f"recording into {out_dir}")
@@ -80,6 +76,9 @@ class RecorderNode(Node):
 
     def on_truth(self, msg: String) -> None:
         self.truth = _json(msg.data)
+        t = (self.truth or {}).get("t")
+        if isinstance(t, int | float) and t - self.last_t >= TRUTH_GAP_S - 1e-9:
+            self.write(float(t), None, None)  # the camera is silent (outage)
 
     def on_odom(self, msg: Odometry) -> None:
         try:
@@ -93,11 +92,8 @@ class RecorderNode(Node):
         tracks = data.get("tracks", [])
         self.legs = [t["position_m"] for t in tracks if t.get("confirmed") and "position_m" in t]
 
-    def on_belief(self, msg: String) -> None:
-        self.belief = _json(msg.data)
-
     def on_warning(self, msg: String) -> None:
-        self.speech = msg.data or "warning"
+        self.speech.append(msg.data or "warning")  # every one: two may come between records
 
     def on_speech_done(self, msg: String) -> None:
         # an utterance's end comes on wall-clock time (espeak-ng): logged, not traced,
@@ -112,41 +108,48 @@ class RecorderNode(Node):
             return
         stamp = round(float(camera.get("stamp_s") or 0.0), 6)
         truth = self.truth or {}
+        self.write(
+            truth.get("t", stamp),
+            {
+                k: camera.get(k)
+                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
+            },
+            stamp,
+        )
+
+    def write(self, t: float, camera: dict | None, stamp: float | None) -> None:
+        """One trace record (the latest truth, odometry, legs, speech) and its frame."""
+        truth = self.truth or {}
         record = {
-            "t": truth.get("t", stamp),
+            "t": t,
             "robot": truth.get("robot"),
             "robot_cell": truth.get("robot_cell"),
             "person": truth.get("person"),
             "person_cell": truth.get("person_cell"),
             "person_velocity": truth.get("person_velocity"),
             "odom": self.odom,
-            "camera": {
-                k: camera.get(k)
-                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
-            },
+            "camera": camera,
             "legs": self.legs,
-            "speech": self.speech,
+            "speech": self.speech or None,
         }
-        self.speech = None
+        self.speech = []
+        self.last_t = float(t)
         self.trace.write(json.dumps(record, sort_keys=True) + "\n")
         self.trace.flush()
-        if self.composer is not None:
+        if self.frames is not None:
             frame = None
-            image = self.images.pop(stamp, None)
+            image = self.images.pop(stamp, None) if stamp is not None else None
             if image is not None:
                 try:
-                    frame = image_from_msg(image)[:, :, ::-1]  # BGR -> RGB
+                    frame = image_from_msg(image)  # BGR, as the JPEG encoder wants
                 except BadFrameError:
                     frame = None
-            belief = (self.belief or {}).get("person")
-            robot = truth.get("robot") or self.odom
-            self.composer.add(
-                record["t"], frame, record["camera"], self.legs, robot, truth.get("person"), belief
-            )
+            self.frames.add(record["t"], frame)
+            self.frames.flush()
 
     def destroy_node(self) -> None:
-        if self.composer is not None:
-            self.composer.close()
+        if self.frames is not None:
+            self.frames.close()
         self.trace.flush()
         os.fsync(self.trace.fileno())
         self.trace.close()

@@ -13,32 +13,59 @@ simulation entered them by hand; the planner node is the same.
 from __future__ import annotations
 
 import json
-import shutil
+import os
 import time
+import uuid
 from dataclasses import replace
 from pathlib import Path
 
 from stack.cells import ConfigError
+from stack.lockstep import RUN_ID_ENV  # read by stack.ros_lockstep (acks) and the twin bridge
 from vigil.deployment import load_deployment
 from vigil.launch import Launcher
+from vigil.ros_domain import claim_domain
 from vigil.scenario import load_scenario
 from vigil.system import prepare, prepare_table
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
-RUN_MARK = "params.yaml"  # a folder holding this is a run folder (safe to clear)
+RUN_MARK = ".vigil-run"  # written first into every run folder vigil run creates
+MAX_NUMBERED = 1000
 
 
 class RunError(RuntimeError):
     """The run could not finish (a node died for good, or it timed out)."""
 
 
-def _fresh(run_dir: Path) -> None:
-    if run_dir.exists() and any(run_dir.iterdir()):
-        if not any((run_dir / f).exists() for f in (RUN_MARK, "summary.json")):
-            raise ConfigError("--out", str(run_dir), "exists and is not a run folder")
-        shutil.rmtree(run_dir)
-    run_dir.mkdir(parents=True)
+def fresh_run_dir(run_dir: Path, run_id: str) -> Path:
+    """The folder this run writes into; nothing that exists is ever deleted.
+
+    An absent or empty ``run_dir`` is used as it is. A non-empty folder that an
+    earlier ``vigil run`` made (it holds :data:`RUN_MARK`) is kept: the run goes to the
+    first free ``<run_dir>-2``, ``-3``, ... beside it. Any other non-empty folder (or a
+    file) is refused.
+
+    Raises:
+        ConfigError: ``run_dir`` is a file, or a non-empty folder vigil did not make.
+    """
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError("--out", str(run_dir), "is a file, not a folder")
+    if run_dir.is_dir() and any(run_dir.iterdir()):
+        if not (run_dir / RUN_MARK).is_file():
+            raise ConfigError(
+                "--out", str(run_dir), "is a non-empty folder that vigil run did not make"
+            )
+        for n in range(2, MAX_NUMBERED):
+            candidate = run_dir.with_name(f"{run_dir.name}-{n}")
+            if not candidate.exists():
+                run_dir = candidate
+                break
+        else:
+            raise ConfigError("--out", str(run_dir), f"{MAX_NUMBERED} numbered runs exist")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / RUN_MARK).write_text(json.dumps({"run_id": run_id, "pid": os.getpid()}) + "\n")
+    return run_dir
 
 
 def _records(path: Path) -> list[dict]:
@@ -67,7 +94,9 @@ def run_scenario(
     Args:
         scenario_path: the scenario file (``scenarios/*.yaml``).
         config_path: the deployment file (default ``config/twin.yaml``).
-        out: the run folder (default ``runs/<scenario name>``); cleared first.
+        out: the run folder (default ``runs/<scenario name>``); a non-empty folder of
+            an earlier run is kept and the run goes to ``<out>-2`` (see
+            :func:`fresh_run_dir`), any other non-empty folder is refused.
         seed: overrides the scenario's seed.
         observations: "twin" (the whole stack in the twin) or "table" (the thesis
             table's observations through the planner node).
@@ -78,14 +107,15 @@ def run_scenario(
         RunError: a node died for good, or the run timed out.
     """
     from stack.planning.replay import TABLES
-    from vigil.run_report import write_report
+    from vigil.report import write_report
 
     scenario = load_scenario(scenario_path)
     if seed is not None:
         scenario = replace(scenario, seed=seed)
     dep = load_deployment(config_path or DEFAULT_CONFIG)
-    run_dir = Path(out or REPO / "runs" / scenario.name).resolve()
-    _fresh(run_dir)
+    run_id = uuid.uuid4().hex[:12]
+    run_dir = fresh_run_dir(Path(out or REPO / "runs" / scenario.name).resolve(), run_id)
+    say(f"[run] folder {run_dir}")
     say(f"[run] {scenario.name}: {scenario.title} ({scenario.steps} steps, seed {scenario.seed})")
     if observations == "table":
         system = prepare_table(dep, run_dir, scenario, say)
@@ -96,6 +126,12 @@ def run_scenario(
     else:
         raise ConfigError("observations", observations, "must be twin or table")
 
+    claim = None
+    if dep.ros.domain_id < 0:  # a private domain: a parallel run never hears this one
+        claim = claim_domain()
+        system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
+    system.env[RUN_ID_ENV] = run_id  # the lock-step ignores another run's nodes
+    say(f"[run] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}, run id {run_id}")
     launcher = Launcher(system.specs, run_dir / "logs", system.env, dep.nodes.max_restarts, say=say)
     kills = [f for f in scenario.faults if f.kind == "kill"]
     t0 = time.monotonic()
@@ -124,10 +160,14 @@ def run_scenario(
             time.sleep(0.2)
     finally:
         codes = launcher.stop(dep.nodes.stop_timeout_s)
+        if claim is not None:
+            claim.release()
+    if error is None and launcher.failures:
+        error = "node failures: " + "; ".join(launcher.failures)
     wall_s = time.monotonic() - t0
     say(f"[run] stopped after {wall_s:.0f} s: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
     table = TABLES.get(scenario.thesis_table)
-    summary = write_report(run_dir, scenario.task, table)
+    summary = write_report(run_dir, scenario.task, table, say=say)
     (run_dir / "run.json").write_text(
         json.dumps(
             {
@@ -136,6 +176,8 @@ def run_scenario(
                 "observations": observations,
                 "wall_s": round(wall_s, 1),
                 "exit_codes": codes,
+                "failures": launcher.failures,
+                "run_id": run_id,
                 "error": error,
             },
             indent=2,

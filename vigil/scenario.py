@@ -40,6 +40,9 @@ from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
 
 FAULT_KINDS = ("camera_off", "lidar_off", "kill", "obstacle")
+# the twin-mode nodes a kill fault may name (vigil.system starts them; the bridge and the
+# recorder are not restarted, so killing them would end the run, not test a restart)
+KILLABLE = ("camera_people", "legs", "observations", "navigation", "speech", "planner")
 DIRECTIONS = ("north", "south", "east", "west", "not moving")
 
 
@@ -205,6 +208,10 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
         )
         if kind == "kill" and (not fault.node or fault.after_step < 1):
             raise ConfigError(key, f, "kill needs node and after_step >= 1")
+        if kind == "kill" and fault.node not in KILLABLE:
+            raise ConfigError(
+                f"{key}.node", fault.node, f"unknown node (one of {', '.join(KILLABLE)})"
+            )
         if kind in ("camera_off", "lidar_off") and fault.duration_s <= 0:
             raise ConfigError(f"{key}.duration_s", fault.duration_s, "must be > 0")
         if kind == "obstacle" and fault.cell < 1:

@@ -23,9 +23,11 @@ import yaml
 
 from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
+from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment
 from vigil.launch import ProcessSpec
 from vigil.scenario import Scenario
+from vigil.security import security_env
 
 REPO = Path(__file__).resolve().parents[1]
 POLICY_CACHE = REPO / "runs" / ".policies"
@@ -178,8 +180,9 @@ def prepare(
     params["observations"] = {
         **common,
         "config_file": cfg,
+        "calibration_file": str(calibration),  # the cells the robot hides from the camera
         "odom_topic": dep.topics.odom,
-        "decision_period_s": 0.0,
+        "decision_period_s": 0.25,  # continuous: speech and the planner's events read it
     }
     params["navigation"] = {
         **common,
@@ -207,6 +210,7 @@ def prepare(
         "nav_timeout_s": dep.planner.nav_timeout_s,
         "obs_timeout_s": dep.planner.obs_timeout_s,
         "min_step_s": 2.5,
+        "min_event_step_s": 1.5,  # a person in a new cell ends a step this soon
     }
     if scenario is not None:
         planner.update(
@@ -271,8 +275,11 @@ def _write(
         for name in names
     ]
     env = {"PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"}
-    if dep.ros.localhost_only:
-        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    # DDS confined to loopback (+ the listed addresses in hardware mode): vigil/dds.py
+    addresses = () if dep.ros.localhost_only else dep.ros.interfaces
+    env.update(dds_env(write_profile(run_dir, addresses), dep.ros.localhost_only))
+    if dep.mode == "hardware" and dep.ros.keystore:
+        env.update(security_env(dep.resolve(dep.ros.keystore)))
     if dep.ros.domain_id >= 0:
         env["ROS_DOMAIN_ID"] = str(dep.ros.domain_id)
     if dep.mode == "twin":

@@ -40,6 +40,7 @@ from stack.hardware.camera_stream import (
     load_calibration,
     redact_url,
 )
+from stack.qos import FRAME_QOS  # one QoS for frames, both ends
 from stack.ros_main import spin_node
 
 STATUS_PERIOD_S = 1.0
@@ -73,7 +74,7 @@ class CameraStreamNode(Node):
         self.stream = CameraStream(self.config, **extra)
         self.url = redact_url(self.config.url)
 
-        self.image_pub = self.create_publisher(Image, image_topic, 10)
+        self.image_pub = self.create_publisher(Image, image_topic, FRAME_QOS)
         self.info_pub = self.create_publisher(CameraInfo, info_topic, 10) if info_file else None
         self.status_pub = self.create_publisher(String, status_topic, 10)
         self._last_status: tuple | None = None

@@ -21,6 +21,10 @@ Publishes:
         max_linear_mps, max_angular_radps}; on every change of armed or of moving/zero,
         and at 2 Hz.
 
+Timing (the stale timeout, the acceleration limit, the 2 Hz repeats) runs on the
+monotonic clock, whatever ``use_sim_time`` says. On SIGINT/SIGTERM the node publishes
+a last zero and waits (up to 0.5 s) for the driver to acknowledge it.
+
 Parameters: ``config_file`` (YAML with a ``velocity_gate:`` section, keys as
 :class:`GateConfig`); each key of that section is also a read-only parameter
 (``max_linear_mps``, ``max_angular_radps``, ``cmd_timeout_s``, ``require_arming``) whose
@@ -32,9 +36,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import time
 
 from geometry_msgs.msg import Twist
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
@@ -79,6 +86,10 @@ class VelocityGateNode(Node):
                 ("state", "/safety/state"),
             )
         }
+        if topics["input"] == topics["output"]:
+            raise ConfigError(
+                "output_topic", topics["output"], "must differ from input_topic (a bypass)"
+            )
         self.gate = VelocityGate(self.config)
         armed = p("armed", self.gate.armed).value
         self.cmd_pub = self.create_publisher(Twist, topics["output"], 10)
@@ -92,7 +103,9 @@ class VelocityGateNode(Node):
         self.set_armed(bool(armed))
         self.create_subscription(Twist, topics["input"], self.on_cmd, 10)
         self.create_subscription(Bool, topics["arm"], self.on_arm, 10)
-        self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
+        # a steady timer: with use_sim_time and a stalled /clock a ROS timer never fires
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.timer = self.create_timer(1.0 / rate_hz, self.on_timer, clock=steady)
         c = self.config
         self.get_logger().info(
             f"velocity_gate: {topics['input']} -> {topics['output']}, caps "
@@ -101,7 +114,9 @@ class VelocityGateNode(Node):
         )
 
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        """Safety timing runs on the monotonic clock: ``use_sim_time`` or a stalled
+        ``/clock`` must not keep a stale command alive."""
+        return time.monotonic()
 
     # -- arming -------------------------------------------------------------------
     def _check_params(self, params: list[Parameter]) -> SetParametersResult:
@@ -182,9 +197,19 @@ class VelocityGateNode(Node):
         self.state_pub.publish(String(data=json.dumps(body)))
 
 
+FINAL_ZERO_WAIT_S = 0.5  # how long the last zero may take to be acknowledged
+
+
+def stop_base(node: VelocityGateNode) -> None:
+    """The last words: a zero, sent reliably before the publisher goes away."""
+    node.get_logger().info("shutting down: zero velocity")
+    node.cmd_pub.publish(twist_msg(ZERO))
+    node.cmd_pub.wait_for_all_acked(Duration(seconds=FINAL_ZERO_WAIT_S))
+
+
 def main(args=None) -> None:
-    # leave the base standing still on the way out
-    spin_node(VelocityGateNode, args, on_exit=lambda n: n.cmd_pub.publish(twist_msg(ZERO)))
+    # leave the base standing still on the way out (SIGINT, SIGTERM or a crash)
+    spin_node(VelocityGateNode, args, on_exit=stop_base)
 
 
 if __name__ == "__main__":

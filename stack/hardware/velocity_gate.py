@@ -11,11 +11,24 @@ YAML section ``velocity_gate:`` (all keys optional)::
       max_linear_mps: 0.3      # cap on the planar speed |(vx, vy)|; both scaled together [m/s]
       max_angular_radps: 0.6   # cap on |wz| [rad/s]
       cmd_timeout_s: 0.5       # a command older than this is stale: zeros [s]
+      max_linear_accel_mps2: 0.5     # how fast the planar speed may grow [m/s^2]
+      max_angular_accel_radps2: 1.5  # how fast |wz| may grow [rad/s^2]
       require_arming: true     # false: starts armed (an explicit disarm still holds)
 
+Every cap must lie within the platform's limits (:data:`PLATFORM`, the MBot's): a
+file asking for more is refused, not clipped, so that a typo never becomes a speed.
+
+Acceleration: a command that speeds up (or turns the direction of travel) is slewed
+from the last output by at most ``accel * dt`` (``dt`` since that output, at most
+:data:`MAX_DT_S`); slowing down along the same direction, and every zero, pass at
+once (stopping is never delayed).
+
+Time: callers pass ``now_s`` from a monotonic clock (the node uses ``time.monotonic``),
+never from ROS time, which a stalled ``/clock`` or ``use_sim_time`` would freeze.
+
 Reasons (:attr:`GateState.reason`) for the current output: ``"not armed"``, ``"stale"``,
-``"non-finite command"`` (all give zeros), ``"capped"`` (the command was scaled down) and
-``"ok"`` (forwarded as given).
+``"non-finite command"`` (all give zeros), ``"capped"`` (the command was scaled down,
+by a speed cap or the acceleration limit) and ``"ok"`` (forwarded as given).
 """
 
 from __future__ import annotations
@@ -25,6 +38,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from stack.cells import ConfigError
 from stack.hardware._config import from_dict, positive
 
 ZERO = (0.0, 0.0, 0.0)
@@ -33,6 +47,21 @@ STALE = "stale"
 NON_FINITE = "non-finite command"
 CAPPED = "capped"
 OK = "ok"
+MAX_DT_S = 0.1  # the acceleration limit never grants more than this much time at once
+
+
+@dataclass(frozen=True)
+class PlatformLimits:
+    """What the base can safely be asked for at most (MBot Mega: docs/HARDWARE.md)."""
+
+    max_linear_mps: float = 0.8
+    max_angular_radps: float = 3.0
+    max_linear_accel_mps2: float = 2.0
+    max_angular_accel_radps2: float = 6.0
+    max_cmd_timeout_s: float = 1.0
+
+
+PLATFORM = PlatformLimits()
 
 
 @dataclass(frozen=True)
@@ -42,11 +71,25 @@ class GateConfig:
     max_linear_mps: float = 0.3
     max_angular_radps: float = 0.6
     cmd_timeout_s: float = 0.5
+    max_linear_accel_mps2: float = 0.5
+    max_angular_accel_radps2: float = 1.5
     require_arming: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("max_linear_mps", "max_angular_radps", "cmd_timeout_s"):
-            positive(f"velocity_gate.{name}", getattr(self, name))
+        bounds = {
+            "max_linear_mps": PLATFORM.max_linear_mps,
+            "max_angular_radps": PLATFORM.max_angular_radps,
+            "cmd_timeout_s": PLATFORM.max_cmd_timeout_s,
+            "max_linear_accel_mps2": PLATFORM.max_linear_accel_mps2,
+            "max_angular_accel_radps2": PLATFORM.max_angular_accel_radps2,
+        }
+        for name, bound in bounds.items():
+            value = getattr(self, name)
+            positive(f"velocity_gate.{name}", value)
+            if value > bound:
+                raise ConfigError(
+                    f"velocity_gate.{name}", value, f"exceeds the platform's limit {bound:g}"
+                )
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "velocity_gate") -> GateConfig:
@@ -76,6 +119,8 @@ class VelocityGate:
         self._reason = OK if self._armed else NOT_ARMED
         self._last = ZERO
         self._last_s = -math.inf
+        self._out = ZERO  # the last output, for the acceleration limit
+        self._out_s = -math.inf
 
     @property
     def armed(self) -> bool:
@@ -94,6 +139,7 @@ class VelocityGate:
         """
         self._armed = bool(armed)
         self._last, self._last_s = ZERO, -math.inf
+        self._out, self._out_s = ZERO, now_s
         self._reason = STALE if self._armed else NOT_ARMED
         return ZERO
 
@@ -102,9 +148,11 @@ class VelocityGate:
         if not all(math.isfinite(v) for v in (vx, vy, wz)):
             # a broken command also cancels the previous one: stop rather than coast
             self._last, self._last_s, self._reason = ZERO, now_s, NON_FINITE
+            self._out, self._out_s = ZERO, now_s
             return ZERO
         if not self._armed:
             self._reason = NOT_ARMED
+            self._out, self._out_s = ZERO, now_s
             return ZERO
         vx, vy, wz = float(vx), float(vy), float(wz)
         cfg = self.config
@@ -115,15 +163,42 @@ class VelocityGate:
             vx, vy, reason = vx * k, vy * k, CAPPED
         if abs(wz) > cfg.max_angular_radps:
             wz, reason = math.copysign(cfg.max_angular_radps, wz), CAPPED
-        self._last, self._last_s, self._reason = (vx, vy, wz), now_s, reason
+        limited = self._accel_limited((vx, vy, wz), now_s)
+        if limited != (vx, vy, wz):
+            reason = CAPPED
+        self._last, self._last_s, self._reason = limited, now_s, reason
+        self._out, self._out_s = limited, now_s
         return self._last
+
+    def _accel_limited(
+        self, target: tuple[float, float, float], now_s: float
+    ) -> tuple[float, float, float]:
+        """``target`` slewed from the last output within the acceleration limits."""
+        cfg = self.config
+        dt = min(max(now_s - self._out_s, 0.0), MAX_DT_S)
+        px, py, pw = self._out
+        tx, ty, tw = target
+        # planar: slowing along the same direction passes; anything else is slewed
+        if not (math.hypot(tx, ty) <= math.hypot(px, py) and tx * px + ty * py >= 0):
+            dx, dy = tx - px, ty - py
+            step = math.hypot(dx, dy)
+            room = cfg.max_linear_accel_mps2 * dt
+            if step > room:
+                tx, ty = px + dx * room / step, py + dy * room / step
+        if not (abs(tw) <= abs(pw) and tw * pw >= 0):
+            room = cfg.max_angular_accel_radps2 * dt
+            if abs(tw - pw) > room:
+                tw = pw + math.copysign(room, tw - pw)
+        return (tx, ty, tw)
 
     def tick(self, now_s: float) -> tuple[float, float, float]:
         """The output in force at ``now_s``: zeros when not armed or the command is stale."""
         if not self._armed:
             self._reason = NOT_ARMED
+            self._out, self._out_s = ZERO, now_s
             return ZERO
         if now_s - self._last_s > self.config.cmd_timeout_s:
             self._reason = STALE
+            self._out, self._out_s = ZERO, now_s
             return ZERO
         return self._last

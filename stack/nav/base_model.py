@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from stack.nav.follower import Pose2D, Twist2D
+from stack.geometry import Pose2D
+from stack.nav.follower import Twist2D
 
 
 @dataclass

@@ -1,62 +1,39 @@
 """Typed, validated configuration for navigation and speech.
 
-Each dataclass is frozen and names its units; ``from_dict`` validates a YAML mapping and
-raises :class:`stack.cells.ConfigError` naming the key, the value and the rule.
+Each dataclass is frozen, names its units and derives from :class:`stack.config.Config`:
+it is checked whenever it is built, from YAML (``from_dict``) or in code, and an error
+is :class:`stack.cells.ConfigError` naming the key, the value and the rule.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from stack.cells import ConfigError
-from stack.config import coerce_like, read_yaml
+from stack.config import Config, from_mapping, read_yaml
 
 T = TypeVar("T")
 
 
-def _from_dict(cls: type[T], data: Mapping[str, Any] | None, prefix: str) -> T:
-    """Build a config dataclass from a mapping; unknown keys and wrong types are errors."""
-    if data is None:
-        return cls()
-    if not isinstance(data, Mapping):
-        raise ConfigError(prefix, data, "must be a mapping")
-    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
-    kwargs: dict[str, Any] = {}
-    for key, value in data.items():
-        if key not in known:
-            raise ConfigError(f"{prefix}.{key}", value, f"unknown key (known: {sorted(known)})")
-        default = getattr(cls, key)
-        kwargs[key] = _coerce(f"{prefix}.{key}", value, default)
-    try:
-        return cls(**kwargs)
-    except ConfigError as exc:  # __post_init__ names keys with the default prefix
-        default_prefix = exc.key.split(".", 1)[0]
-        key = prefix + exc.key[len(default_prefix) :]
-        raise ConfigError(key, exc.value, exc.rule) from None
-
-
-_coerce = coerce_like  # the shared rules (stack.config)
-
-
-def _positive(prefix: str, obj: Any, *names: str) -> None:
+def _positive(obj: Any, *names: str) -> None:
     for name in names:
         v = getattr(obj, name)
         if not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"{prefix}.{name}", v, "must be a finite number > 0")
+            raise ConfigError(name, v, "must be a finite number > 0")
 
 
-def _non_negative(prefix: str, obj: Any, *names: str) -> None:
+def _non_negative(obj: Any, *names: str) -> None:
     for name in names:
         v = getattr(obj, name)
         if not (math.isfinite(v) and v >= 0):
-            raise ConfigError(f"{prefix}.{name}", v, "must be a finite number >= 0")
+            raise ConfigError(name, v, "must be a finite number >= 0")
 
 
 @dataclass(frozen=True)
-class FollowerConfig:
+class FollowerConfig(Config):
     """Limits and gains of the holonomic path follower (mecanum base).
 
     Body frame: x forward, y left, z up (REP 103).
@@ -83,18 +60,20 @@ class FollowerConfig:
     # a person standing on the waypoint: stop at the nearest free point of the target
     # cell at least this far inside its borders instead (the action is "go to the cell")
     region_margin_m: float = 0.1
+    # a move is reported done once the robot is this far inside its target cell; it goes
+    # on to the waypoint meanwhile, so the next decision comes while it still drives
+    arrive_margin_m: float = 0.2
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
     unknown_is_occupied: bool = True
 
-    def validate(self, prefix: str = "follower") -> None:
+    def check(self) -> None:
         """Check every value.
 
         Raises:
             ConfigError: the first value that breaks its rule.
         """
         _positive(
-            prefix,
             self,
             "max_vx_mps",
             "max_vy_mps",
@@ -112,7 +91,6 @@ class FollowerConfig:
             "replan_period_s",
         )
         _non_negative(
-            prefix,
             self,
             "heading_gain_per_s",
             "robot_radius_m",
@@ -120,10 +98,8 @@ class FollowerConfig:
             "person_radius_m",
             "blocked_timeout_s",
             "max_start_escape_m",
+            "arrive_margin_m",
         )
-
-    def __post_init__(self) -> None:
-        self.validate()
 
     @property
     def inflation_radius_m(self) -> float:
@@ -136,7 +112,7 @@ class FollowerConfig:
         Raises:
             ConfigError: unknown key, wrong type or a value out of range.
         """
-        return _from_dict(cls, data, prefix)
+        return from_mapping(cls, data, prefix)
 
 
 SPEECH_POLICIES = ("queue", "replace")
@@ -147,7 +123,7 @@ DEFAULT_WARNINGS = {
 
 
 @dataclass(frozen=True)
-class SpeechConfig:
+class SpeechConfig(Config):
     """The warning and how it is spoken (thesis 4.4: eSpeak)."""
 
     voice: str = "en"  # espeak-ng voice: "en" (default) or "pt" (Portuguese)
@@ -160,42 +136,46 @@ class SpeechConfig:
     espeak_path: str = "espeak-ng"  # executable name or path
     timeout_s: float = 10.0  # bound on one synthesis [s]
     emulate_playback: bool = True  # WAV output: stay "speaking" for the audio's duration
-    restricted_cells: tuple[int, ...] = (1,)  # where arriving with a person near triggers it
-    near_cells: int = 1  # person within this Chebyshev cell distance counts as "near"
+    restricted_cells: tuple[int, ...] = (1,)  # where the robot warns a person with it
+    grace_s: float = 2.0  # a warning may start this long after the person left the cell [s]
+    repeat_s: float = 8.0  # while the person stays, warn again after this long [s]
+    confirm_s: float = 0.5  # the person is seen in the cell this long before a warning [s]
+    max_text_chars: int = 300  # a longer request is refused (it would delay a warning)
 
-    def validate(self, prefix: str = "speech") -> None:
+    def check(self) -> None:
         """Check every value.
 
         Raises:
             ConfigError: the first value that breaks its rule.
         """
         if not self.voice.strip():
-            raise ConfigError(f"{prefix}.voice", self.voice, "must name an espeak-ng voice")
+            raise ConfigError("voice", self.voice, "must name an espeak-ng voice")
         if not self.warning_text.strip() and self.language not in DEFAULT_WARNINGS:
             raise ConfigError(
-                f"{prefix}.warning_text",
+                "warning_text",
                 self.warning_text,
                 f"must be given for voice {self.voice!r} (built-in: {sorted(DEFAULT_WARNINGS)})",
             )
         if not 80 <= self.words_per_minute <= 450:
-            raise ConfigError(f"{prefix}.words_per_minute", self.words_per_minute, "80..450")
+            raise ConfigError("words_per_minute", self.words_per_minute, "80..450")
         if not 0 <= self.pitch <= 99:
-            raise ConfigError(f"{prefix}.pitch", self.pitch, "must lie in 0..99")
+            raise ConfigError("pitch", self.pitch, "must lie in 0..99")
         if not 0 <= self.amplitude <= 200:
-            raise ConfigError(f"{prefix}.amplitude", self.amplitude, "must lie in 0..200")
+            raise ConfigError("amplitude", self.amplitude, "must lie in 0..200")
         if self.policy not in SPEECH_POLICIES:
-            raise ConfigError(f"{prefix}.policy", self.policy, f"must be one of {SPEECH_POLICIES}")
+            raise ConfigError("policy", self.policy, f"must be one of {SPEECH_POLICIES}")
         if self.max_queue < 1:
-            raise ConfigError(f"{prefix}.max_queue", self.max_queue, "must be >= 1")
-        _positive(prefix, self, "timeout_s")
+            raise ConfigError("max_queue", self.max_queue, "must be >= 1")
+        _positive(self, "timeout_s")
         for c in self.restricted_cells:
             if isinstance(c, bool) or not isinstance(c, int) or c < 1:
-                raise ConfigError(f"{prefix}.restricted_cells", c, "cells are positive integers")
-        if self.near_cells < 0:
-            raise ConfigError(f"{prefix}.near_cells", self.near_cells, "must be >= 0")
-
-    def __post_init__(self) -> None:
-        self.validate()
+                raise ConfigError("restricted_cells", c, "cells are positive integers")
+        for key in ("grace_s", "repeat_s", "confirm_s"):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ConfigError(key, v, "must be a finite number >= 0")
+        if not 1 <= self.max_text_chars <= 10_000:
+            raise ConfigError("max_text_chars", self.max_text_chars, "1..10000")
 
     @property
     def language(self) -> str:
@@ -214,7 +194,7 @@ class SpeechConfig:
         Raises:
             ConfigError: unknown key, wrong type or a value out of range.
         """
-        return _from_dict(cls, data, prefix)
+        return from_mapping(cls, data, prefix)
 
 
 def read_node_config(path: str, section: str, klass):

@@ -14,6 +14,9 @@ Safety rules, in order: a stale or missing pose gives zero velocity at once (no 
 a person on the path makes the follower replan with the person stamped on the grid,
 and wait (zero velocity) while no path exists, ending BLOCKED after
 ``blocked_timeout_s``; every command is capped by :func:`cap_twist`.
+
+It is just over 500 lines because the follower's state machine (plan, track, wait,
+region fallback, end) reads best as one class with its small helpers beside it.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stack.geometry import Pose2D
 from stack.nav.astar import NoPathError, NoPathReason, astar_grid
 from stack.nav.config import FollowerConfig
 from stack.nav.occupancy import OccupancyMap, disc_mask, inflate
@@ -75,15 +79,6 @@ class FollowerState(enum.Enum):
     WAITING = "waiting"  # a person blocks every path: holding still
     STALE_POSE = "stale_pose"  # holding still until a fresh pose arrives
     DONE = "done"  # the task has just ended (see result)
-
-
-@dataclass(frozen=True)
-class Pose2D:
-    """Planar pose in the map frame: position [m] and yaw [rad] (x east, y north)."""
-
-    x_m: float
-    y_m: float
-    yaw_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -331,6 +326,11 @@ class PathFollower:
             return self._end(NavResult.SUCCEEDED, NavErrorCode.NONE, "", d_goal)
 
         people = np.asarray(list(people_xy), dtype=float).reshape(-1, 2)
+        if self._in_region_beside_person_on_goal(pos, goal, people):
+            return self._end(
+                NavResult.SUCCEEDED, NavErrorCode.NONE,
+                "in the target cell; a person stands on its waypoint", d_goal,
+            )  # fmt: skip
         # beside a person in the target cell: contact clearance only (see _plan_into_region)
         keep = cfg.robot_radius_m if self._beside else cfg.inflation_radius_m
         person_mask = disc_mask(self.map, people, cfg.person_radius_m + keep)
@@ -351,6 +351,20 @@ class PathFollower:
         return FollowerStatus(
             cmd, FollowerState.ACTIVE, distance_remaining_m=dist, replans=self._replans
         )
+
+    def _in_region_beside_person_on_goal(
+        self, pos: np.ndarray, goal: np.ndarray, people: np.ndarray
+    ) -> bool:
+        """Inside the target cell (``region_margin_m`` in) with a person on its waypoint."""
+        if self._region is None or len(people) == 0:
+            return False
+        cfg = self.config
+        m = cfg.region_margin_m
+        x0, y0, x1, y1 = self._region
+        if not (x0 + m <= pos[0] <= x1 - m and y0 + m <= pos[1] <= y1 - m):
+            return False
+        reach = cfg.person_radius_m + cfg.robot_radius_m + cfg.goal_tolerance_m
+        return bool(np.hypot(*(people - goal).T).min() <= reach)
 
     def _hold(self, now_s: float, d_goal: float) -> FollowerStatus:
         assert self._waiting_since is not None
@@ -433,7 +447,8 @@ class PathFollower:
         free = np.argwhere(~blocked[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
         if len(free) == 0:
             return None
-        goal_rc = np.array(self.map.world_to_cell(*self._goal))
+        assert self._goal is not None
+        goal_rc = np.array(self.map.world_to_cell(self._goal[0], self._goal[1]))
         order = np.argsort(((free - goal_rc) ** 2).sum(axis=1), kind="stable")
         for k in order[:5]:  # the nearest few: one of them is reachable if any is
             cell = (int(free[k, 0]), int(free[k, 1]))

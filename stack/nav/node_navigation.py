@@ -29,7 +29,6 @@ the control loop then runs on simulated clock ticks).
 from __future__ import annotations
 
 import json
-import math
 
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
@@ -37,30 +36,17 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Int32, String
 
+import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
+from stack.geometry import Pose2D, yaw_from_quaternion
 from stack.nav.config import FollowerConfig, read_node_config
-from stack.nav.follower import (
-    ZERO_TWIST,
-    FollowerState,
-    FollowerStatus,
-    NavErrorCode,
-    NavResult,
-    PathFollower,
-    Pose2D,
-    Twist2D,
-    cap_twist,
-)
+from stack.nav.executor import ActionExecutor, Output
+from stack.nav.follower import ZERO_TWIST, Twist2D
 from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, load_map_yaml
-from stack.nav.waypoints import ActionOutcome, CellWaypoints, parse_action
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
-POSE_SOURCES = {"odom": "/odom", "amcl": "/amcl_pose"}
-
-
-def yaw_from_quaternion(q) -> float:
-    """Yaw [rad] of a geometry_msgs/Quaternion (rotation about z)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+POSE_SOURCES = {"odom": topic.ODOM, "amcl": topic.AMCL_POSE}
 
 
 def twist_to_msg(cmd: Twist2D) -> Twist:
@@ -108,15 +94,15 @@ class NavigationNode(Node):
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("action", "/nav/action"),
-                ("action_id", "/nav/action_id"),
-                ("goal", "/goal_pose"),
-                ("map", "/map"),
-                ("people", "/perception/leg_people"),
-                ("stop", "/stop"),
-                ("cmd_vel", "/cmd_vel"),
-                ("progress", "/nav/progress"),
-                ("result", "/nav/result"),
+                ("action", topic.NAV_ACTION),
+                ("action_id", topic.NAV_ACTION_ID),
+                ("goal", topic.GOAL_POSE),
+                ("map", topic.MAP),
+                ("people", topic.LEG_PEOPLE),
+                ("stop", topic.STOP),
+                ("cmd_vel", topic.CMD_VEL),
+                ("progress", topic.NAV_PROGRESS),
+                ("result", topic.NAV_RESULT),
             )
         }
         if source not in POSE_SOURCES:
@@ -124,7 +110,6 @@ class NavigationNode(Node):
         if not rate_hz > 0 or not progress_hz > 0:
             raise ConfigError("control_rate_hz", (rate_hz, progress_hz), "rates must be > 0")
         self.grid, self.config = load_config_file(config_file)
-        self.waypoints = CellWaypoints(self.grid)
         if map_yaml:
             occ_map = load_map_yaml(map_yaml)
         else:  # until /map arrives: free floor around the cells, so the robot can still move
@@ -133,17 +118,9 @@ class NavigationNode(Node):
             occ_map = OccupancyMap.empty(
                 w + 2 * margin_m, h + 2 * margin_m, 0.05, (x0 - margin_m, y0 - margin_m)
             )
-        self.follower = PathFollower(self.config, occ_map)
-
-        self.pose: Pose2D | None = None
-        self.pose_stamp_s = -math.inf
-        self.people: list[tuple[float, float]] = []
-        self.stopped = False
-        self.goal_id = 0
-        self.task: dict = {}
-        self._was_moving = False
-        self._ticks = 0
-        self._progress_every = max(1, round(rate_hz / progress_hz))
+        self.core = ActionExecutor(
+            self.grid, self.config, occ_map, max(1, round(rate_hz / progress_hz))
+        )
 
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
         self.cmd_pub = ls.publisher(Twist, topics["cmd_vel"], 10)
@@ -174,19 +151,21 @@ class NavigationNode(Node):
     def now_s(self) -> float:
         return self.lockstep.now_s()
 
+    @property
+    def follower(self):
+        return self.core.follower
+
+    @property
+    def pose(self) -> Pose2D | None:
+        return self.core.pose
+
     def on_pose(self, msg) -> None:
         pose = msg.pose.pose
-        x, y = pose.position.x, pose.position.y
         yaw = yaw_from_quaternion(pose.orientation)
-        if not all(math.isfinite(v) for v in (x, y, yaw)):
-            self.get_logger().warning(f"ignoring a non-finite pose ({x}, {y}, {yaw})")
-            return
-        # the receive time: a source that stops publishing makes the pose stale
-        self.pose, self.pose_stamp_s = Pose2D(x, y, yaw), self.now_s()
+        self.emit(self.core.set_pose(Pose2D(pose.position.x, pose.position.y, yaw), self.now_s()))
 
     def on_people(self, msg: PoseArray) -> None:
-        pts = [(p.position.x, p.position.y) for p in msg.poses]
-        self.people = [(x, y) for x, y in pts if math.isfinite(x) and math.isfinite(y)]
+        self.core.set_people([(p.position.x, p.position.y) for p in msg.poses])
 
     def on_map(self, msg: OccupancyGrid) -> None:
         try:
@@ -194,126 +173,47 @@ class NavigationNode(Node):
         except MapError as exc:
             self.get_logger().warning(f"ignoring a malformed map: {exc}")
             return
-        self.follower.set_map(occ_map)
+        self.core.set_map(occ_map)
         self.get_logger().info(f"map {occ_map.shape[1]}x{occ_map.shape[0]} received")
 
     def on_stop(self, msg: Bool) -> None:
-        self.stopped = bool(msg.data)
-        if self.stopped:
-            self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
-            if self.follower.active:
-                self.report(self.follower.cancel("stop requested"))
+        self.emit(self.core.stop(bool(msg.data)))
 
     def on_action_id(self, msg: Int32) -> None:
-        self.handle_action(int(msg.data))
+        self.emit(self.core.action(int(msg.data), self.now_s()))
 
     def on_action(self, msg: String) -> None:
-        self.handle_action(msg.data)
-
-    def handle_action(self, raw: str | int) -> None:
-        self.goal_id += 1
-        try:
-            action = parse_action(raw)
-        except ValueError as exc:
-            self.get_logger().warning(str(exc))
-            self.publish_result(NavResult.REFUSED, NavErrorCode.INVALID_ACTION, str(exc))
-            return
-        self.task = {"action": action.label if action.value < 4 else "Do nothing"}
-        if self.pose is None:
-            self.publish_result(NavResult.REFUSED, NavErrorCode.NO_POSE, "no pose yet")
-            return
-        cell = self.waypoints.cell_of(self.pose.x_m, self.pose.y_m)
-        target = self.waypoints.target(cell, action)
-        self.task.update(from_cell=cell, target_cell=target.cell)
-        if target.outcome is ActionOutcome.REFUSED:
-            self.get_logger().warning(f"refusing action: {target.reason}")
-            self.publish_result(NavResult.REFUSED, NavErrorCode.ACTION_LEAVES_MAP, target.reason)
-        elif target.outcome is ActionOutcome.HOLD:
-            if self.follower.active:
-                self.follower.cancel("superseded by Do nothing")
-            self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
-            self.publish_result(NavResult.SUCCEEDED, NavErrorCode.NONE, "holding position")
-        else:
-            self.begin(target.waypoint_m, target.cell)
+        self.emit(self.core.action(msg.data, self.now_s()))
 
     def on_goal(self, msg: PoseStamped) -> None:
         frame = msg.header.frame_id
-        x, y = msg.pose.position.x, msg.pose.position.y
         if frame and frame != self.map_frame:
             self.get_logger().warning(f"ignoring goal in frame {frame!r}, need {self.map_frame!r}")
             return
-        if not (math.isfinite(x) and math.isfinite(y)):
-            self.get_logger().warning(f"ignoring a non-finite goal ({x}, {y})")
-            return
-        self.goal_id += 1
-        self.task = {"action": "goal_pose", "target_cell": self.grid.cell_at(x, y)}
-        self.begin((x, y))
+        self.emit(self.core.goal(msg.pose.position.x, msg.pose.position.y, self.now_s()))
 
-    def begin(self, goal_xy: tuple[float, float], cell: int | None = None) -> None:
-        if self.stopped:
-            self.publish_result(NavResult.CANCELED, NavErrorCode.STOPPED, "stop is active")
-            return
-        region = self.grid.bounds(cell) if cell is not None else None
-        self.follower.start(goal_xy, self.now_s(), region)
-
-    # -- the control loop ----------------------------------------------------
     def on_timer(self) -> None:
-        self._ticks += 1
-        if not self.follower.active:
-            if self._was_moving:  # one zero after a task ends; idle otherwise is silent
-                self.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
-                self._was_moving = False
-            return
-        status = self.follower.step(self.pose, self.pose_stamp_s, self.now_s(), self.people)
-        cmd = ZERO_TWIST if self.stopped else cap_twist(status.cmd, self.config)
-        self.cmd_pub.publish(twist_to_msg(cmd))
-        self._was_moving = True
-        if status.result is not None:
-            self.report(status)
-        elif self._ticks % self._progress_every == 0:
-            self.publish_progress(status)
+        self.emit(self.core.tick(self.now_s()))
 
-    def robot_cell(self) -> int | None:
-        if self.pose is None:
-            return None
-        return self.grid.cell_at(self.pose.x_m, self.pose.y_m)
-
-    def publish_progress(self, status: FollowerStatus) -> None:
-        dist = status.distance_remaining_m
-        body = {
-            "goal_id": self.goal_id,
-            "state": status.state.value,
-            "distance_remaining_m": None if math.isnan(dist) else round(dist, 3),
-            "replans": status.replans,
-            "message": status.message,
-            "cell": self.robot_cell(),
-        }
-        self.progress_pub.publish(String(data=json.dumps(body)))
-
-    def report(self, status: FollowerStatus) -> None:
-        assert status.result is not None
-        if status.state is FollowerState.DONE and status.result is not NavResult.SUCCEEDED:
-            self.get_logger().warning(f"navigation {status.result.value}: {status.message}")
-        self.publish_result(status.result, status.error_code, status.message)
-
-    def publish_result(self, result: NavResult, code: NavErrorCode, message: str) -> None:
-        body = {
-            "goal_id": self.goal_id,
-            "result": result.value,
-            "error_code": int(code),
-            "error_name": code.name,
-            "message": message,
-            "action": self.task.get("action"),
-            "from_cell": self.task.get("from_cell"),
-            "target_cell": self.task.get("target_cell"),
-            "cell": self.robot_cell(),
-        }
-        self.result_pub.publish(String(data=json.dumps(body)))
+    # -- outputs -------------------------------------------------------------
+    def emit(self, outputs: list[Output]) -> None:
+        for o in outputs:
+            if o.kind == "cmd":
+                self.cmd_pub.publish(twist_to_msg(o.cmd))
+            elif o.kind == "result":
+                self.result_pub.publish(String(data=json.dumps(o.body)))
+            elif o.kind == "progress":
+                self.progress_pub.publish(String(data=json.dumps(o.body)))
+            elif o.kind == "log":
+                self.get_logger().warning(o.text, throttle_duration_sec=1.0)
 
 
 def main(args=None) -> None:
     # leave the base standing still on the way out
-    spin_node(NavigationNode, args, on_exit=lambda n: n.cmd_pub.publish(twist_to_msg(ZERO_TWIST)))
+    def stop_base(node: NavigationNode) -> None:
+        node.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+
+    spin_node(NavigationNode, args, on_exit=stop_base)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,13 @@
-"""The speech node: says the warning when the robot reaches a restricted cell with a
-person at or near it (thesis 3.2.2 and 4.4), and reports when it has finished.
+"""The speech node: warns a person who is in a restricted cell with the robot (thesis
+3.2.2 and 4.4), while they are there, and reports when it has finished.
+
+When to speak is :class:`stack.nav.speech.WarningGate`: the robot's and the person's
+cells (the observations node's fused view) are the same restricted cell, or were
+within ``grace_s``; a warning playing after that is cut short; nothing is queued.
 
 Subscribes (names are parameters):
-    ``/nav/result`` std_msgs/String: the navigation node's JSON results; a succeeded
-        result whose ``cell`` is restricted triggers the check.
-    ``/perception/person_cell`` std_msgs/String: the person's cell as perception
-        publishes it ("7"; anything that is not a positive integer, e.g. "No person",
-        means nobody is seen).
+    ``/observations`` std_msgs/String: the observations node's JSON (``robot`` and
+        ``person`` labels: a cell number, or anything else for none).
     ``/speech/say`` std_msgs/String: say this text now (empty: the configured warning).
 
 Publishes:
@@ -14,7 +15,7 @@ Publishes:
         duration_s, error} for every finished, replaced, dropped or failed request.
     ``/speech/speaking`` std_msgs/Bool: true when an utterance starts, false when idle.
     ``/speech/warning`` std_msgs/String: the warning's text, the moment it is decided
-        (when the navigation result arrives; the utterance itself follows).
+        (the utterance itself follows).
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``speech`` sections),
 ``voice`` (overrides the file: "en", "pt"), ``out_dir`` (the run folder: WAV + log there
@@ -29,9 +30,10 @@ from dataclasses import replace
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
+import stack.topics as topic
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
-from stack.nav.speech import Speaker, SpeechError, SpeechEvent, should_warn
+from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
@@ -58,12 +60,11 @@ class SpeechNode(Node):
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("result", "/nav/result"),
-                ("person_cell", "/perception/person_cell"),
-                ("say", "/speech/say"),
-                ("done", "/speech/done"),
-                ("speaking", "/speech/speaking"),
-                ("warning", "/speech/warning"),
+                ("observations", topic.OBSERVATIONS),
+                ("say", topic.SPEECH_SAY),
+                ("done", topic.SPEECH_DONE),
+                ("speaking", topic.SPEECH_SPEAKING),
+                ("warning", topic.SPEECH_WARNING),
             )
         }
         self.grid, config = load_speech_config(config_file)
@@ -71,6 +72,10 @@ class SpeechNode(Node):
             config = replace(config, voice=voice)
         self.config = config
         self.person_cell: int | None = None
+        self.robot_cell: int | None = None
+        self.gate = WarningGate(
+            config.restricted_cells, config.grace_s, config.repeat_s, config.confirm_s
+        )
         self.speaker: Speaker | None = None
         self.speaker_error = ""
         try:
@@ -83,8 +88,7 @@ class SpeechNode(Node):
         self.done_pub = ls.publisher(String, topics["done"], 10)
         self.speaking_pub = ls.publisher(Bool, topics["speaking"], 10)
         self.warning_pub = ls.publisher(String, topics["warning"], 10)
-        ls.subscription(String, topics["result"], self.on_result, 10)
-        ls.subscription(String, topics["person_cell"], self.on_person_cell, 10)
+        ls.subscription(String, topics["observations"], self.on_observation, 10)
         ls.subscription(String, topics["say"], self.on_say, 10)
         self.timer = self.create_timer(1.0 / rate_hz, self.on_timer)
         self.get_logger().info(
@@ -95,23 +99,34 @@ class SpeechNode(Node):
     def now_s(self) -> float:
         return self.lockstep.now_s()
 
-    def on_person_cell(self, msg: String) -> None:
-        text = msg.data.strip()
-        self.person_cell = int(text) if text.isdigit() and int(text) > 0 else None
-
-    def on_result(self, msg: String) -> None:
+    def on_observation(self, msg: String) -> None:
         try:
             body = json.loads(msg.data)
-            result, cell = body["result"], body.get("cell")
+            robot, person = str(body["robot"]), str(body["person"])
         except (ValueError, TypeError, KeyError) as exc:
-            self.get_logger().warning(f"ignoring a malformed navigation result {msg.data!r}: {exc}")
+            self.get_logger().warning(
+                f"ignoring a malformed observation {msg.data[:80]!r}: {exc}",
+                throttle_duration_sec=5.0,
+            )
             return
-        if result != "succeeded" or not isinstance(cell, int):
-            return
-        if should_warn(self.grid, cell, self.person_cell, self.config):
-            self.get_logger().info(f"robot in restricted cell {cell}, person in {self.person_cell}")
+        self.robot_cell = int(robot) if robot.isdigit() else None
+        self.person_cell = int(person) if person.isdigit() else None
+        self.check()
+
+    def check(self) -> None:
+        if self.speaker is not None:  # finish what is due first: the same on any machine
+            for event in self.speaker.poll(self.now_s()):
+                self.publish_event(event)
+        speaking = self.speaker is not None and self.speaker.speaking
+        decision = self.gate.update(self.now_s(), self.robot_cell, self.person_cell, speaking)
+        if decision == "say":
+            self.get_logger().info(f"person in restricted cell {self.robot_cell} with the robot")
             self.warning_pub.publish(String(data=self.config.warning))
             self.say(None)
+        elif decision == "stop" and self.speaker is not None:
+            self.get_logger().info("the person has left: warning cut short")
+            for event in self.speaker.stop():
+                self.publish_event(event)
 
     def on_say(self, msg: String) -> None:
         self.say(msg.data or None)
@@ -135,6 +150,8 @@ class SpeechNode(Node):
     def on_timer(self) -> None:
         if self.speaker is None:
             return
+        if self.speaker.speaking:
+            self.check()  # cut a warning the person has walked away from
         for event in self.speaker.poll(self.now_s()):
             self.publish_event(event)
 

@@ -17,6 +17,7 @@ keeps running.
 from __future__ import annotations
 
 import functools
+import math
 import shutil
 import subprocess
 import time
@@ -25,7 +26,6 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig
 
 
@@ -285,6 +285,11 @@ class Speaker:
             UnknownVoiceError: unknown ``voice``.
         """
         text = _check_text(self.config.warning if text is None else text)
+        if len(text) > self.config.max_text_chars:
+            raise SpeechError(
+                f"text of {len(text)} characters is longer than max_text_chars "
+                f"({self.config.max_text_chars}): it would hold up a warning"
+            )
         voice = voice or self.config.voice
         check_voice(voice, self.config.espeak_path)
         req = _Request(self._next_id, text, voice)
@@ -390,24 +395,55 @@ class Speaker:
         return Utterance(req.text, req.voice, None, float("nan"), time.perf_counter() - t0)
 
 
-def should_warn(
-    grid: CellGrid, reached_cell: int, person_cell: int | None, config: SpeechConfig
-) -> bool:
-    """The trigger of thesis 3.2.2: the robot has just reached a restricted cell and the
-    person is in it or within ``config.near_cells`` (Chebyshev, diagonals adjoin).
+class WarningGate:
+    """When to speak the warning (thesis 3.2.2, made timely).
+
+    The robot warns while a person is in a restricted cell with it: the person's and
+    the robot's cells are the same restricted cell, seen so for ``confirm_s`` (a person
+    hesitating on the border flickers between cells: the warning waits until they are
+    in). A warning starts only while that holds; while the person stays it is
+    repeated every ``repeat_s``. Nothing is queued: a warning due while one is playing
+    is not said, and one still playing ``grace_s`` after the person left is cut short
+    (:meth:`update` returns "stop"), so no warning plays to an empty cell.
 
     Args:
-        grid: the shared cell geometry.
-        reached_cell: the cell the robot arrived in.
-        person_cell: the person's cell, None when nobody is seen.
-        config: restricted cells and the nearness bound.
-
-    Returns:
-        True when the warning should be spoken.
+        restricted_cells: the task's restricted cells.
+        grace_s, repeat_s, confirm_s: as above [s].
     """
-    if person_cell is None or reached_cell not in config.restricted_cells:
-        return False
-    try:
-        return grid.chebyshev(reached_cell, person_cell) <= config.near_cells
-    except ValueError:  # a cell number outside the grid: nobody there
-        return False
+
+    def __init__(
+        self,
+        restricted_cells,
+        grace_s: float = 2.0,
+        repeat_s: float = 8.0,
+        confirm_s: float = 0.5,
+    ):
+        self.restricted = frozenset(int(c) for c in restricted_cells)
+        self.grace_s, self.repeat_s = float(grace_s), float(repeat_s)
+        self.confirm_s = float(confirm_s)
+        self._with_person_s = -math.inf  # last time a person was in a restricted cell with it
+        self._together_since_s: float | None = None  # start of the current "together" run
+        self._started_s = -math.inf  # last warning's start
+
+    def update(
+        self, now_s: float, robot_cell: int | None, person_cell: int | None, speaking: bool
+    ) -> str | None:
+        """Return "say" to start a warning now, "stop" to cut the current one, else None."""
+        together = robot_cell is not None and robot_cell in self.restricted
+        together = together and person_cell == robot_cell
+        if together:
+            if now_s - self._with_person_s > self.grace_s:  # a new visit: warn at once
+                self._started_s = -math.inf
+            self._with_person_s = now_s
+            if self._together_since_s is None:
+                self._together_since_s = now_s
+        else:
+            self._together_since_s = None
+        recent = now_s - self._with_person_s <= self.grace_s
+        if speaking:
+            return None if recent else "stop"
+        confirmed = together and now_s - (self._together_since_s or now_s) >= self.confirm_s
+        if confirmed and now_s - self._started_s >= self.repeat_s:
+            self._started_s = now_s
+            return "say"
+        return None

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import CellGrid, Direction
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadFrameError
@@ -57,7 +58,7 @@ class PersonStatus(enum.Enum):
 
 
 @dataclass(frozen=True)
-class CameraConfig:
+class CameraConfig(Config):
     """Attributes:
     hog: detector parameters.
     foot: box shrink and foot refinement.
@@ -264,7 +265,7 @@ class CameraPeopleTracker:
         mask = self._foreground.apply(image) if self._foreground is not None else None
         if mask is not None and mask.mean() > self.config.max_foreground_frac:
             mask = None  # the model is still learning, or the whole scene changed
-        boxes = ()
+        boxes: tuple[PersonBox, ...] = ()
         window = self._tracking_window(image.shape)
         if window is not None:
             boxes = self.detector.detect(image, roi_px=window)

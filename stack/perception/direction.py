@@ -22,11 +22,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from stack.cells import Direction
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 
 
 @dataclass(frozen=True)
-class DirectionConfig:
+class DirectionConfig(Config):
     """Attributes:
     jitter_threshold_m: displacement per axis at or below which the person is
         "Not moving" [m].

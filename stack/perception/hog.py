@@ -22,6 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.errors import BadFrameError
 
@@ -29,7 +30,7 @@ HOG_WINDOW_PX = (64, 128)  # (width, height) of the default people detector's wi
 
 
 @dataclass(frozen=True)
-class HogConfig:
+class HogConfig(Config):
     """Parameters of ``cv2.HOGDescriptor.detectMultiScale``.
 
     Attributes:
@@ -100,7 +101,7 @@ class PersonBox:
 
 
 @dataclass(frozen=True)
-class FootConfig:
+class FootConfig(Config):
     """How a box is shrunk to the feet (figure 4.9) and optionally refined.
 
     Attributes:
@@ -194,7 +195,7 @@ class HogPeopleDetector:
     def __init__(self, config: HogConfig = HogConfig()):
         self.config = config
         self._hog = cv2.HOGDescriptor()
-        self._hog.setSVMDetector(cv2.HOGDescriptor_getDefaultPeopleDetector())
+        self._hog.setSVMDetector(np.asarray(cv2.HOGDescriptor.getDefaultPeopleDetector()))
         if config.threads > 0:
             cv2.setNumThreads(config.threads)
 

@@ -418,7 +418,8 @@ def load_points_file(path: str | Path) -> FloorPoints:
             f"points file {name}: needs a list of {{pixel: [u, v], map: [x, y]}} entries "
             f"(at the top level or under 'points'), got {type(data).__name__}"
         )
-    image_px, map_m = [], []
+    image_px: list[tuple[float, float]] = []
+    map_m: list[tuple[float, float]] = []
     for i, entry in enumerate(data):
         where = f"points file {name}: entry {i} ({entry!r})"
         if not isinstance(entry, dict):
@@ -436,6 +437,7 @@ def load_points_file(path: str | Path) -> FloorPoints:
             bounds = "" if size is None else f" inside the {size[0]} x {size[1]} image"
             raise CalibrationError(f"{where}: pixel [{u}, {v}] must be >= 0{bounds}")
         xy = _pair_of_numbers(entry["map"])
+        assert xy is not None  # checked above
         for other, (px_seen, xy_seen) in enumerate(zip(image_px, map_m, strict=True)):
             if px_seen == (u, v) or xy_seen == xy:
                 raise CalibrationError(f"{where}: repeats entry {other}'s pixel or map point")

@@ -24,32 +24,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from stack.config import Config
+from stack.geometry import Pose2D
 from stack.perception._config import from_mapping, require
 from stack.perception.errors import BadScanError
-
-
-@dataclass(frozen=True)
-class Pose2D:
-    """A planar pose: position [m] and heading [rad, counter-clockwise from x/east]."""
-
-    x_m: float = 0.0
-    y_m: float = 0.0
-    yaw_rad: float = 0.0
-
-    def compose(self, other: Pose2D) -> Pose2D:
-        """This pose followed by ``other`` expressed in this pose's frame."""
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        return Pose2D(
-            self.x_m + c * other.x_m - s * other.y_m,
-            self.y_m + s * other.x_m + c * other.y_m,
-            self.yaw_rad + other.yaw_rad,
-        )
-
-    def transform(self, points: np.ndarray) -> np.ndarray:
-        """Map (N, 2) points given in this pose's frame to the parent frame."""
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        rot = np.array([[c, -s], [s, c]])
-        return np.asarray(points, dtype=float).reshape(-1, 2) @ rot.T + [self.x_m, self.y_m]
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,7 +85,7 @@ class Scan:
 
 
 @dataclass(frozen=True)
-class LegConfig:
+class LegConfig(Config):
     """Attributes:
     expected_beams: beams every scan must have (None: any); a scan of another
         length raises BadScanError.

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import Direction
+from stack.geometry import yaw_from_quaternion
 from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.errors import BadFrameError
 from stack.perception.legs import LegDetections, Pose2D, Scan, StaticMap
@@ -71,11 +72,6 @@ def scan_from_msg(msg: Any) -> Scan:
         range_max_m=float(msg.range_max),
         stamp_s=stamp_to_s(msg.header.stamp),
     )
-
-
-def yaw_from_quaternion(q: Any) -> float:
-    """Yaw [rad] of a geometry_msgs/Quaternion (rotation about z)."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 def pose_from_msg(pose: Any) -> Pose2D:

@@ -17,7 +17,10 @@ Parameters: ``config_file`` (YAML with optional ``grid`` and ``camera`` sections
 ``lockstep`` (see :mod:`stack.ros_lockstep`), ``calibration_file`` (see
 :mod:`stack.perception.homography`; missing: every state is
 "unknown" and a warning is logged), ``image_topic``, ``map_frame``,
-``frame_timeout_s``.
+``frame_timeout_s``, ``max_future_stamp_s`` (1.0) and ``max_past_stamp_s`` (0: no limit): a frame
+stamped further from the node's clock is ignored and counted (:mod:`stack.stamp_guard`).
+
+QoS: frames are subscribed reliable, keep-last 2 (:data:`stack.qos.FRAME_QOS`, docs/SAFETY.md).
 """
 
 from __future__ import annotations
@@ -27,7 +30,6 @@ import math
 
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
@@ -38,8 +40,10 @@ from stack.perception.errors import BadFrameError, CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.messages import image_from_msg, stamp_to_s
 from stack.perception.observation import NO_PERSON
+from stack.qos import FRAME_QOS
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.stamp_guard import StampGuard
 
 
 class CameraPeopleNode(Node):
@@ -71,7 +75,10 @@ class CameraPeopleNode(Node):
         self.pub_position = ls.publisher(PointStamped, "/perception/person_position", 10)
         self.pub_cell = ls.publisher(String, "/perception/person_cell", 10)
         self.pub_direction = ls.publisher(String, "/perception/person_direction", 10)
-        ls.subscription(Image, image_topic, self.on_image, qos_profile_sensor_data)
+        self.stamps = StampGuard(
+            float(p("max_future_stamp_s", 1.0).value), float(p("max_past_stamp_s", 0.0).value)
+        )
+        ls.subscription(Image, image_topic, self.on_image, FRAME_QOS)
         self._last_frame_s = self._now_s()
         ls.timer(self.frame_timeout_s / 2.0, self.on_watchdog)
 
@@ -79,10 +86,17 @@ class CameraPeopleNode(Node):
         return self.lockstep.now_s()
 
     def on_image(self, msg: Image) -> None:
-        self._last_frame_s = self._now_s()
+        now = self._now_s()
         stamp = stamp_to_s(msg.header.stamp)
         if stamp == 0.0:  # unstamped publisher: use the arrival time
-            stamp = self._last_frame_s
+            stamp = now
+        bad = self.stamps.check(stamp, now)
+        if bad:  # a frame from the future would make every later frame "out of order"
+            self.get_logger().warning(
+                self.stamps.describe("frame", stamp, now, bad), throttle_duration_sec=5.0
+            )
+            return
+        self._last_frame_s = now
         try:
             image = image_from_msg(msg)
         except BadFrameError as err:

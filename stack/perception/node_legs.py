@@ -18,7 +18,9 @@ Parameters: ``config_file`` (YAML with optional ``legs``, ``tracker`` and
 ``observations`` sections), ``scan_topic``, ``odom_topic``, ``map_topic``,
 ``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`), ``laser_x_m``,
 ``laser_y_m``, ``laser_yaw_rad`` (the laser's mount on the
-robot), ``max_pose_age_s`` (older poses make the scan unusable).
+robot), ``max_pose_age_s`` (older poses make the scan unusable), ``max_future_stamp_s``
+(1.0) and ``max_past_stamp_s`` (0: no limit): a scan or odometry message stamped further from
+the node's clock is ignored and counted (:mod:`stack.stamp_guard`).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from stack.perception.observation import CombinerConfig
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.stamp_guard import StampGuard
 
 
 class LegsNode(Node):
@@ -75,6 +78,9 @@ class LegsNode(Node):
         self.pose: Pose2D | None = None
         self.pose_stamp_s = 0.0
         self._waiting_scan: tuple[float, LaserScan] | None = None
+        self.stamps = StampGuard(
+            float(p("max_future_stamp_s", 1.0).value), float(p("max_past_stamp_s", 0.0).value)
+        )
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
         self.pub_legs = ls.publisher(String, "/perception/legs", 10)
         self.pub_people = ls.publisher(PoseArray, "/perception/leg_people", 10)
@@ -93,7 +99,18 @@ class LegsNode(Node):
         except (ValueError, TypeError) as err:
             self.get_logger().warning(f"map ignored: {err}")
 
+    def _stamp_ok(self, what: str, stamp: float) -> bool:
+        now = self.lockstep.now_s()
+        bad = self.stamps.check(stamp, now)
+        if bad:  # one message from the future would hold back every later one
+            self.get_logger().warning(
+                self.stamps.describe(what, stamp, now, bad), throttle_duration_sec=5.0
+            )
+        return bad is None
+
     def on_odom(self, msg: Odometry) -> None:
+        if not self._stamp_ok("odometry", stamp_to_s(msg.header.stamp)):
+            return
         try:
             self.pose = pose_from_msg(msg.pose.pose)
             self.pose_stamp_s = stamp_to_s(msg.header.stamp)
@@ -107,6 +124,8 @@ class LegsNode(Node):
         """Transform with the pose of the scan's instant: a scan that arrives before
         that pose waits for it (at most one scan waits; a newer one replaces it)."""
         stamp = stamp_to_s(msg.header.stamp)
+        if not self._stamp_ok("scan", stamp):
+            return
         if self.pose is not None and self.pose_stamp_s + 1e-6 < stamp:
             if self._waiting_scan is not None:
                 self.process_scan(self._waiting_scan[1])  # its pose never came: use the last

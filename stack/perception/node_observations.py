@@ -18,9 +18,12 @@ Publishes (every ``decision_period_s`` and on request):
         "Not moving", "Not moving").
 
 Freshness is judged on this node's clock at reception, so publishers' stamps need
-not share its clock. Parameters: ``config_file`` (optional ``grid`` and
-``observations`` sections), ``lockstep`` (see :mod:`stack.ros_lockstep`),
-``decision_period_s`` (0: only on request), topic names.
+not share its clock. Parameters: ``config_file`` (optional ``grid``, ``observations``
+and ``visibility`` sections), ``calibration_file`` (the camera's; with it the cells the
+robot hides from the camera are known, see :mod:`stack.perception.visibility`),
+``lockstep`` (see :mod:`stack.ros_lockstep`), ``decision_period_s`` (0: only on
+request), topic names. A message that cannot be used is logged and skipped; the node
+never dies of one.
 """
 
 from __future__ import annotations
@@ -31,11 +34,15 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import Empty, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.perception._config import load_config_file
+from stack.perception.errors import CalibrationError
+from stack.perception.homography import load_calibration
 from stack.perception.legs import Pose2D
 from stack.perception.messages import camera_state_from_json, pose_from_msg, tracks_from_dict
 from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
+from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 
@@ -47,22 +54,36 @@ class ObservationsNode(Node):
         super().__init__("observations", **kwargs)
         p = self.declare_parameter
         config_file = p("config_file", "").value
+        calibration_file = p("calibration_file", "").value
         period_s = float(p("decision_period_s", 1.0).value)
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("person", "/perception/person"),
-                ("legs", "/perception/legs"),
-                ("odom", "/odom"),
-                ("request", "/observations/request"),
-                ("observations", "/observations"),
+                ("person", topic.PERSON),
+                ("legs", topic.LEGS),
+                ("odom", topic.ODOM),
+                ("request", topic.OBSERVATIONS_REQUEST),
+                ("observations", topic.OBSERVATIONS),
             )
         }
         if period_s < 0:
             raise ConfigError("decision_period_s", period_s, "must be >= 0")
         grid, sections = load_config_file(config_file)
+        visibility = None
+        if calibration_file:
+            try:
+                visibility = CameraVisibility(
+                    load_calibration(calibration_file).homography,
+                    grid,
+                    VisibilityConfig.from_dict(sections.get("visibility")),
+                )
+            except (CalibrationError, ValueError, OSError) as err:
+                self.get_logger().error(
+                    f"camera visibility off ({calibration_file}: {err}): the robot's shadow "
+                    "is not known and a camera that sees nobody means nobody"
+                )
         self.combiner = ObservationCombiner(
-            grid, CombinerConfig.from_dict(sections.get("observations"))
+            grid, CombinerConfig.from_dict(sections.get("observations")), visibility
         )
         self.camera = None
         self.tracks = ()
@@ -103,7 +124,11 @@ class ObservationsNode(Node):
 
     def publish_now(self) -> None:
         pose, self.pose = self.pose, None  # a pose is used once; none new: same cell
-        obs = self.combiner.combine(self._now_s(), self.camera, self.tracks, pose)
+        try:
+            obs = self.combiner.combine(self._now_s(), self.camera, self.tracks, pose)
+        except (ValueError, ArithmeticError) as err:  # never die of one bad input
+            self.get_logger().error(f"observation skipped: {err}", throttle_duration_sec=5.0)
+            return
         labels = {
             "": obs.to_json(),
             "robot": obs.robot_label,

@@ -7,15 +7,35 @@ The solver receives three observations (thesis 4.3, tables 5.1-5.4):
 - person velocity: "Not moving", or a direction and a speed class joined as in
   "East higher", "West 0.2-0.7", "South 0-0.2".
 
-Rules of section 4.5 applied here:
+Rules of section 4.5, as the thesis gives them, where the camera sees the person:
 
-- the camera decides whether there is a person; when it says no person (two missed
-  frames) or cannot tell, the velocity is "Not moving" and the laser is ignored;
 - a person outside the region is no person for the planner ("not in the environment");
 - the direction comes from the camera; when it is "Not moving" the velocity is
   "Not moving" whatever the laser says;
 - the speed class comes from the laser track nearest the camera's person; when the
   laser has no such track (out of range, no data) the class is "0-0.2".
+
+What vigil adds (docs/PERCEPTION.md, "Fusion"): the camera's silence means "no person"
+only where the camera could have seen one.
+
+- **Fused position.** When a confirmed laser track lies within ``association_gate_m``
+  of the camera's person, the position is their inverse-variance mean
+  (``camera_sigma_m``, ``laser_sigma_m``): the laser's legs correct a foot point the
+  robot half hides. A position within ``border_margin_m`` outside the grid is put in
+  the nearest cell (foot-point error), not dropped.
+- **Cannot see.** A camera that has sent nothing for ``max_camera_age_s`` (outage,
+  frozen frames) or cannot tell (bad frames) sees nothing: every cell is hidden. With
+  a calibration, the cells the robot hides from the camera and the floor outside the
+  image are hidden in part (:mod:`stack.perception.visibility`); the cell where the
+  person was last seen counts as wholly hidden while that spot is hidden.
+- **Laser alone.** Where the camera cannot see (hidden fraction at least
+  ``laser_only_min_hidden``), a confirmed laser track in the grid is the person: its
+  cell, its direction (dominant axis of its velocity, "Not moving" below the slow
+  threshold) and its speed class. A laser track where the camera sees nobody is
+  furniture or noise and is ignored.
+- Otherwise no person is seen: the label is "No person" with the hidden fractions
+  beside it (the planner treats a hidden cell as unobserved), or "Unseen" when the
+  camera saw nothing at all.
 """
 
 from __future__ import annotations
@@ -28,14 +48,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from stack.cells import CellGrid, Direction
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
 from stack.perception.tracker import TrackEstimate, nearest_track
+from stack.perception.visibility import CameraVisibility
+from stack.vocabulary import NO_PERSON, NOT_MOVING, OUT_OF_MAP, UNSEEN
 
-NO_PERSON = "No person"
-OUT_OF_MAP = "Out of the map"
-NOT_MOVING = "Not moving"
+__all__ = ["NO_PERSON", "NOT_MOVING", "OUT_OF_MAP", "UNSEEN", "Observation", "ObservationCombiner"]
+
+SOURCES = ("camera", "laser", "fused", "none")
 
 
 class SpeedClass(enum.Enum):
@@ -84,6 +107,9 @@ class Observation:
         robot_cell: the robot's cell, or None for "Out of the map" / never localised.
         person_position_m: the camera's map position of the person, for display [m].
         speed_mps: the laser track's speed when one was associated, for display [m/s].
+        source: what saw the person: "camera", "laser", "fused", or "none".
+        hidden: (cell, fraction) for every cell the camera could not see, wholly or
+            in part, at this step; all cells at 1.0 when the camera saw nothing.
     """
 
     stamp_s: float
@@ -93,8 +119,12 @@ class Observation:
     robot_cell: int | None
     person_position_m: tuple[float, float] | None = None
     speed_mps: float | None = None
+    source: str = "camera"
+    hidden: tuple[tuple[int, float], ...] = ()
 
     def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"source {self.source!r} is not one of {SOURCES}")
         if self.person_cell is None and self.direction is not Direction.NOT_MOVING:
             raise ValueError("no person must be 'Not moving'")
         if (self.direction is Direction.NOT_MOVING) != (self.speed is None):
@@ -102,8 +132,17 @@ class Observation:
 
     @property
     def person_label(self) -> str:
-        """The cell number as text, or "No person"."""
-        return NO_PERSON if self.person_cell is None else str(self.person_cell)
+        """The cell number as text, "No person", or "Unseen" (the camera saw nothing)."""
+        if self.person_cell is not None:
+            return str(self.person_cell)
+        return UNSEEN if self.unseen else NO_PERSON
+
+    @property
+    def unseen(self) -> bool:
+        """No person seen and the camera could not look anywhere."""
+        return (
+            self.person_cell is None and bool(self.hidden) and all(f >= 1.0 for _, f in self.hidden)
+        )
 
     @property
     def velocity_label(self) -> str:
@@ -128,6 +167,8 @@ class Observation:
                 None if self.person_position_m is None else list(self.person_position_m)
             ),
             "speed_mps": self.speed_mps,
+            "source": self.source,
+            "hidden": {str(c): round(f, 3) for c, f in self.hidden},
         }
 
     def to_json(self) -> str:
@@ -141,7 +182,7 @@ class Observation:
             ValueError: a label outside the thesis's observation alphabet.
         """
         robot_cell = None if robot == OUT_OF_MAP else _cell_label(robot, "robot")
-        person_cell = None if person == NO_PERSON else _cell_label(person, "person")
+        person_cell = None if person in (NO_PERSON, UNSEEN) else _cell_label(person, "person")
         if velocity == NOT_MOVING:
             return cls(stamp_s, person_cell, Direction.NOT_MOVING, None, robot_cell)
         parts = velocity.split(" ")
@@ -161,11 +202,36 @@ class Observation:
         )
         pos = data.get("person_position_m")
         speed = data.get("speed_mps")
+        hidden = parse_hidden(data.get("hidden"))
+        if str(data["person"]) == UNSEEN and obs.person_cell is None:
+            hidden = tuple((c, 1.0) for c, _ in hidden) or ()
         return cls(
             obs.stamp_s, obs.person_cell, obs.direction, obs.speed, obs.robot_cell,
             None if pos is None else (float(pos[0]), float(pos[1])),
             None if speed is None else float(speed),
+            str(data.get("source", "camera")), hidden,
         )  # fmt: skip
+
+
+def parse_hidden(data: Any) -> tuple[tuple[int, float], ...]:
+    """The ``hidden`` field: {"3": 0.33, ...} or [[3, 0.33], ...] -> ((3, 0.33), ...).
+
+    Raises:
+        ValueError: not a mapping or list of (cell, fraction), or a fraction outside [0, 1].
+    """
+    if data is None:
+        return ()
+    items = data.items() if isinstance(data, Mapping) else data
+    out = []
+    try:
+        for cell, frac in items:
+            c, f = int(cell), float(frac)
+            if not 0.0 <= f <= 1.0:
+                raise ValueError(f"hidden fraction {frac!r} of cell {cell!r} is not in [0, 1]")
+            out.append((c, f))
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"hidden must map cells to fractions in [0, 1]: {err}") from None
+    return tuple(sorted(out))
 
 
 def _cell_label(text: str, what: str) -> int:
@@ -176,29 +242,44 @@ def _cell_label(text: str, what: str) -> int:
 
 
 @dataclass(frozen=True)
-class CombinerConfig:
+class CombinerConfig(Config):
     """Attributes:
     speed_thresholds_mps: boundaries of the speed classes [m/s] (thesis: 0.2, 0.7).
     association_gate_m: a laser track farther than this from the camera's person
         is not the person [m].
-    max_camera_age_s: a camera state older than this is "No person" [s].
+    max_camera_age_s: a camera state older than this means the camera sees nothing [s].
     max_track_age_s: a laser track not updated for longer is "no laser data" [s].
+    camera_sigma_m: the camera foot point's error [m] (twin walks: median 0.10 m, p90
+        0.21 m; up to 0.6 m with the legs half hidden).
+    laser_sigma_m: a leg track's position error [m].
+    border_margin_m: a person this close outside the grid is in the nearest cell [m].
+    laser_only_min_hidden: a laser track counts alone where the camera's hidden
+        fraction is at least this.
+    last_seen_memory_s: how long the place the person was last seen is remembered [s].
     """
 
     speed_thresholds_mps: tuple[float, float] = (0.2, 0.7)
     association_gate_m: float = 1.0
     max_camera_age_s: float = 2.0
     max_track_age_s: float = 1.0
+    camera_sigma_m: float = 0.25
+    laser_sigma_m: float = 0.1
+    border_margin_m: float = 0.3
+    laser_only_min_hidden: float = 0.3
+    last_seen_memory_s: float = 20.0
 
     def __post_init__(self) -> None:
         lo, hi = self.speed_thresholds_mps
         require(0 < lo < hi, "speed_thresholds_mps", self.speed_thresholds_mps,
                 "needs 0 < slow/medium < medium/fast")  # fmt: skip
-        require(self.association_gate_m > 0, "association_gate_m", self.association_gate_m,
-                "must be > 0")  # fmt: skip
-        require(self.max_camera_age_s > 0, "max_camera_age_s", self.max_camera_age_s,
-                "must be > 0")  # fmt: skip
-        require(self.max_track_age_s > 0, "max_track_age_s", self.max_track_age_s, "must be > 0")
+        for key in ("association_gate_m", "max_camera_age_s", "max_track_age_s",
+                    "camera_sigma_m", "laser_sigma_m", "last_seen_memory_s"):  # fmt: skip
+            v = getattr(self, key)
+            require(math.isfinite(v) and v > 0, key, v, "must be a finite number > 0")
+        require(0 <= self.border_margin_m < 1.0, "border_margin_m", self.border_margin_m,
+                "must be in [0, 1) m")  # fmt: skip
+        require(0 < self.laser_only_min_hidden <= 1, "laser_only_min_hidden",
+                self.laser_only_min_hidden, "must be in (0, 1]")  # fmt: skip
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None, key: str = "observations") -> CombinerConfig:
@@ -206,9 +287,22 @@ class CombinerConfig:
         return from_mapping(cls, data, key)
 
 
+def direction_of_velocity(vx: float, vy: float, still_below_mps: float) -> Direction:
+    """The dominant axis of a velocity (map frame: x east, y north); NOT_MOVING if slow."""
+    if not (math.isfinite(vx) and math.isfinite(vy)) or math.hypot(vx, vy) < still_below_mps:
+        return Direction.NOT_MOVING
+    if abs(vx) >= abs(vy):
+        return Direction.EAST if vx > 0 else Direction.WEST
+    return Direction.NORTH if vy > 0 else Direction.SOUTH
+
+
+def _finite_track(t: TrackEstimate) -> bool:
+    return all(math.isfinite(v) for v in (*t.position_m, *t.velocity_mps, t.speed_mps))
+
+
 @dataclass
 class ObservationCombiner:
-    """Joins camera, laser and pose into one :class:`Observation` per decision step.
+    """Joins camera, laser, pose and what the camera can see into one :class:`Observation`.
 
     The robot's cell is deterministic in the thesis; when no pose has arrived since
     the last step the previous cell is kept (the robot did not move), and before
@@ -216,12 +310,46 @@ class ObservationCombiner:
 
     Args:
         grid: the cell geometry shared with the planner.
-        config: association and freshness parameters.
+        config: association, fusion and freshness parameters.
+        visibility: the camera's view given the robot's pose (None: the camera is
+            taken to see the whole grid whenever it works).
     """
 
     grid: CellGrid
     config: CombinerConfig = field(default_factory=CombinerConfig)
+    visibility: CameraVisibility | None = None
     _robot_cell: int | None = field(default=None, init=False)
+    _pose: Pose2D | None = field(default=None, init=False)
+    _last_seen: tuple[float, float, float] | None = field(default=None, init=False)
+
+    def cell_of(self, x: float, y: float) -> int | None:
+        """The cell of a map point, or the nearest cell within ``border_margin_m``."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return None
+        cell = self.grid.cell_at(x, y)
+        m = self.config.border_margin_m
+        if cell is not None or m <= 0:
+            return cell
+        x0, y0 = self.grid.origin_m
+        w, h = self.grid.size_m
+        cx, cy = min(max(x, x0), x0 + w - 1e-6), min(max(y, y0), y0 + h - 1e-6)
+        if math.hypot(x - cx, y - cy) > m:
+            return None
+        return self.grid.cell_at(cx, cy)
+
+    def hidden(self, camera_sees: bool, stamp_s: float) -> dict[int, float]:
+        """Each cell's fraction the camera cannot see now (only cells > 0)."""
+        if not camera_sees:
+            return {c: 1.0 for c in self.grid.cells}
+        if self.visibility is None:
+            return {}
+        out = {c: f for c, f in self.visibility.hidden_fractions(self._pose).items() if f > 0}
+        seen = self._last_seen
+        if seen is not None and stamp_s - seen[2] <= self.config.last_seen_memory_s:
+            cell = self.cell_of(seen[0], seen[1])
+            if cell is not None and self.visibility.point_hidden(seen[0], seen[1], self._pose):
+                out[cell] = 1.0
+        return out
 
     def combine(
         self,
@@ -235,33 +363,74 @@ class ObservationCombiner:
         Args:
             stamp_s: the decision time [s].
             camera: the camera's latest state (None: no frame yet).
-            tracks: the laser tracker's latest tracks.
+            tracks: the laser tracker's latest tracks, in the map frame.
             robot_pose: the robot's latest pose in the map frame (None: none new).
 
         Returns:
-            The observation; "No person" / "Not moving" whenever the camera cannot
-            vouch for a person in the region.
+            The observation (see the module's rules).
         """
         if robot_pose is not None:
             self._robot_cell = self.grid.cell_at(robot_pose.x_m, robot_pose.y_m)
+            self._pose = robot_pose
         robot_cell = self._robot_cell
         cfg = self.config
+        fresh = [
+            t
+            for t in tracks
+            if stamp_s - t.last_update_s <= cfg.max_track_age_s and t.confirmed and _finite_track(t)
+        ]
+        camera_sees = (
+            camera is not None
+            and camera.status is not PersonStatus.UNKNOWN
+            and stamp_s - camera.stamp_s <= cfg.max_camera_age_s
+        )
         if (
-            camera is None
-            or camera.status is not PersonStatus.PERSON
-            or camera.position_m is None
-            or camera.cell is None
-            or stamp_s - camera.stamp_s > cfg.max_camera_age_s
+            camera_sees
+            and camera is not None
+            and camera.status is PersonStatus.PERSON
+            and camera.position_m is not None
         ):
-            return Observation(stamp_s, None, Direction.NOT_MOVING, None, robot_cell)
-        fresh = [t for t in tracks if stamp_s - t.last_update_s <= cfg.max_track_age_s]
+            obs = self._camera_person(stamp_s, camera, fresh, robot_cell)
+            if obs is not None:
+                return obs
+        hidden = self.hidden(camera_sees, stamp_s)
+        laser = self._laser_person(stamp_s, fresh, hidden, robot_cell)
+        if laser is not None:
+            return laser
+        return Observation(
+            stamp_s, None, Direction.NOT_MOVING, None, robot_cell,
+            source="none", hidden=tuple(sorted(hidden.items())),
+        )  # fmt: skip
+
+    def _camera_person(
+        self,
+        stamp_s: float,
+        camera: CameraPersonState,
+        fresh: list[TrackEstimate],
+        robot_cell: int | None,
+    ) -> Observation | None:
+        cfg = self.config
+        assert camera.position_m is not None
         track = nearest_track(fresh, camera.position_m, cfg.association_gate_m)
+        if track is None:
+            pos, source = camera.position_m, "camera"
+        else:
+            wc, wl = cfg.camera_sigma_m**-2, cfg.laser_sigma_m**-2
+            pos = tuple(  # type: ignore[assignment]
+                (wc * c + wl * t) / (wc + wl)
+                for c, t in zip(camera.position_m, track.position_m, strict=True)
+            )
+            source = "fused"
+        cell = self.cell_of(pos[0], pos[1])
+        if cell is None:
+            return None  # outside the region: not in the environment (thesis)
+        self._last_seen = (pos[0], pos[1], stamp_s)
         speed_mps = None if track is None else track.speed_mps
+        position = (float(pos[0]), float(pos[1]))
         if camera.direction is Direction.NOT_MOVING:
             return Observation(
-                stamp_s, camera.cell, Direction.NOT_MOVING, None, robot_cell,
-                camera.position_m, speed_mps,
-            )  # fmt: skip
+                stamp_s, cell, Direction.NOT_MOVING, None, robot_cell, position, speed_mps, source
+            )
         # Camera sees the person but the laser has no data: "0-0.2" (thesis 4.5).
         cls = (
             SpeedClass.SLOW
@@ -269,5 +438,37 @@ class ObservationCombiner:
             else speed_class(track.speed_mps, cfg.speed_thresholds_mps)
         )
         return Observation(
-            stamp_s, camera.cell, camera.direction, cls, robot_cell, camera.position_m, speed_mps
+            stamp_s, cell, camera.direction, cls, robot_cell, position, speed_mps, source
         )
+
+    def _laser_person(
+        self,
+        stamp_s: float,
+        fresh: list[TrackEstimate],
+        hidden: Mapping[int, float],
+        robot_cell: int | None,
+    ) -> Observation | None:
+        cfg = self.config
+        candidates = []
+        for t in fresh:
+            cell = self.cell_of(*t.position_m)
+            if cell is not None and hidden.get(cell, 0.0) >= cfg.laser_only_min_hidden:
+                candidates.append((t, cell))
+        if not candidates:
+            return None
+        seen = self._last_seen
+        if seen is not None:  # the track nearest where the person was last seen
+            track, cell = min(candidates, key=lambda tc: math.dist(tc[0].position_m, seen[:2]))
+        else:  # the longest-lived track
+            track, cell = max(candidates, key=lambda tc: tc[0].hits)
+        self._last_seen = (track.position_m[0], track.position_m[1], stamp_s)
+        direction = direction_of_velocity(*track.velocity_mps, cfg.speed_thresholds_mps[0])
+        cls = (
+            None
+            if direction is Direction.NOT_MOVING
+            else speed_class(track.speed_mps, cfg.speed_thresholds_mps)
+        )
+        return Observation(
+            stamp_s, cell, direction, cls, robot_cell, track.position_m, track.speed_mps, "laser",
+            tuple(sorted(hidden.items())),
+        )  # fmt: skip

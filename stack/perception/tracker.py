@@ -21,12 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from stack.config import Config
 from stack.perception._config import from_mapping, require
 from stack.perception.errors import BadScanError
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerConfig(Config):
     """Attributes:
     accel_noise_mps2: standard deviation of the person's acceleration, the process
         noise of the constant-velocity model [m/s^2].
@@ -198,7 +199,7 @@ class LegTracker:
         meas, sigmas = [], []
         for p in positions_m:
             legs = getattr(p, "legs", None)
-            x, y = p.position_m if hasattr(p, "position_m") else p
+            x, y = getattr(p, "position_m", p)
             meas.append((float(x), float(y)))
             single = legs is not None and len(legs) == 1
             sigmas.append(self.config.single_leg_sigma_m if single else None)

@@ -25,6 +25,7 @@ from stack.planning.model import ACTIONS, DIRECTIONS, OUT_OF_MAP, VELOCITIES, Fa
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
 from stack.planning.replay import policy_chooser
+from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
 
 
 class ObservationError(ValueError):
@@ -37,11 +38,19 @@ class StateFileError(ValueError):
 
 @dataclass(frozen=True)
 class Observed:
-    """One step's observations as labels (as the thesis's tables print them)."""
+    """One step's observations as labels (as the thesis's tables print them).
+
+    ``hidden`` maps cells the camera could not see at this step to the fraction of the
+    cell hidden (the robot's shadow, the image edge); a person label "Unseen" means
+    the camera could not look at all. Both say what "No person" is worth: nothing,
+    where the camera could not have seen the person.
+    """
 
     robot: str  # "1".."12" or "Out of the map"
-    person: str  # "1".."12" or "No person"
+    person: str  # "1".."12", "No person" or "Unseen"
     velocity: str  # "Not moving" or "East higher", ...
+    hidden: tuple[tuple[int, float], ...] = ()
+    source: str = ""
 
     @classmethod
     def from_dict(cls, data: Any) -> Observed:
@@ -53,12 +62,36 @@ class Observed:
         if not isinstance(data, dict):
             raise ObservationError(f"observation must be an object, got {type(data).__name__}")
         try:
-            return cls(str(data["robot"]), str(data["person"]), str(data["velocity"]))
+            labels = {k: data[k] for k in ("robot", "person", "velocity")}
         except KeyError as err:
             raise ObservationError(f"observation without {err.args[0]!r}: {data}") from None
+        if not all(isinstance(v, str) for v in labels.values()):
+            raise ObservationError(f"observation labels must be strings: {labels}")
+        hidden = data.get("hidden") or {}
+        try:
+            items = hidden.items() if isinstance(hidden, dict) else hidden
+            parsed = tuple(sorted((int(c), float(f)) for c, f in items))
+        except (TypeError, ValueError):
+            raise ObservationError(f"hidden must map cells to fractions: {hidden!r}") from None
+        if not all(0.0 <= f <= 1.0 for _, f in parsed):
+            raise ObservationError(f"hidden fractions must lie in [0, 1]: {hidden!r}")
+        source = data.get("source", "")
+        return cls(
+            labels["robot"], labels["person"], labels["velocity"], parsed,
+            source if isinstance(source, str) else "",
+        )  # fmt: skip
 
-    def to_dict(self) -> dict[str, str]:
-        return {"robot": self.robot, "person": self.person, "velocity": self.velocity}
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "robot": self.robot,
+            "person": self.person,
+            "velocity": self.velocity,
+        }
+        if self.hidden:
+            out["hidden"] = {str(c): round(f, 3) for c, f in self.hidden}
+        if self.source:
+            out["source"] = self.source
+        return out
 
 
 def _cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
@@ -109,6 +142,9 @@ class PlannerAgent:
         self.action: int | None = None  # the action of the step under way
         self.values: list[float] = []
         self.fingerprint = model_fingerprint(pomdp)
+        idx = np.unravel_index(np.arange(pomdp.n_states), model.state_shape)
+        self._robot_of_state = idx[0]
+        self._person_of_state = idx[1] if model.people >= 1 else np.zeros_like(idx[0])
 
     # -- deciding --------------------------------------------------------------------
     def decide(self) -> int:
@@ -135,9 +171,16 @@ class PlannerAgent:
         if self.action is None:
             raise RuntimeError("observe() without an action under way; call decide() first")
         z, robot, person, direction = self._observation_index(observed)
+        if robot is None and self._robot_probability(None) == 0.0:
+            raise ObservationError(
+                "robot 'Out of the map' is impossible from this belief: observation ignored"
+            )
         note = None
         try:
-            self.belief = belief_ops.update(self.pomdp, self.belief, self.action, z)
+            lik = self.likelihood(observed, z)
+            self.belief = belief_ops.update_with_likelihood(
+                self.pomdp, self.belief, self.action, lik
+            )
         except belief_ops.ZeroProbabilityObservation:
             note = "observation impossible under the model: belief restarted from it"
             self.belief = self.model.initial_belief(
@@ -148,13 +191,56 @@ class PlannerAgent:
         self.phase = "observing"  # until the next decide()
         return record
 
+    def _robot_probability(self, cell: int | None) -> float:
+        """P(robot in ``cell`` after the action under way | belief)."""
+        assert self.action is not None
+        pred = belief_ops.predict(self.pomdp, self.belief, self.action)
+        r = self._robot_of_state == self.model.robot_index(cell)
+        return float(pred[r].sum())
+
+    def likelihood(self, observed: Observed, z: int | None = None) -> np.ndarray:
+        """P(observation | state) over the flat states, with the camera's blind cells.
+
+        A person in a cell the camera could not see (fraction h of the cell hidden)
+        gives "No person" as often as an absent person does: the likelihood there is
+        (1 - h) P(z | s) + h P(z | s with the person absent). "Unseen" is h = 1
+        everywhere: only the robot's cell is observed and the person's belief follows
+        the transition alone. docs/MODEL.md, "What the camera could not see".
+        """
+        if self.action is None:
+            raise RuntimeError("likelihood() without an action under way")
+        if z is None:
+            z = self._observation_index(observed)[0]
+        lik = self.pomdp.O[self.action][:, z].toarray().ravel()
+        if observed.person not in (NO_PERSON, UNSEEN) or self.model.people != 1:
+            return lik
+        cells = self.model.task.grid.cells
+        h = np.zeros(self.model.n_cells + 1)
+        if observed.person == UNSEEN:
+            h[: self.model.n_cells] = 1.0
+        for cell, frac in observed.hidden:
+            if cell in cells:
+                h[self.model.position_index(cell)] = max(h[self.model.position_index(cell)], frac)
+        if not h.any():
+            return lik
+        absent = self.model.n_cells
+        # P(No person, velocity | person absent) (the same for every direction)
+        l_absent = float(
+            self.model.obs_position[absent, absent]
+            * self.model.obs_velocity[absent, 0, VELOCITIES.index(observed.velocity)]
+        )
+        # the robot's cell is observed exactly
+        robot_ok = self._robot_of_state == np.unravel_index(z, self.model.obs_shape)[0]
+        hs = h[self._person_of_state]
+        return (1.0 - hs) * lik + hs * l_absent * robot_ok
+
     def _observation_index(self, o: Observed) -> tuple[int, int | None, int | None, str]:
         cells = self.model.task.grid.cells
         robot = _cell(o.robot, OUT_OF_MAP, "robot cell", cells)
-        person = _cell(o.person, "No person", "person cell", cells)
+        person = None if o.person == UNSEEN else _cell(o.person, NO_PERSON, "person cell", cells)
         if o.velocity not in VELOCITIES:
             raise ObservationError(f"unknown velocity {o.velocity!r}; known: {VELOCITIES}")
-        direction = o.velocity.split(" ")[0] if o.velocity != "Not moving" else "Not moving"
+        direction = o.velocity.split(" ")[0] if o.velocity != NOT_MOVING else NOT_MOVING
         z = self.model.observation_index(robot, [(person, o.velocity)] * self.model.people)
         return z, robot, person, direction
 
@@ -217,7 +303,11 @@ class PlannerAgent:
         if not path.exists():
             return False
         try:
+            if path.stat().st_size > 50_000_000:
+                raise ValueError("larger than 50 MB")
             data = json.loads(path.read_text())
+            if not isinstance(data, dict):
+                raise TypeError("not a JSON object")
             belief = np.asarray(data["belief"], float)
             step, phase, action = int(data["step"]), str(data["phase"]), data["action"]
         except (OSError, ValueError, KeyError, TypeError) as err:
@@ -228,7 +318,22 @@ class PlannerAgent:
             raise StateFileError(f"{path}: the belief is not a distribution over the states")
         if phase not in ("start", "acting", "observing", "done"):
             raise StateFileError(f"{path}: unknown phase {phase!r}")
+        if step < 0:
+            raise StateFileError(f"{path}: negative step {step}")
+        if not np.all(np.isfinite(belief)) or np.any(belief < 0):
+            raise StateFileError(f"{path}: the belief holds negative or non-finite numbers")
+        if action is not None and (
+            isinstance(action, bool)
+            or not isinstance(action, int)
+            or not 0 <= action < self.pomdp.n_actions
+        ):
+            raise StateFileError(f"{path}: unknown action {action!r}")
+        values = data.get("values", [])
+        if not isinstance(values, list) or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in values
+        ):
+            raise StateFileError(f"{path}: values must be a list of numbers")
         self.belief, self.step, self.phase = belief, step, phase
         self.action = None if action is None else int(action)
-        self.values = [float(v) for v in data.get("values", [])]
+        self.values = [float(v) for v in values]
         return True

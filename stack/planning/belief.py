@@ -48,6 +48,28 @@ def update(pomdp: POMDP, belief: np.ndarray, action: int, observation: int) -> n
     return post / total
 
 
+def update_with_likelihood(
+    pomdp: POMDP, belief: np.ndarray, action: int, likelihood: np.ndarray
+) -> np.ndarray:
+    """The posterior for an observation given as its likelihood over the states.
+
+    ``update(pomdp, b, a, z)`` is this with ``likelihood = O[a][:, z]``; other
+    likelihoods express observations the model's alphabet cannot (e.g. "no person
+    seen" where the camera could see only part of the floor).
+
+    Raises:
+        ZeroProbabilityObservation: if the observation has probability 0.
+    """
+    post = np.asarray(likelihood, float) * predict(pomdp, belief, action)
+    total = post.sum()
+    if not total > 0.0 or not np.isfinite(total):
+        raise ZeroProbabilityObservation(
+            f"the observation after action {pomdp.actions[action]!r} has probability 0 "
+            "under the model from this belief"
+        )
+    return post / total
+
+
 def observation_probabilities(pomdp: POMDP, belief: np.ndarray, action: int) -> np.ndarray:
     """P(z | b, a) for every observation z, shape (Z,)."""
     return pomdp.O[action].T @ predict(pomdp, belief, action)

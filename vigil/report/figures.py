@@ -1,10 +1,13 @@
-"""Figures for run reports (plotting lives here, never inside an algorithm)."""
+"""Figures for run reports (plotting lives here, never inside an algorithm): the
+chapter 5 replay, a run's positions and belief (figures 5.1-5.4), the guarding
+timeline, and the scenario set's overview."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -14,7 +17,19 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from stack.cells import CellGrid  # noqa: E402
-from stack.planning.model import ACTIONS, DIRECTIONS, FactoredModel  # noqa: E402
+from stack.planning.model import (  # noqa: E402
+    ACTIONS,
+    DIRECTIONS,
+    NO_PERSON,
+    OUT_OF_MAP,
+    FactoredModel,
+)
+from vigil.report.records import UNKNOWN, cell_of_label  # noqa: E402
+
+if TYPE_CHECKING:
+    from stack.planning.replay import Table
+    from vigil.report.metrics import Timeline
+    from vigil.report.tables import StepRow
 
 # PNG metadata without a software version: the same figure gives the same bytes.
 _PNG_METADATA = {"Software": None}
@@ -88,7 +103,7 @@ def plot_replay(model: FactoredModel, result, path: str | Path) -> Path:
     return path
 
 
-# -- run reports (vigil.run_report) ------------------------------------------------------
+# -- run reports (vigil.report) -----------------------------------------------------------
 
 
 def _cell_values(values: Sequence[int | None | float]) -> np.ndarray:
@@ -244,5 +259,186 @@ def plot_belief_grids(
         fig.colorbar(im, ax=axes, shrink=0.8, aspect=30, label="P(person in cell)")
     path = Path(path)
     fig.savefig(path, dpi=100, metadata=_PNG_METADATA)
+    plt.close(fig)
+    return path
+
+
+def plot_run(
+    run_dir: Path,
+    model: FactoredModel,
+    rows: Sequence[StepRow],
+    thesis_table: Table | None,
+    title: str,
+) -> list[str]:
+    """positions.png and belief.png of a run from its step table; the file names."""
+
+    def cells(labels: Sequence[str]) -> list:
+        return [float("nan") if x == UNKNOWN else cell_of_label(x) for x in labels]
+
+    task = model.task
+    steps = [r.step for r in rows]
+    series = [
+        ("robot (observed)", cells([r.obs_robot for r in rows]), "step:b-"),
+        ("robot (true)", cells([r.true_robot for r in rows]), "c--"),
+        ("person (observed)", cells([r.obs_person for r in rows]), "o"),
+        ("person (true)", cells([r.true_person for r in rows]), "x:"),
+    ]
+    if thesis_table is not None:
+        th = list(thesis_table.steps[: len(rows)])
+        pad = [float("nan")] * (len(rows) - len(th))
+        series.append(("robot (thesis)", [st.robot for st in th] + pad, "s-"))
+        series.append(("person (thesis)", [st.person for st in th] + pad, "d:"))
+        title += f" - thesis table {thesis_table.name}"
+    rewards = {"cumulative discounted reward": [r.cumulative for r in rows]}
+    files = []
+    plot_positions(
+        run_dir / "positions.png",
+        steps,
+        [s for s in series if not all(isinstance(v, float) and np.isnan(v) for v in s[1])],
+        n_cells=model.n_cells,
+        restricted=task.restricted_cells,
+        rest_cell=task.rest_cell,
+        rewards=rewards,
+        title=title,
+    )
+    files.append("positions.png")
+    panels = []
+    for r in rows:
+        true_p = r.true_person if r.true_person not in (UNKNOWN, NO_PERSON) else None
+        robot = r.obs_robot if r.obs_robot not in (UNKNOWN, OUT_OF_MAP) else None
+        if robot is None and r.true_robot not in (UNKNOWN, OUT_OF_MAP):
+            robot = r.true_robot
+        panels.append(
+            {
+                "title": f"{r.step}: {r.action}",
+                "probs": r.belief_person,
+                "robot": None if robot is None else int(robot),
+                "person": None if true_p is None else int(true_p),
+                "note": "" if r.belief_none is None else f"P(none) {r.belief_none:.2f}",
+            }
+        )
+    plot_belief_grids(
+        run_dir / "belief.png",
+        task.grid,
+        panels,
+        restricted=task.restricted_cells,
+        title=f"{title}: P(person in cell) after each step",
+    )
+    files.append("belief.png")
+    return files
+
+
+def plot_timeline(
+    path: str | Path,
+    tl: Timeline,
+    metrics: Mapping[str, Any],
+    *,
+    n_cells: int,
+    restricted: Sequence[int],
+    rest_cell: int | None,
+    steps: Sequence[tuple[float, str]] = (),
+    title: str = "",
+) -> Path:
+    """The guarding timeline: true person and robot cells over time, each visit shaded
+    (green guarded, red not; a cross where the robot abandoned it), warnings as ticks
+    (green timely, red late), false trips, and each step's outcome (misses red).
+
+    Args:
+        steps: (stamp, outcome) per decision step (:func:`metrics.step_outcome`).
+    """
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    t = np.asarray(tl.t, float)
+
+    def y(cells: Sequence[int | None]) -> np.ndarray:
+        return np.asarray([np.nan if c is None else c for c in cells], float)
+
+    for v in metrics.get("visits", []):
+        end = v["person_left_t"] if v["person_left_t"] is not None else (t[-1] if len(t) else 0)
+        ax.axvspan(v["person_arrival_t"], end, color="g" if v["guarded"] else "r", alpha=0.12, lw=0)
+        if v["abandoned"]:
+            ax.plot([v["abandoned_t"]], [v["cell"]], "rx", ms=10, mew=2)
+    draw_cell_bands(ax, restricted, rest_cell)
+    if len(t):
+        ax.step(t, y(tl.person), "g-", where="post", lw=1.5, label="person (true)")
+        ax.step(t, y(tl.robot), "b-", where="post", lw=2, alpha=0.8, label="robot (true)")
+    for w in metrics.get("warnings", []):
+        ax.axvline(w["t"], color="g" if w["timely"] else "r", lw=1, ls="--", alpha=0.8)
+    for f in metrics.get("false_trips", []):
+        ax.plot([f["t"]], [f["cell"]], "mv", ms=9)
+    colours = {"miss": "r", "unseen": "orange", "wrong cell": "m", "seen": "g", "phantom": "k"}
+    for stamp, outcome in steps:
+        ax.plot([stamp], [-0.3], "|", color=colours.get(outcome, "0.6"), ms=10, mew=2)
+    ax.set_ylim(-0.8, n_cells + 0.5)
+    ax.set_yticks(range(0, n_cells + 1), ["none"] + [str(c) for c in range(1, n_cells + 1)])
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("cell")
+    ax.grid(alpha=0.2)
+    legend = [
+        plt.Line2D([], [], color="g", lw=1.5, label="person (true)"),
+        plt.Line2D([], [], color="b", lw=2, label="robot (true)"),
+        plt.Line2D([], [], color="g", ls="--", label="warning, timely"),
+        plt.Line2D([], [], color="r", ls="--", label="warning, late"),
+        plt.Line2D([], [], color="r", marker="|", ls="", ms=10, mew=2, label="step: miss"),
+        plt.Line2D([], [], color="orange", marker="|", ls="", ms=10, mew=2, label="step: unseen"),
+        plt.Line2D([], [], color="m", marker="|", ls="", ms=10, mew=2, label="step: wrong cell"),
+        plt.Line2D([], [], color="g", marker="|", ls="", ms=10, mew=2, label="step: seen"),
+        plt.Line2D([], [], color="r", marker="x", ls="", ms=8, mew=2, label="abandoned"),
+        plt.Line2D([], [], color="m", marker="v", ls="", ms=8, label="false trip"),
+    ]
+    ax.legend(handles=legend, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+    ax.set_title(
+        (title + "\n" if title else "") + "shaded: visits (green guarded, red not guarded)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=90, metadata=_PNG_METADATA)
+    plt.close(fig)
+    return path
+
+
+def plot_set(
+    path: str | Path, rows: Sequence[tuple[str, Mapping[str, Any] | None]], title: str = ""
+) -> Path:
+    """The scenario set at a glance: per scenario, visits guarded / not guarded /
+    abandoned, warnings timely / late, false trips (left); the 'No person' miss rate
+    and the share of unseen steps among steps with the person on the grid (right)."""
+    names = [n for n, _ in rows]
+    ms = [m or {} for _, m in rows]
+    x = np.arange(len(rows))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 4.8), sharey=True)
+    guarded = np.array([m.get("guarded", 0) for m in ms])
+    visits = np.array([m.get("n_visits", 0) for m in ms])
+    abandoned = np.array([m.get("abandoned", 0) for m in ms])
+    timely = np.array([m.get("timely_warnings", 0) for m in ms])
+    late = np.array([m.get("late_warnings", 0) for m in ms])
+    trips = np.array([m.get("n_false_trips", 0) for m in ms])
+    h = 0.2
+    a1.barh(x - 1.5 * h, guarded, h, color="g", label="visits guarded")
+    a1.barh(x - 1.5 * h, visits - guarded, h, left=guarded, color="r", label="visits not guarded")
+    a1.barh(x - 0.5 * h, abandoned, h, color="darkred", label="visits abandoned")
+    a1.barh(x + 0.5 * h, timely, h, color="limegreen", label="warnings timely")
+    a1.barh(x + 0.5 * h, late, h, left=timely, color="orange", label="warnings late")
+    a1.barh(x + 1.5 * h, trips, h, color="m", label="false trips")
+    a1.set_yticks(x, names)
+    a1.invert_yaxis()
+    a1.set_xlabel("count")
+    a1.legend(fontsize=7, loc="lower right")
+    a1.grid(alpha=0.2, axis="x")
+    rate = np.array([np.nan if m.get("miss_rate") is None else m["miss_rate"] for m in ms])
+    with_p = np.array([m.get("steps_with_person", 0) for m in ms], float)
+    unseen = np.array([m.get("unseen_with_person", 0) for m in ms], float)
+    unseen_share = np.divide(unseen, with_p, out=np.full_like(unseen, np.nan), where=with_p > 0)
+    a2.barh(x - 0.2, 100 * rate, 0.4, color="r", label="'No person' misses")
+    a2.barh(x + 0.2, 100 * unseen_share, 0.4, color="orange", label="'Unseen'")
+    a2.axvline(10, color="k", ls=":", lw=1, label="10 % (issue 11's bar for misses)")
+    a2.set_xlabel("% of steps with the person on the grid")
+    a2.legend(fontsize=7, loc="lower right")
+    a2.grid(alpha=0.2, axis="x")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=90, metadata=_PNG_METADATA)
     plt.close(fig)
     return path

@@ -1,0 +1,265 @@
+"""Where the ceiling camera can see a person: the robot's shadow and the image edges.
+
+The absence of a detection is evidence of absence only where the camera could have
+seen the person. The camera looks at the floor obliquely; the robot standing between
+it and a person hides the person's legs or whole body, and floor near the image edges
+shows only part of a person. This module computes, for a robot pose, which floor
+points and which cells the camera cannot see.
+
+Geometry, all from the calibration (no extra measurement): the floor homography
+implies a pinhole camera (:meth:`FloorHomography.camera_matrix`). A person standing
+at a floor point is a vertical rectangle ``person_height_m`` tall and
+``2 * person_half_width_m`` wide facing the camera; the robot is a few boxes in its
+base frame (``robot_boxes``: the MBot's chassis, body and head by default). Both are
+projected into the image and rasterised at ``raster_scale``; a point is *hidden* when
+
+- more than ``max_covered_frac`` of the person's silhouette lies behind the robot, or
+  more than ``max_legs_covered_frac`` of its lower ``legs_frac`` (HOG needs the legs,
+  and the foot point is the bottom of the legs: a partly hidden person is missed or
+  put too far away), and the robot is nearer the camera than the person; or
+- less than ``min_in_image_frac`` of the silhouette is inside the image.
+
+A cell's *hidden fraction* is the share of ``samples_per_axis``² points spread over
+it that are hidden. :func:`stack.planning.agent` uses it as the probability that a
+person in that cell could not have been detected.
+
+Pure: numpy and OpenCV only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from stack.cells import CellGrid
+from stack.config import Config
+from stack.perception._config import from_mapping, require
+from stack.perception.homography import FloorHomography
+from stack.perception.legs import Pose2D
+
+Box = tuple[float, float, float, float, float, float]
+# The MBot (twin/assets/mbot.xml): chassis, body, head as (x0, x1, y0, y1, z0, z1) [m]
+# in the base frame (x forward, z up).
+MBOT_BOXES: tuple[Box, ...] = (
+    (-0.30, 0.30, -0.25, 0.25, 0.0, 0.23),
+    (-0.21, 0.15, -0.19, 0.19, 0.23, 0.92),
+    (-0.18, 0.12, -0.16, 0.16, 0.92, 1.23),
+)
+
+
+@dataclass(frozen=True)
+class VisibilityConfig(Config):
+    """Attributes:
+    person_height_m: the person's silhouette height [m].
+    person_half_width_m: half its width [m].
+    legs_frac: the lower share of the silhouette that holds the legs.
+    max_covered_frac: hidden when more of the whole silhouette is behind the robot.
+    max_legs_covered_frac: hidden when more of the legs are behind the robot.
+    min_in_image_frac: hidden when less of the silhouette is inside the image.
+    samples_per_axis: points per cell side for the cell's hidden fraction.
+    cell_inset_m: the sample points keep this far from the cell's edges [m].
+    raster_scale: the image is rasterised at this fraction of its size.
+    robot_boxes: the robot's body as boxes (x0, x1, y0, y1, z0, z1) in its base frame [m].
+    """
+
+    person_height_m: float = 1.7
+    person_half_width_m: float = 0.25
+    legs_frac: float = 0.45
+    max_covered_frac: float = 0.35
+    max_legs_covered_frac: float = 0.5
+    min_in_image_frac: float = 0.75
+    samples_per_axis: int = 3
+    cell_inset_m: float = 0.15
+    raster_scale: float = 0.25
+    robot_boxes: tuple[tuple[float, float, float, float, float, float], ...] = MBOT_BOXES
+
+    def __post_init__(self) -> None:
+        require(self.person_height_m > 0, "person_height_m", self.person_height_m, "must be > 0")
+        require(self.person_half_width_m > 0, "person_half_width_m", self.person_half_width_m,
+                "must be > 0")  # fmt: skip
+        for key in ("legs_frac", "max_covered_frac", "max_legs_covered_frac", "min_in_image_frac"):
+            v = getattr(self, key)
+            require(0.0 < v <= 1.0, key, v, "must be in (0, 1]")
+        require(self.samples_per_axis >= 1, "samples_per_axis", self.samples_per_axis,
+                "must be >= 1")  # fmt: skip
+        require(self.cell_inset_m >= 0, "cell_inset_m", self.cell_inset_m, "must be >= 0")
+        require(0.05 <= self.raster_scale <= 1.0, "raster_scale", self.raster_scale,
+                "must be in [0.05, 1]")  # fmt: skip
+        for b in self.robot_boxes:
+            require(
+                len(b) == 6 and b[0] < b[1] and b[2] < b[3] and b[4] < b[5],
+                "robot_boxes", b, "each box is (x0, x1, y0, y1, z0, z1) with x0 < x1 etc.",
+            )  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "visibility") -> VisibilityConfig:
+        """Validate a mapping into a VisibilityConfig; raises ConfigError."""
+        return from_mapping(cls, data, key)
+
+
+@dataclass(frozen=True)
+class PointVisibility:
+    """How the camera sees a person standing at one floor point."""
+
+    covered_frac: float  # of the silhouette behind the robot
+    legs_covered_frac: float  # of the legs behind the robot
+    in_image_frac: float  # of the silhouette inside the image
+    hidden: bool
+
+
+class CameraVisibility:
+    """Which floor the camera sees, given where the robot stands.
+
+    Args:
+        homography: the camera's calibration (needs its image size).
+        grid: the cells.
+        config: shapes and thresholds.
+
+    Raises:
+        ValueError: a calibration without an image size, or not a pinhole camera's.
+    """
+
+    def __init__(
+        self,
+        homography: FloorHomography,
+        grid: CellGrid,
+        config: VisibilityConfig | None = None,
+    ):
+        self.config = config or VisibilityConfig()
+        self.grid = grid
+        cam = homography.camera_matrix()
+        if cam is None or homography.image_size_px is None:
+            raise ValueError(
+                "the calibration needs its image size and a pinhole camera to judge visibility"
+            )
+        self.P = np.asarray(cam, dtype=float)
+        _, _, vt = np.linalg.svd(self.P)
+        c = vt[-1]
+        self.centre_m = c[:3] / c[3]  # the camera's position in the map frame
+        s = self.config.raster_scale
+        w, h = homography.image_size_px
+        self.shape = (max(1, round(h * s)), max(1, round(w * s)))
+        self._scale = s
+        self._static = self._static_fractions()
+
+    # -- projection --------------------------------------------------------------
+    def _project(self, pts: np.ndarray) -> np.ndarray | None:
+        """(N, 3) map points to (N, 2) raster pixels; None if any is behind the camera."""
+        q = np.c_[pts, np.ones(len(pts))] @ self.P.T
+        if np.any(q[:, 2] <= 1e-6):
+            return None
+        return q[:, :2] / q[:, 2:3] * self._scale
+
+    def _fill(self, mask: np.ndarray, px: np.ndarray) -> None:
+        hull = cv2.convexHull(np.round(px * 16).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
+
+    def robot_mask(self, pose: Pose2D) -> np.ndarray:
+        """The robot's silhouette in the raster image (uint8 0/1)."""
+        mask = np.zeros(self.shape, np.uint8)
+        for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes:
+            corners = np.array([[x, y] for x in (x0, x1) for y in (y0, y1)])
+            xy = pose.transform(corners)
+            pts = np.r_[np.c_[xy, np.full(4, z0)], np.c_[xy, np.full(4, z1)]]
+            px = self._project(pts)
+            if px is not None:
+                self._fill(mask, px)
+        return mask
+
+    def _person_quads(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Raster corners of the whole silhouette and of its legs at floor point (x, y)."""
+        cfg = self.config
+        dx, dy = x - self.centre_m[0], y - self.centre_m[1]
+        norm = math.hypot(dx, dy)
+        if norm < 1e-6:
+            return None
+        px_, py_ = -dy / norm * cfg.person_half_width_m, dx / norm * cfg.person_half_width_m
+        legs_z = cfg.person_height_m * cfg.legs_frac
+
+        def quad(z1: float) -> np.ndarray | None:
+            pts = np.array(
+                [
+                    [x - px_, y - py_, 0.0],
+                    [x + px_, y + py_, 0.0],
+                    [x + px_, y + py_, z1],
+                    [x - px_, y - py_, z1],
+                ]
+            )
+            return self._project(pts)
+
+        whole, legs = quad(cfg.person_height_m), quad(legs_z)
+        if whole is None or legs is None:
+            return None
+        return whole, legs
+
+    def point(self, x: float, y: float, robot: np.ndarray | None, robot_xy=None) -> PointVisibility:
+        """How a person at floor point (x, y) is seen; ``robot`` from :meth:`robot_mask`."""
+        cfg = self.config
+        quads = self._person_quads(x, y)
+        if quads is None:
+            return PointVisibility(1.0, 1.0, 0.0, True)
+        whole, legs = quads
+        area = abs(cv2.contourArea(whole.astype(np.float32)))
+        mask = np.zeros(self.shape, np.uint8)
+        self._fill(mask, whole)
+        inside = int(mask.sum())
+        in_image = min(1.0, inside / area) if area > 1e-9 else 0.0
+        covered = legs_covered = 0.0
+        nearer = robot_xy is None or (
+            math.dist(robot_xy, self.centre_m[:2]) < math.dist((x, y), self.centre_m[:2])
+        )
+        if robot is not None and inside > 0 and nearer:
+            covered = float((mask & robot).sum()) / inside
+            lmask = np.zeros(self.shape, np.uint8)
+            self._fill(lmask, legs)
+            n_legs = int(lmask.sum())
+            legs_covered = float((lmask & robot).sum()) / n_legs if n_legs else 0.0
+        hidden = (
+            in_image < cfg.min_in_image_frac
+            or covered > cfg.max_covered_frac
+            or legs_covered > cfg.max_legs_covered_frac
+        )
+        return PointVisibility(covered, legs_covered, in_image, hidden)
+
+    def _samples(self, cell: int) -> list[tuple[float, float]]:
+        x0, y0, x1, y1 = self.grid.bounds(cell)
+        k, m = self.config.samples_per_axis, self.config.cell_inset_m
+        xs = np.linspace(x0 + m, x1 - m, k) if k > 1 else [(x0 + x1) / 2]
+        ys = np.linspace(y0 + m, y1 - m, k) if k > 1 else [(y0 + y1) / 2]
+        return [(float(x), float(y)) for x in xs for y in ys]
+
+    def _static_fractions(self) -> dict[int, float]:
+        out = {}
+        for cell in self.grid.cells:
+            pts = self._samples(cell)
+            out[cell] = sum(self.point(x, y, None).hidden for x, y in pts) / len(pts)
+        return out
+
+    def hidden_fractions(self, robot_pose: Pose2D | None) -> dict[int, float]:
+        """Each cell's share of floor the camera cannot see (0: all visible, 1: none).
+
+        Args:
+            robot_pose: the robot's pose in the map frame; None: only the image edges.
+        """
+        if robot_pose is None:
+            return dict(self._static)
+        robot = self.robot_mask(robot_pose)
+        if not robot.any():
+            return dict(self._static)
+        rxy = (robot_pose.x_m, robot_pose.y_m)
+        out = {}
+        for cell in self.grid.cells:
+            pts = self._samples(cell)
+            out[cell] = sum(self.point(x, y, robot, rxy).hidden for x, y in pts) / len(pts)
+        return out
+
+    def point_hidden(self, x: float, y: float, robot_pose: Pose2D | None) -> bool:
+        """Whether a person at floor point (x, y) is hidden from the camera."""
+        robot = None if robot_pose is None else self.robot_mask(robot_pose)
+        rxy = None if robot_pose is None else (robot_pose.x_m, robot_pose.y_m)
+        return self.point(x, y, robot, rxy).hidden

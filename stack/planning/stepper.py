@@ -1,0 +1,206 @@
+"""When a decision step ends: the planner's step machine, pure (no rclpy, no clock).
+
+A step is: decide an action, let navigation carry it out, read the observations,
+update the belief (section 4.3). What vigil adds to the thesis's cadence:
+
+- a **move** ends when navigation reports the robot in its target cell (it keeps
+  driving to the waypoint meanwhile); **Do nothing** (and a refused move) lasts at least
+  ``min_step_s``, about one cell's move, since the model's steps are of one length;
+- a step ends early, at least ``min_event_step_s`` after it began, when the
+  observations show the person in a cell other than at the last step (the person
+  entered the room, a restricted cell, any new cell): the robot reacts to a walker
+  instead of finishing a move first;
+- a missing navigation result (``nav_timeout_s``) or observation (``obs_timeout_s``)
+  is logged and the step goes on.
+
+:class:`DecisionSteps` is driven by three calls, each returning what to do as a list of
+:class:`Command`: :meth:`~DecisionSteps.tick` (periodically), :meth:`~DecisionSteps.on_nav_result`
+and :meth:`~DecisionSteps.on_observation`. The planner node
+(:mod:`stack.planning.node_planner`) turns the commands into messages; an in-process
+loop can drive the same machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from stack.planning.agent import ObservationError, Observed, PlannerAgent
+from stack.vocabulary import ACTIONS
+
+
+@dataclass(frozen=True)
+class StepTiming:
+    """Attributes (seconds):
+    start_delay_s: the first decision waits this long after start.
+    min_step_s: a Do nothing (or refused) step lasts at least this long.
+    min_event_step_s: a person event ends a step no sooner (0: no events).
+    nav_timeout_s: no navigation result for this long: read the observations anyway.
+    obs_timeout_s: no observation this long after asking: ask again.
+    resume_wait_s: after a restart in the middle of an action, wait this long for it.
+    max_steps: stop after this many steps (0: never).
+    """
+
+    start_delay_s: float = 1.0
+    min_step_s: float = 0.0
+    min_event_step_s: float = 0.0
+    nav_timeout_s: float = 60.0
+    obs_timeout_s: float = 5.0
+    resume_wait_s: float = 3.0
+    max_steps: int = 0
+
+
+@dataclass(frozen=True)
+class Command:
+    """What the machine asks for.
+
+    kind: "act" (publish ``action``), "request" (ask for observations), "record" (a step
+    is complete: ``record`` holds it), "done" (the run's steps are over), "log" (a
+    warning in ``text``).
+    """
+
+    kind: str
+    action: str = ""
+    record: dict[str, Any] | None = None
+    text: str = ""
+
+
+@dataclass
+class DecisionSteps:
+    """The step machine around a :class:`PlannerAgent`.
+
+    Args:
+        agent: belief and policy.
+        timing: the cadence.
+        first_person: the person's cell in the initial belief (None: nobody), the
+            reference for the first step's person event.
+        resumed: the agent was restored from a state file (recorded on the next step).
+    """
+
+    agent: PlannerAgent
+    timing: StepTiming = field(default_factory=StepTiming)
+    first_person: int | None = None
+    resumed: bool = False
+    waiting: str = ""  # "" | "nav" | "hold" (min_step_s) | "obs"
+    started: bool = False
+    since_s: float = 0.0
+    step_start_s: float = 0.0
+    hold_until_s: float = 0.0
+    requests: int = 0
+    sent_action: str = ""
+    last_nav: dict[str, Any] | None = None
+    last_person: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.last_person = "" if self.first_person is None else str(self.first_person)
+
+    # -- inputs ---------------------------------------------------------------------
+    def tick(self, now_s: float) -> list[Command]:
+        """Time passes: start, end a hold, or give up waiting."""
+        t = self.timing
+        if not self.started:
+            if now_s < t.start_delay_s:
+                return []
+            self.started = True
+            return self._start(now_s)
+        if self.waiting == "hold" and now_s >= self.hold_until_s:
+            return self._request(now_s)
+        if self.waiting == "nav" and now_s - self.since_s > t.nav_timeout_s:
+            self.last_nav = {"result": "timeout"}
+            return [
+                Command("log", text=f"no navigation result for {t.nav_timeout_s:g} s: "
+                        "reading observations"),
+                *self._request(now_s),
+            ]  # fmt: skip
+        if self.waiting == "obs" and now_s - self.since_s > t.obs_timeout_s:
+            return [
+                Command("log", text=f"no observations {t.obs_timeout_s:g} s after request "
+                        f"{self.requests}: asking again"),
+                *self._request(now_s),
+            ]  # fmt: skip
+        return []
+
+    def on_nav_result(self, now_s: float, body: Any) -> list[Command]:
+        """Navigation's result (a dict; anything else is kept as its text)."""
+        if self.waiting != "nav":
+            return []  # a result nobody waits for (e.g. after a timeout)
+        if isinstance(body, dict) and body.get("action") not in (None, self.sent_action):
+            return []  # the result of an earlier action, superseded
+        self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
+        self.hold_until_s = self.step_start_s + self.timing.min_step_s
+        moved = self.sent_action != "Do nothing" and self.last_nav.get("result") == "succeeded"
+        if moved or now_s >= self.hold_until_s:  # a move ends on arrival
+            return self._request(now_s)
+        self.waiting = "hold"
+        return []
+
+    def on_observation(self, now_s: float, observed: Observed) -> list[Command]:
+        """The observations node's latest; ends the step when asked for or on an event.
+
+        Raises:
+            ObservationError: the agent cannot use it (the step goes on).
+        """
+        if self.waiting not in ("obs", "nav", "hold"):
+            return []
+        trigger = "step"
+        if self.waiting != "obs":  # an event: the person shows up in a new cell
+            person = _person_key(observed.person)
+            elapsed = now_s - self.step_start_s
+            if not (
+                self.timing.min_event_step_s > 0
+                and person
+                and person != self.last_person
+                and elapsed >= self.timing.min_event_step_s
+            ):
+                return []
+            trigger = f"person in {person}"
+            if self.last_nav is None:
+                self.last_nav = {"result": "in progress", "action": self.sent_action}
+        record = self.agent.observe(observed)
+        self.last_person = _person_key(observed.person)
+        record.update(
+            stamp_s=round(now_s, 6), nav=self.last_nav, resumed=self.resumed, trigger=trigger
+        )
+        self.resumed = False
+        self.waiting = ""
+        return [Command("record", record=record), *self._act(now_s)]
+
+    # -- the machine ----------------------------------------------------------------
+    def _start(self, now_s: float) -> list[Command]:
+        phase = self.agent.phase
+        if phase == "done":
+            return self._finish()
+        if phase == "acting":  # the action's result may have been lost while down
+            self.waiting = "nav"
+            self.since_s = now_s - self.timing.nav_timeout_s + self.timing.resume_wait_s
+            self.step_start_s = now_s
+            if self.agent.action is not None:
+                self.sent_action = ACTIONS[self.agent.action]
+            return [Command("log", text=f"resumed during step {self.agent.step + 1}")]
+        return self._act(now_s)
+
+    def _act(self, now_s: float) -> list[Command]:
+        if self.timing.max_steps and self.agent.step >= self.timing.max_steps:
+            return self._finish()
+        a = self.agent.decide()
+        self.waiting, self.since_s, self.last_nav = "nav", now_s, None
+        self.step_start_s = now_s
+        self.sent_action = ACTIONS[a]
+        return [Command("act", action=self.sent_action)]
+
+    def _request(self, now_s: float) -> list[Command]:
+        self.waiting, self.since_s = "obs", now_s
+        self.requests += 1
+        return [Command("request")]
+
+    def _finish(self) -> list[Command]:
+        self.agent.phase = "done"
+        self.waiting = ""
+        return [Command("done")]
+
+
+def _person_key(label: str) -> str:
+    return label if label.isdigit() else ""
+
+
+__all__ = ["Command", "DecisionSteps", "ObservationError", "StepTiming"]

@@ -1,0 +1,55 @@
+"""Every ROS topic name the stack uses, defined once (docs/INTERFACES.md lists types).
+
+Nodes take these as the defaults of their ``*_topic`` parameters, so a deployment can
+remap any of them; tests and the launcher read them from here too.
+"""
+
+from __future__ import annotations
+
+# sensors and the base
+CLOCK = "/clock"
+ODOM = "/odom"
+AMCL_POSE = "/amcl_pose"
+SCAN = "/scan"
+MAP = "/map"
+CAMERA_IMAGE = "/camera/image_raw"
+CAMERA_INFO = "/camera/camera_info"
+CAMERA_STATUS = "/camera/status"
+CMD_VEL = "/cmd_vel"  # the base's command (hardware: only the velocity gate publishes it)
+NAV_CMD_VEL = "/nav/cmd_vel"  # navigation's command into the velocity gate (hardware)
+ARM = "/arm"
+SAFETY_STATE = "/safety/state"
+STOP = "/stop"
+GOAL_POSE = "/goal_pose"
+
+# perception
+PERSON = "/perception/person"
+PERSON_POSITION = "/perception/person_position"
+PERSON_CELL = "/perception/person_cell"
+PERSON_DIRECTION = "/perception/person_direction"
+LEGS = "/perception/legs"
+LEG_PEOPLE = "/perception/leg_people"
+OBSERVATIONS = "/observations"
+OBSERVATIONS_REQUEST = "/observations/request"
+
+# navigation, speech, planner
+NAV_ACTION = "/nav/action"
+NAV_ACTION_ID = "/nav/action_id"
+NAV_PROGRESS = "/nav/progress"
+NAV_RESULT = "/nav/result"
+SPEECH_SAY = "/speech/say"
+SPEECH_DONE = "/speech/done"
+SPEECH_SPEAKING = "/speech/speaking"
+SPEECH_WARNING = "/speech/warning"
+PLANNER_BELIEF = "/planner/belief"
+PLANNER_STEP = "/planner/step"
+PLANNER_DONE = "/planner/done"
+
+# the twin's ground truth and lock-step
+TWIN_TRUTH = "/twin/truth"
+TWIN_ROBOT_POSE = "/twin/robot_pose"
+TWIN_ROBOT_CELL = "/twin/robot_cell"
+TWIN_PERSON_POSE = "/twin/person_pose"
+TWIN_PERSON_CELL = "/twin/person_cell"
+TWIN_PERSON_VELOCITY = "/twin/person_velocity"
+LOCKSTEP_ACK = "/lockstep/ack"

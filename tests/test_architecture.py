@@ -1,0 +1,117 @@
+"""The architecture's rules, checked on the source (README, "Architecture").
+
+- no import cycle between the project's modules;
+- imports go one way: ``vigil`` (application) -> ``twin`` -> ``stack``; ``stack`` never
+  imports ``twin`` or ``vigil``, ``twin`` never imports ``vigil``;
+- algorithm modules never import rclpy: only ``node_*.py``, ``ros_*.py`` and the twin's
+  bridge talk ROS;
+- a module over 500 lines says why in its docstring.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("stack", "twin", "vigil")
+LAYER = {"stack": 0, "twin": 1, "vigil": 2}
+
+
+def modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in (REPO / pkg).rglob("*.py"):
+            rel = path.relative_to(REPO).with_suffix("")
+            parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+            out[".".join(parts)] = path
+    return out
+
+
+def imports_of(path: Path, name: str, known: dict[str, Path]) -> set[str]:
+    """The project modules ``name`` imports (at module level or inside functions)."""
+    tree = ast.parse(path.read_text())
+    found = set()
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    for node in ast.walk(tree):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*up, base] if base else up)
+            targets = [base] + [f"{base}.{a.name}" for a in node.names]
+        for t in targets:
+            while t and t not in known:
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                found.add(t)
+    return found
+
+
+def test_no_import_cycle():
+    known = modules()
+    graph = {m: imports_of(p, m, known) for m, p in known.items()}
+    # packages' __init__ modules are passed through on the way to their submodules
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(graph.get(m, ())):
+            if state.get(n) == 1:
+                cycle = stack[stack.index(n) :] + [n]
+                raise AssertionError("import cycle: " + " -> ".join(cycle))
+            if n not in state:
+                visit(n)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+
+
+def test_imports_go_one_way():
+    known = modules()
+    bad = []
+    for m, path in known.items():
+        for n in imports_of(path, m, known):
+            if LAYER[n.split(".")[0]] > LAYER[m.split(".")[0]]:
+                bad.append(f"{m} imports {n}")
+    assert not bad, "imports against the layers: " + "; ".join(sorted(bad))
+
+
+def test_only_nodes_import_rclpy():
+    bad = []
+    for m, path in modules().items():
+        stem = path.stem
+        if stem.startswith(("node_", "ros_")) or m in ("twin.bridge_node", "vigil.launch"):
+            continue
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            if any(n == "rclpy" or n.startswith("rclpy.") for n in names):
+                bad.append(m)
+    assert not bad, f"algorithm modules importing rclpy: {sorted(set(bad))}"
+
+
+def test_long_modules_say_why():
+    bad = []
+    for m, path in modules().items():
+        text = path.read_text()
+        if text.count("\n") <= 500:
+            continue
+        doc = ast.get_docstring(ast.parse(text)) or ""
+        if "500 lines" not in doc:
+            bad.append(f"{m} ({text.count(chr(10))} lines)")
+    assert not bad, "modules over 500 lines without a docstring sentence saying why: " + ", ".join(
+        bad
+    )

@@ -1,0 +1,169 @@
+"""Guarding metrics (vigil.report.metrics) on synthetic timelines with known answers."""
+
+from __future__ import annotations
+
+import pytest
+
+from stack.cells import CellGrid
+from vigil.report.metrics import (
+    Timeline,
+    classify_warnings,
+    false_trips,
+    find_visits,
+    guard_metrics,
+    step_counts,
+    step_outcome,
+    timeline_from_trace,
+)
+
+GRID = CellGrid()  # cell 1: x 5..6, y 0..1.5; cell 3: x 4..5; cell 12: x 0..1, y 1.5..3
+
+
+def timeline(person: dict[tuple[float, float], int | None], robot, end: float = 30.0, dt=0.5):
+    """Cells from piecewise-constant specs: {(from, to): cell}; robot likewise."""
+
+    def at(spec, t):
+        for (a, b), c in spec.items():
+            if a <= t < b:
+                return c
+        return None
+
+    ts = [k * dt for k in range(int(end / dt) + 1)]
+    return Timeline.of(ts, [at(robot, t) for t in ts], [at(person, t) for t in ts])
+
+
+def test_visit_guarded_with_delay():
+    tl = timeline({(0, 5): 3, (5, 12): 1, (12, 30): 4}, {(0, 8): 5, (8, 30): 1})
+    (v,) = find_visits(tl, [1])
+    assert (v.cell, v.person_arrival_t, v.person_left_t) == (1, 5.0, 12.0)
+    assert v.person_duration_s == 7.0
+    assert v.guarded and v.robot_arrival_t == 8.0 and v.delay_s == 3.0
+    assert not v.abandoned
+
+
+def test_robot_already_there_has_zero_delay():
+    tl = timeline({(5, 12): 1}, {(0, 30): 1})
+    (v,) = find_visits(tl, [1])
+    assert v.guarded and v.delay_s == 0.0 and v.robot_arrival_t == 5.0
+
+
+def test_robot_arriving_after_the_person_left_is_not_guarded():
+    tl = timeline({(5, 12): 1}, {(0, 14): 3, (14, 30): 1})
+    (v,) = find_visits(tl, [1])
+    assert not v.guarded and v.delay_s is None and v.robot_arrival_t is None
+    assert v.robot_late_arrival_t == 14.0
+    m = guard_metrics(tl, [1], [], [])
+    assert m["every_visit_guarded"] is False and m["guarded"] == 0 and m["n_visits"] == 1
+
+
+def test_abandoned_when_the_robot_leaves_while_the_person_stays():
+    tl = timeline({(5, 20): 1}, {(0, 7): 3, (7, 11): 1, (11, 30): 3})
+    (v,) = find_visits(tl, [1])
+    assert v.guarded and v.abandoned and v.abandoned_t == 11.0
+    # the robot leaving after the person did is not abandoning
+    tl = timeline({(5, 10): 1}, {(0, 7): 3, (7, 11): 1, (11, 30): 3})
+    assert not find_visits(tl, [1])[0].abandoned
+
+
+def test_short_stays_are_not_visits_and_cells_are_attributed_right():
+    # 0.5 s in cell 1 (border hesitation), then 3 s in 12; cell 3 is not restricted
+    tl = timeline({(2, 2.5): 1, (2.5, 6): 3, (10, 13): 12}, {(0, 30): 7})
+    visits = find_visits(tl, [1, 12])
+    assert [(v.cell, v.person_arrival_t, v.person_left_t) for v in visits] == [(12, 10.0, 13.0)]
+    assert find_visits(tl, [1, 12], min_visit_s=0.5)[0].cell == 1
+    # two visits in a row to the same cell are two visits
+    tl = timeline({(2, 6): 1, (6, 9): 3, (9, 14): 1}, {(0, 30): 1})
+    assert [v.person_arrival_t for v in find_visits(tl, [1])] == [2.0, 9.0]
+
+
+def test_visit_still_going_at_the_end():
+    tl = timeline({(20, 99): 12}, {(0, 99): 12}, end=30.0)
+    (v,) = find_visits(tl, [12])
+    assert v.person_left_t is None and v.person_duration_s == 10.0 and v.guarded
+
+
+def test_warnings_timely_or_late():
+    tl = timeline({(5, 12): 1, (12, 30): 4}, {(0, 30): 1})
+    w = classify_warnings(tl, [1], [3.0, 6.0, 14.5, 15.5, 25.0])
+    assert [x["timely"] for x in w] == [False, True, True, False, False]
+    assert w[1]["visit_cell"] == 1 and w[1]["person_cell"] == 1 and w[1]["robot_cell"] == 1
+    assert w[3]["person_cell"] == 4
+    m = guard_metrics(tl, [1], [3.0, 6.0, 14.5, 15.5, 25.0], [])
+    assert (m["timely_warnings"], m["late_warnings"]) == (2, 3)
+
+
+def test_false_trips_need_an_empty_room_before_and_after():
+    # nobody at all: the robot's trip to 1 at t=12 is false
+    tl = timeline({}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert false_trips(tl, [1]) == [{"t": 12.0, "cell": 1}]
+    # a person in the room (off the grid, by the door) 8 s before: not false
+    ts = list(tl.t)
+    present = [4.0 <= t < 5.0 for t in ts]
+    tl2 = Timeline(tl.t, tl.robot, tl.robot_known, tl.person, tuple(present))
+    assert false_trips(tl2, [1]) == []
+    # ... but 11 s before is outside the window
+    present = [0.0 <= t < 1.0 for t in ts]
+    tl3 = Timeline(tl.t, tl.robot, tl.robot_known, tl.person, tuple(present))
+    assert len(false_trips(tl3, [1])) == 1
+    # starting in the cell is not an arrival
+    assert false_trips(timeline({}, {(0, 40): 1}, end=40.0), [1]) == []
+
+
+def test_step_outcomes_and_counts():
+    assert step_outcome("No person", 3, True) == "miss"
+    assert step_outcome("No person", None, True) == "absent"
+    assert step_outcome("Unseen", 3, True) == "unseen"
+    assert step_outcome("4", 3, True) == "wrong cell"
+    assert step_outcome("3", 3, True) == "seen"
+    assert step_outcome("3", None, False) == "phantom"
+    assert step_outcome(None, 3, True) == "no observation"
+    tl = timeline({(5, 20): 3}, {(0, 30): 7})
+    steps = [
+        (2.0, "No person", "none"),  # nobody: absent
+        (6.0, "3", "camera"),
+        (8.0, "No person", "none"),  # miss
+        (10.0, "Unseen", "none"),  # camera out: not a miss
+        (12.0, "5", "camera"),  # wrong cell
+        (14.0, "3", "laser"),
+        (16.0, None, None),  # no observation (timeout)
+        (22.0, "No person", "none"),  # gone: absent
+    ]
+    c = step_counts(tl, steps)
+    assert c["steps"] == 8 and c["steps_with_person"] == 5
+    assert (c["misses"], c["wrong_cell_steps"], c["unseen_steps"]) == (1, 1, 1)
+    assert c["miss_rate"] == pytest.approx(1 / 5)
+    assert c["unseen_with_person"] == 1
+    assert c["sources"] == {"camera": 2, "laser": 1, "none": 4}
+    assert c["per_step"][3] == "unseen"
+
+
+def test_timeline_from_trace_uses_positions_room_and_horizon():
+    trace = [
+        # the record's own cells are wrong on purpose: the positions decide
+        {"t": 0.0, "robot": [2.5, 0.75, 0.0], "robot_cell": 9, "person": [5.5, 0.7],
+         "person_cell": 3},
+        {"t": 1.0, "robot": [5.5, 0.75, 0.0], "robot_cell": 9, "person": [7.0, 4.4],
+         "person_cell": None},  # by the door: in the room, off the grid
+        {"t": 2.0, "robot": [5.5, 0.75, 0.0], "robot_cell": 1, "person": [7.0, 6.4],
+         "person_cell": None},  # outside the door
+        {"t": 3.0, "robot": [5.5, 0.75, 0.0], "robot_cell": 1, "person": None},
+    ]  # fmt: skip
+    room = (-3.5, -2.2, 8.0, 5.2)
+    tl = timeline_from_trace(trace, GRID, room)
+    assert tl.person == (1, None, None, None) and tl.robot == (7, 1, 1, 1)
+    assert tl.present == (True, True, False, False)
+    assert tl.source == "ground truth"
+    assert timeline_from_trace(trace, GRID).present == (True, False, False, False)
+    assert len(timeline_from_trace(trace, GRID, room, until_t=1.5)) == 2
+    # no ground truth (hardware): odometry and the camera's cell
+    hw = [{"t": 0.0, "robot": None, "odom": [5.5, 0.7, 0.0],
+           "camera": {"status": "person", "cell": 3}}]  # fmt: skip
+    tl = timeline_from_trace(hw, GRID)
+    assert (tl.robot, tl.person, tl.source) == ((1,), (3,), "odometry and camera")
+
+
+def test_timeline_rejects_bad_input():
+    with pytest.raises(ValueError, match="robot has 1 entries"):
+        Timeline((0.0, 1.0), (1,), (True, True), (None, None), (False, False))
+    with pytest.raises(ValueError, match="must not decrease"):
+        Timeline.of([1.0, 0.0], [1, 1], [None, None])

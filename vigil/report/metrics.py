@@ -1,0 +1,424 @@
+"""Honest guarding metrics of one run, from ground truth: pure functions.
+
+Every definition is the one in ``docs/EXPERIMENTS.md`` ("Metrics"); nothing here
+reads files or draws. Inputs are a :class:`Timeline` (the twin's ground truth as
+cells over time, built from ``trace.jsonl`` by :func:`timeline_from_trace`), the
+utterance start times (the speech log) and the decision steps' person labels.
+
+In short:
+
+- a **visit**: the person's floor position inside one restricted cell for at least
+  ``MIN_VISIT_S`` (cell, entry, exit);
+- **guarded**: the robot (its centre) is in that cell at some instant of the visit;
+  **delay**: the robot's first instant there minus the person's entry (0 when the
+  robot was there already); **abandoned**: after arriving, the robot is out of the
+  cell at an instant when the person is still in it;
+- a warning is **timely** when it starts while the person is in a restricted cell or
+  within ``WARNING_AFTER_S`` after they left one; otherwise **late**;
+- a **false trip**: the robot arrives in a restricted cell while nobody was in the
+  room during the ``QUIET_S`` before and after;
+- per decision step, with the truth at the step's stamp: a **miss** is "No person"
+  observed while the person is on the grid; **wrong cell**, a cell other than the
+  person's; **unseen**, the label "Unseen" (the camera could not look: not a miss).
+
+Time runs on the run's clock (simulated in the twin). An instant's cell holds from
+that trace record until the next one.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from stack.cells import CellGrid
+
+MIN_VISIT_S = 1.0  # shorter stays in a restricted cell are not visits
+WARNING_AFTER_S = 3.0  # a warning this long after the person left is still timely
+QUIET_S = 10.0  # a trip is false when the room was empty this long before and after
+NO_PERSON = "No person"
+UNSEEN = "Unseen"
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """Where robot and person were over time, as cells (one entry per trace record).
+
+    Attributes:
+        t: times [s], increasing.
+        robot: the robot's cell (None: off the grid, or unknown where ``robot_known``
+            is False).
+        robot_known: whether the robot's position is known at that instant.
+        person: the person's cell (None: not on the grid).
+        present: whether the person is in the room (on the grid or elsewhere inside
+            the walls).
+        source: "ground truth", "odometry and camera" (no truth: hardware) or "none".
+    """
+
+    t: tuple[float, ...]
+    robot: tuple[int | None, ...]
+    robot_known: tuple[bool, ...]
+    person: tuple[int | None, ...]
+    present: tuple[bool, ...]
+    source: str = "ground truth"
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name in ("robot", "robot_known", "person", "present"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"timeline {name} has {len(getattr(self, name))} entries, t {n}")
+        if any(b < a for a, b in zip(self.t, self.t[1:], strict=False)):
+            raise ValueError("timeline times must not decrease")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def index_at(self, t: float) -> int | None:
+        """The last instant at or before ``t`` (None before the first)."""
+        i = bisect.bisect_right(self.t, t + 1e-9) - 1
+        return i if i >= 0 else None
+
+    @classmethod
+    def of(
+        cls,
+        t: Sequence[float],
+        robot: Sequence[int | None],
+        person: Sequence[int | None],
+        present: Sequence[bool] | None = None,
+    ) -> Timeline:
+        """A ground-truth timeline from cell lists (tests, synthetic traces)."""
+        pres = tuple(p is not None for p in person) if present is None else tuple(present)
+        return cls(tuple(map(float, t)), tuple(robot), (True,) * len(t), tuple(person), pres)
+
+
+def timeline_from_trace(
+    trace: Iterable[dict],
+    grid: CellGrid,
+    room_m: tuple[float, float, float, float] | None = None,
+    until_t: float | None = None,
+) -> Timeline:
+    """The timeline of ``trace.jsonl`` records (see :mod:`vigil.report.records`).
+
+    Cells come from the floor positions through ``grid`` (``stack.cells``), not from
+    the records' own cell fields. Where a record has no ground truth (``robot`` null,
+    hardware) the robot's cell is the odometry's and the person's the camera's.
+
+    Args:
+        trace: the records, sorted by ``t``.
+        grid: the cell geometry.
+        room_m: (x0, y0, x1, y1) of the room's inside; None: the grid's region.
+        until_t: ignore records after this time (the last decision's stamp: after it
+            the twin runs until a wall-clock stop, so the tail differs between runs).
+    """
+    t, robot, known, person, present, sources = [], [], [], [], [], set()
+    for rec in trace:
+        if until_t is not None and float(rec["t"]) > until_t + 1e-9:
+            break
+        if rec.get("robot") is not None:
+            sources.add("ground truth")
+            rx, ry = rec["robot"][:2]
+            r_known, r_cell = True, grid.cell_at(rx, ry)
+            p = rec.get("person")
+            p_cell = grid.cell_at(p[0], p[1]) if p is not None else None
+            if p is None:
+                here = False
+            elif room_m is None:
+                here = p_cell is not None
+            else:
+                here = room_m[0] <= p[0] <= room_m[2] and room_m[1] <= p[1] <= room_m[3]
+        else:
+            sources.add("odometry and camera")
+            odom = rec.get("odom")
+            r_known = odom is not None
+            r_cell = grid.cell_at(odom[0], odom[1]) if odom is not None else None
+            cam = rec.get("camera") or {}
+            p_cell = cam.get("cell") if cam.get("status") == "person" else None
+            here = p_cell is not None
+        t.append(float(rec["t"]))
+        robot.append(r_cell)
+        known.append(r_known)
+        person.append(p_cell)
+        present.append(here)
+    source = " + ".join(sorted(sources)) if sources else "none"
+    return Timeline(tuple(t), tuple(robot), tuple(known), tuple(person), tuple(present), source)
+
+
+# -- visits ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Visit:
+    """One visit of the person to a restricted cell and what the robot did.
+
+    ``person_left_t`` is None when the person was still there at the end (then the
+    duration runs to the last instant). ``robot_late_arrival_t``: when the visit was
+    not guarded, the robot's first instant in the cell within ``QUIET_S`` after the
+    person left (the arrival that came too late), else None.
+    """
+
+    cell: int
+    person_arrival_t: float
+    person_left_t: float | None
+    person_duration_s: float
+    guarded: bool
+    robot_arrival_t: float | None
+    delay_s: float | None
+    abandoned: bool
+    abandoned_t: float | None
+    robot_late_arrival_t: float | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {k: _round(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
+
+
+def restricted_runs(tl: Timeline, restricted: Iterable[int]) -> list[tuple[int, int, int]]:
+    """Maximal runs of instants with the person in one restricted cell: (cell, i0, i1)."""
+    cells = set(restricted)
+    out, i, n = [], 0, len(tl)
+    while i < n:
+        c = tl.person[i]
+        if c in cells:
+            j = i
+            while j + 1 < n and tl.person[j + 1] == c:
+                j += 1
+            out.append((c, i, j))
+            i = j + 1
+        else:
+            i += 1
+    return out
+
+
+def find_visits(
+    tl: Timeline, restricted: Iterable[int], min_visit_s: float = MIN_VISIT_S
+) -> list[Visit]:
+    """Every visit (at least ``min_visit_s`` in one restricted cell), in time order."""
+    visits = []
+    n = len(tl)
+    for cell, i0, i1 in restricted_runs(tl, restricted):
+        enter = tl.t[i0]
+        left = tl.t[i1 + 1] if i1 + 1 < n else None
+        duration = (left if left is not None else tl.t[i1]) - enter
+        if duration < min_visit_s:
+            continue
+        inside = range(i0, i1 + 1)
+        there = [k for k in inside if tl.robot[k] == cell]
+        arrival = tl.t[there[0]] if there else None
+        abandoned_t = None
+        if there:
+            for k in range(there[0] + 1, i1 + 1):
+                if tl.robot_known[k] and tl.robot[k] != cell:
+                    abandoned_t = tl.t[k]
+                    break
+        late = None
+        if not there and left is not None:
+            for k in range(i1 + 1, n):
+                if tl.t[k] > left + QUIET_S:
+                    break
+                if tl.robot[k] == cell:
+                    late = tl.t[k]
+                    break
+        visits.append(
+            Visit(
+                cell=cell,
+                person_arrival_t=enter,
+                person_left_t=left,
+                person_duration_s=duration,
+                guarded=bool(there),
+                robot_arrival_t=arrival,
+                delay_s=None if arrival is None else arrival - enter,
+                abandoned=abandoned_t is not None,
+                abandoned_t=abandoned_t,
+                robot_late_arrival_t=late,
+            )
+        )
+    return visits
+
+
+# -- warnings ----------------------------------------------------------------------------
+
+
+def restricted_intervals(tl: Timeline, restricted: Iterable[int]) -> list[tuple[int, float, float]]:
+    """(cell, from, to) while the person is in a restricted cell, any duration; ``to``
+    is the next instant's time (the last instant's time at the end)."""
+    out = []
+    for cell, i0, i1 in restricted_runs(tl, restricted):
+        end = tl.t[i1 + 1] if i1 + 1 < len(tl) else tl.t[i1]
+        out.append((cell, tl.t[i0], end))
+    return out
+
+
+def classify_warnings(
+    tl: Timeline,
+    restricted: Iterable[int],
+    starts: Sequence[float],
+    after_s: float = WARNING_AFTER_S,
+) -> list[dict[str, Any]]:
+    """Each warning's start, the person's and robot's cells then, and whether it was
+    timely (started while the person was in a restricted cell, or within ``after_s``
+    after they left one) or late."""
+    spans = restricted_intervals(tl, restricted)
+    out = []
+    for s in starts:
+        cell = next((c for c, a, b in spans if a <= s <= b + after_s), None)
+        i = tl.index_at(s)
+        out.append(
+            {
+                "t": _round(s),
+                "timely": cell is not None,
+                "visit_cell": cell,
+                "person_cell": None if i is None else tl.person[i],
+                "robot_cell": None if i is None or not tl.robot_known[i] else tl.robot[i],
+            }
+        )
+    return out
+
+
+# -- false trips -------------------------------------------------------------------------
+
+
+def false_trips(
+    tl: Timeline, restricted: Iterable[int], quiet_s: float = QUIET_S
+) -> list[dict[str, Any]]:
+    """Arrivals of the robot in a restricted cell with nobody in the room during the
+    ``quiet_s`` before and after (as far as the timeline reaches)."""
+    cells = set(restricted)
+    out = []
+    for k in range(1, len(tl)):
+        c = tl.robot[k]
+        if c not in cells or tl.robot[k - 1] == c or not tl.robot_known[k]:
+            continue
+        t = tl.t[k]
+        lo = bisect.bisect_left(tl.t, t - quiet_s - 1e-9)
+        hi = bisect.bisect_right(tl.t, t + quiet_s + 1e-9)
+        if not any(tl.present[lo:hi]):
+            out.append({"t": _round(t), "cell": c})
+    return out
+
+
+# -- decision steps ----------------------------------------------------------------------
+
+
+def step_outcome(observed: str | None, true_cell: int | None, present: bool) -> str:
+    """One step's person observation against the truth at its stamp.
+
+    Returns one of "seen" (the right cell), "wrong cell", "miss" ("No person" with
+    the person on the grid), "unseen" ("Unseen"), "absent" ("No person", nobody on
+    the grid), "phantom" (a cell, nobody on the grid), "no observation".
+    """
+    if observed is None:
+        return "no observation"
+    if observed == UNSEEN:
+        return "unseen"
+    if observed == NO_PERSON:
+        return "miss" if true_cell is not None else "absent"
+    if not observed.isdigit():
+        return "no observation"
+    if true_cell is None:
+        return "phantom"
+    return "seen" if int(observed) == true_cell else "wrong cell"
+
+
+def step_counts(
+    tl: Timeline, steps: Sequence[tuple[float, str | None, str | None]]
+) -> dict[str, Any]:
+    """Counts over the decision steps: (stamp, observed person label, source) each.
+
+    ``miss_rate`` = misses / steps with the person on the grid (None without such
+    steps); ``unseen_steps`` counts every "Unseen" step, ``unseen_with_person`` those
+    with the person on the grid.
+    """
+    outcomes: Counter[str] = Counter()
+    sources: Counter[str] = Counter()
+    with_person = unseen_with_person = 0
+    per_step = []
+    for stamp, label, source in steps:
+        i = tl.index_at(stamp)
+        true_cell = None if i is None else tl.person[i]
+        present = False if i is None else tl.present[i]
+        o = step_outcome(label, true_cell, present)
+        outcomes[o] += 1
+        per_step.append(o)
+        if source:
+            sources[str(source)] += 1
+        if true_cell is not None and label is not None:
+            with_person += 1
+            unseen_with_person += o == "unseen"
+    misses = outcomes["miss"]
+    return {
+        "steps": len(steps),
+        "steps_with_person": with_person,
+        "misses": misses,
+        "miss_rate": _round(misses / with_person, 4) if with_person else None,
+        "wrong_cell_steps": outcomes["wrong cell"],
+        "unseen_steps": outcomes["unseen"],
+        "unseen_with_person": unseen_with_person,
+        "phantom_steps": outcomes["phantom"],
+        "outcomes": dict(sorted(outcomes.items())),
+        "sources": dict(sorted(sources.items())),
+        "per_step": per_step,
+    }
+
+
+# -- all of it ---------------------------------------------------------------------------
+
+
+def guard_metrics(
+    tl: Timeline,
+    restricted: Sequence[int],
+    warning_starts: Sequence[float],
+    steps: Sequence[tuple[float, str | None, str | None]],
+    min_visit_s: float = MIN_VISIT_S,
+) -> dict[str, Any]:
+    """Every metric of the run (JSON-ready): visits, warnings, false trips, steps."""
+    visits = find_visits(tl, restricted, min_visit_s)
+    warnings = classify_warnings(tl, restricted, warning_starts)
+    trips = false_trips(tl, restricted)
+    counts = step_counts(tl, steps)
+    delays = [v.delay_s for v in visits if v.delay_s is not None]
+    return {
+        "basis": tl.source,
+        "visits": [v.as_dict() for v in visits],
+        "n_visits": len(visits),
+        "guarded": sum(v.guarded for v in visits),
+        "abandoned": sum(v.abandoned for v in visits),
+        "max_delay_s": _round(max(delays)) if delays else None,
+        "every_visit_guarded": all(v.guarded for v in visits),
+        "warnings": warnings,
+        "timely_warnings": sum(w["timely"] for w in warnings),
+        "late_warnings": sum(not w["timely"] for w in warnings),
+        "false_trips": trips,
+        "n_false_trips": len(trips),
+        **{k: v for k, v in counts.items() if k != "per_step"},
+    }
+
+
+def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Totals over several runs' :func:`guard_metrics` (max delay: the largest)."""
+
+    def total(key: str) -> int:
+        return sum(int(m[key]) for m in metrics)
+
+    delays = [m["max_delay_s"] for m in metrics if m.get("max_delay_s") is not None]
+    with_person = total("steps_with_person") if metrics else 0
+    misses = total("misses") if metrics else 0
+    return {
+        "scenarios": len(metrics),
+        "n_visits": total("n_visits") if metrics else 0,
+        "guarded": total("guarded") if metrics else 0,
+        "abandoned": total("abandoned") if metrics else 0,
+        "max_delay_s": max(delays) if delays else None,
+        "timely_warnings": total("timely_warnings") if metrics else 0,
+        "late_warnings": total("late_warnings") if metrics else 0,
+        "n_false_trips": total("n_false_trips") if metrics else 0,
+        "misses": misses,
+        "steps_with_person": with_person,
+        "miss_rate": round(misses / with_person, 4) if with_person else None,
+        "unseen_steps": total("unseen_steps") if metrics else 0,
+        "wrong_cell_steps": total("wrong_cell_steps") if metrics else 0,
+    }
+
+
+def _round(x: float | None, nd: int = 3) -> float | None:
+    return None if x is None else round(float(x), nd) + 0.0
