@@ -234,3 +234,13 @@ def test_solve_dispatches_and_records_the_model_hash():
     assert r.policy.meta["model_sha256"] == pomdp.fingerprint()
     with pytest.raises(ValueError, match="unknown solver"):
         SolverConfig(algorithm="nope")
+
+
+def test_perseus_seeded_search_keeps_valid_bounds():
+    pomdp = _random_pomdp(5, S=4, A=2, Z=3, discount=0.25)
+    exact = _exact_value(pomdp, 6)
+    tail = 0.25**6 * np.abs(pomdp.R).max() / 0.75
+    r = solve(pomdp, SolverConfig(perseus_share=0.5, iterations=5, beliefs=20, target_gap=1e-4))
+    assert r.lower_bound <= exact + tail + 1e-9 <= r.upper_bound + 2 * tail + 1e-9
+    with pytest.raises(ValueError, match="perseus_share"):
+        SolverConfig(perseus_share=1.5)

@@ -47,6 +47,12 @@ def _solver_args(
     )
     p.add_argument("--trials", type=int, default=None, help="sarsop: stop after this many")
     p.add_argument(
+        "--perseus-share",
+        type=float,
+        default=0.0,
+        help="sarsop: share of the time limit for Perseus first, whose vectors seed the search",
+    )
+    p.add_argument(
         "--fib-time", type=float, default=0.0, help="Perseus: seconds for the fast informed bound"
     )
     p.add_argument("--seed", type=int, default=0)
@@ -77,6 +83,7 @@ def _solver_config(args: argparse.Namespace):
         target_gap=getattr(args, "target_gap", 1e-3),
         relative_gap=getattr(args, "relative_gap", 0.0),
         trials=getattr(args, "trials", None),
+        perseus_share=getattr(args, "perseus_share", 0.0),
     )
 
 

@@ -46,6 +46,9 @@ class SolverConfig:
     target_gap: float = 1e-3  # stop when UB - LB at b0 is at most this (sarsop)
     relative_gap: float = 0.0  # ... or at most this fraction of |V(b0)| (sarsop)
     trials: int | None = None  # stop after this many trials (sarsop; deterministic)
+    # sarsop: share of the time limit (or, without one, Perseus iterations / 1000) spent
+    # first on Perseus over sampled beliefs, whose vectors seed the search's lower bound
+    perseus_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
@@ -58,6 +61,8 @@ class SolverConfig:
             raise ValueError(
                 f"beliefs and iterations must be >= 1, got {self.beliefs}, {self.iterations}"
             )
+        if not 0.0 <= self.perseus_share < 1.0:
+            raise ValueError(f"perseus_share must be in [0, 1), got {self.perseus_share}")
         if self.trials is not None and self.trials < 1:
             raise ValueError(f"trials must be >= 1, got {self.trials}")
 
@@ -158,6 +163,28 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
     from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
 
     starts = list(starts) if starts is not None else [pomdp.b0]
+    t0 = time.perf_counter() if start is None else start
+    if config.perseus_share > 0:
+        # Perseus's vectors are backups of valid lower-bound vectors, so they are valid
+        # seeds; they lift the lower bound of wide-belief models (Hallway2) quickly
+        rng = np.random.default_rng(config.seed)
+        B = sample_beliefs(pomdp, starts, config.beliefs, rng, explore=config.explore)
+        budget = (
+            None
+            if config.time_limit_s is None
+            else config.perseus_share * config.time_limit_s - (time.perf_counter() - t0)
+        )
+        iterations = config.iterations if budget is not None else max(1, config.iterations)
+        pol, _ = perseus(
+            pomdp, B, iterations=iterations, rng=rng, time_limit_s=budget, b0=starts[0]
+        )
+        extra = (pol.alphas, pol.actions)
+        if seed_alphas is not None:
+            extra = (
+                np.vstack([seed_alphas[0], extra[0]]),
+                np.concatenate([seed_alphas[1], extra[1]]),
+            )
+        seed_alphas = extra
     search = BeliefTreeSearch(
         pomdp,
         SearchConfig(
@@ -167,7 +194,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
             max_trials=config.trials,
         ),
         seed_alphas=seed_alphas,
-        start=start,
+        start=t0,
         progress=progress,
         b0=starts[0],
         extra_roots=starts[1:],
