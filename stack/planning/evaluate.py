@@ -11,6 +11,7 @@ from stack.planning import belief as belief_ops
 from stack.planning.pbvi import draw, draw_row
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,11 @@ def evaluate(
     action for the current belief, draws the next state and observation from the
     model, and updates the belief exactly. Same seed, same result.
     """
+    with blas_threads(1):  # one small product per step: threads only cost here
+        return _evaluate(pomdp, policy, episodes, horizon, seed, b0)
+
+
+def _evaluate(pomdp, policy, episodes, horizon, seed, b0) -> Evaluation:
     rng = np.random.default_rng(seed)
     b0 = pomdp.b0 if b0 is None else b0
     horizon = horizon or default_horizon(pomdp.discount)
