@@ -244,3 +244,20 @@ def test_perseus_seeded_search_keeps_valid_bounds():
     assert r.lower_bound <= exact + tail + 1e-9 <= r.upper_bound + 2 * tail + 1e-9
     with pytest.raises(ValueError, match="perseus_share"):
         SolverConfig(perseus_share=1.5)
+
+
+def test_absorbing_set_of_the_task_is_robot_out_of_the_map():
+    """The closed set found is exactly "robot out of the map" (whatever the person
+    does), and sampled beliefs never lie in it."""
+    from stack.planning.model import build_model
+    from stack.planning.pbvi import absorbing_states
+    from stack.planning.solve import task_starts
+    from stack.planning.task import load_task
+
+    model = build_model(load_task(Path(__file__).resolve().parents[1] / "config" / "task-r1.yaml"))
+    pomdp = model.flat()
+    trap = absorbing_states(pomdp).reshape(model.state_shape)
+    assert trap[model.robot_index(None)].all() and not trap[: model.n_cells].any()
+    B = sample_beliefs(pomdp, task_starts(model, pomdp), 60, np.random.default_rng(2))
+    out = B.reshape(len(B), *model.state_shape)[:, model.robot_index(None)].sum(axis=(1, 2))
+    assert (out > 1 - 1e-9).sum() == 0
