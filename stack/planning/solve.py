@@ -46,6 +46,7 @@ class SolverConfig:
     target_gap: float = 1e-3  # stop when UB - LB at b0 is at most this (sarsop)
     relative_gap: float = 0.0  # ... or at most this fraction of |V(b0)| (sarsop)
     trials: int | None = None  # stop after this many trials (sarsop; deterministic)
+    write_s_per_value: float = 0.0  # [s] kept per vector entry for writing the policy
     # sarsop: share of the time limit (or, without one, Perseus iterations / 1000) spent
     # first on Perseus over sampled beliefs, whose vectors seed the search's lower bound
     perseus_share: float = 0.0
@@ -192,6 +193,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
             target_gap=config.target_gap,
             relative_gap=config.relative_gap,
             max_trials=config.trials,
+            write_s_per_value=config.write_s_per_value,
         ),
         seed_alphas=seed_alphas,
         start=t0,
