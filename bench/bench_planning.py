@@ -14,10 +14,10 @@ import time
 from pathlib import Path
 
 from stack.planning import belief as B
-from stack.planning.model import ACTIONS
 from stack.planning.pomdp_format import read_pomdp
 from stack.planning.replay import policy_chooser
 from stack.planning.solve import SolverConfig, solve
+from stack.vocabulary import ACTIONS
 from vigil.cli import TASKS, solve_task
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "pomdp"

@@ -23,9 +23,10 @@ from scipy.optimize import least_squares
 
 from stack.cells import ConfigError
 from stack.planning.belief import FactoredBelief, ZeroProbabilityObservation
-from stack.planning.model import ACTIONS, build_model
+from stack.planning.model import build_model
 from stack.planning.replay import TABLES, quoted_value
 from stack.planning.task import Task, load_task
+from stack.vocabulary import ACTIONS
 
 # (section, field, index or None, lower, upper)
 FREE = [

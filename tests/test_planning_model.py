@@ -7,8 +7,9 @@ import pytest
 
 from stack.cells import CellGrid, ConfigError, Direction
 from stack.planning import belief as B
-from stack.planning.model import ACTIONS, ModelSizeError, build_model, velocity_index
+from stack.planning.model import ModelSizeError, build_model, velocity_index
 from stack.planning.task import Task, load_task
+from stack.vocabulary import ACTIONS
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from stack.cells import CellGrid
-from stack.planning.model import ACTIONS, VELOCITIES, build_model
+from stack.planning.model import build_model
 from stack.planning.replay import TABLES
 from stack.planning.task import load_task
+from stack.vocabulary import ACTIONS, VELOCITIES
 from vigil.report import RunRecordError, read_jsonl, true_velocity_label, write_report
 from vigil.report.video import VideoComposer, video_codec
 

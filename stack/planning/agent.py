@@ -21,11 +21,19 @@ from typing import Any
 import numpy as np
 
 from stack.planning import belief as belief_ops
-from stack.planning.model import ACTIONS, DIRECTIONS, OUT_OF_MAP, VELOCITIES, FactoredModel
+from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
 from stack.planning.replay import policy_chooser
-from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
+from stack.vocabulary import (
+    ACTIONS,
+    DIRECTIONS,
+    NO_PERSON,
+    NOT_MOVING,
+    OUT_OF_MAP,
+    UNSEEN,
+    VELOCITIES,
+)
 
 
 class ObservationError(ValueError):

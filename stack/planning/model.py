@@ -24,16 +24,15 @@ import scipy.sparse as sp
 from stack.cells import MOVING_DIRECTIONS, Direction
 from stack.planning.pomdp import POMDP, ModelError
 from stack.planning.task import DIRECTION_NAMES, Task
-
-ACTIONS = ("North", "South", "East", "West", "Do nothing")
-ACTION_DIRECTIONS = (Direction.NORTH, Direction.SOUTH, Direction.EAST, Direction.WEST, None)
-DIRECTIONS = ("North", "South", "East", "West", "Not moving")  # index = Direction value
-SPEED_CLASSES = ("higher", "0.2-0.7", "0-0.2")  # > 0.7, 0.2-0.7, 0-0.2 m/s (section 4.2)
-VELOCITIES = ("Not moving",) + tuple(
-    f"{DIRECTIONS[d]} {s}" for d in range(4) for s in SPEED_CLASSES
+from stack.vocabulary import (  # the labels are defined once, there
+    ACTIONS,
+    NO_PERSON,
+    OUT_OF_MAP,
+    SPEED_CLASSES,
+    VELOCITIES,
 )
-NO_PERSON = "No person"
-OUT_OF_MAP = "Out of the map"
+
+ACTION_DIRECTIONS = (Direction.NORTH, Direction.SOUTH, Direction.EAST, Direction.WEST, None)
 
 
 class ModelSizeError(ModelError):

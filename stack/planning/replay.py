@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stack.planning import belief as belief_ops
-from stack.planning.model import ACTIONS, DIRECTIONS, FactoredModel
+from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
+from stack.vocabulary import ACTIONS, DIRECTIONS
 
 
 @dataclass(frozen=True)

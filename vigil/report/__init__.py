@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stack.cells import CellGrid
-from stack.planning.model import ACTIONS, OUT_OF_MAP, FactoredModel
+from stack.planning.model import FactoredModel
+from stack.vocabulary import ACTIONS, OUT_OF_MAP
 from vigil.report.metrics import Timeline, guard_metrics, timeline_from_trace
 from vigil.report.records import (
     UNKNOWN,

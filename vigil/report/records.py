@@ -45,7 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stack.planning.model import ACTIONS, NO_PERSON, OUT_OF_MAP, VELOCITIES
+from stack.vocabulary import ACTIONS, NO_PERSON, OUT_OF_MAP, VELOCITIES
 
 NOT_MOVING = "Not moving"
 UNSEEN = "Unseen"  # the camera could not look: not "No person"

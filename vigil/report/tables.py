@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stack.planning.model import ACTIONS, NO_PERSON, OUT_OF_MAP, FactoredModel
+from stack.planning.model import FactoredModel
+from stack.vocabulary import ACTIONS, NO_PERSON, OUT_OF_MAP
 from vigil.report.metrics import Timeline, set_totals, step_outcome
 from vigil.report.records import (
     NOT_MOVING,

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from stack.cells import CellGrid
-from stack.planning.model import NO_PERSON
+from stack.vocabulary import NO_PERSON
 from vigil.frames import FRAMES_FILE, decode, read_frames
 
 VIDEO_FILE = "camera.mp4"
