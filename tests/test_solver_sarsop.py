@@ -9,12 +9,11 @@ import pytest
 from stack.planning import sarsop as sarsop_module
 from stack.planning.evaluate import evaluate
 from stack.planning.pbvi import sample_beliefs
-from stack.planning.policy import AlphaPolicy
+from stack.planning.policy import AlphaPolicy, read_policy_xml, write_policy_xml
 from stack.planning.pomdp import dense_to_pomdp
 from stack.planning.pomdp_format import read_pomdp
 from stack.planning.pomdpx import read_pomdpx
 from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
-from stack.planning.sarsop_policy import read_policy_xml, write_policy_xml
 from stack.planning.solve import SolverConfig, solve
 from vigil.cli import main as vigil
 
