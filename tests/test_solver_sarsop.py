@@ -103,6 +103,7 @@ def test_same_settings_same_policy():
     assert a.lower_bound == b.lower_bound and a.upper_bound == b.upper_bound
 
 
+@pytest.mark.slow  # 1,500 simulated episodes: ~15 s idle, ~45 s on the loaded machine
 def test_policy_executes_at_its_bound():
     """The best vector's action, simulated, returns what the lower bound promises."""
     pomdp = _model("Tiger.pomdp")
@@ -163,6 +164,7 @@ def test_save_writes_exactly_the_path_given(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x", "x.bin", "x.npz", "x.policy"]
 
 
+@pytest.mark.slow  # 2,000 simulated episodes
 @needs_shared
 def test_sarsop_policy_read_and_evaluated():
     """SARSOP's own Tiger policy simulates within its interval (sarsop-policies/README)."""
