@@ -23,7 +23,11 @@ Each tick has three phases, each waiting for quiescence before the next: ``/cloc
 sensors. Splitting the first two matters: otherwise a message caused by one node's
 timer (the planner's observation request, say) can reach another node before that
 node has processed the new ``/clock``, and it would act at the previous tick's time,
-or not, depending on the machine's load.
+or not, depending on the machine's load. Likewise a message sent by one node's timer
+can reach another node before or after that node's own timers ran for the tick: the
+participant holds such a message back until its timers have run
+(:meth:`stack.ros_lockstep.Participant.subscription`), so the order is always the
+same.
 
 Faults: a participant that restarts (new ``incarnation``) or loses messages would
 leave the sums unbalanced forever; :meth:`Ledger.forgive` rebases it after a stall,

@@ -85,11 +85,13 @@ class Participant:
         self.incarnation = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.run_id = os.environ.get(RUN_ID_ENV, "")
         self.in_callback = False
+        self._ticked_s: float | None = None  # the clock time whose tick was processed
+        self._deferred: list[tuple[Callable[[Any], None], Any]] = []
         if not self.enabled:
             return
         self._ack_pub = node.create_publisher(String, ACK_TOPIC, 50)
-        self.subscription(ClockMsg, clock_topic, self._clock_cb, 10)
-        self.subscription(ClockMsg, TICK_TOPIC, self._tick_cb, 10)
+        self.subscription(ClockMsg, clock_topic, self._clock_cb, 10, internal=True)
+        self.subscription(ClockMsg, TICK_TOPIC, self._tick_cb, 10, internal=True)
         wall = Clock(clock_type=ClockType.STEADY_TIME)
         node.create_timer(HEARTBEAT_S, self.ack, clock=wall)
 
@@ -127,8 +129,17 @@ class Participant:
 
     def _tick_cb(self, msg: ClockMsg) -> None:
         self._clock_s = msg.clock.sec + msg.clock.nanosec * 1e-9
+        self._ticked_s = self._clock_s
         for cb in self._on_clock:
             cb(self._clock_s)
+        # what another node's timer sent before this node's own timers ran: now, in order
+        deferred, self._deferred = self._deferred, []
+        for run, m in deferred:
+            run(m)
+
+    def _tick_pending(self) -> bool:
+        """A new /clock came and its tick (this node's timers) has not run yet."""
+        return self._clock_s is not None and self._ticked_s != self._clock_s
 
     # -- traffic ----------------------------------------------------------------------
     def publisher(self, msg_type, topic: str, qos: QoSProfile | int):
@@ -139,12 +150,21 @@ class Participant:
         self._publishers.append(counting)
         return counting
 
-    def subscription(self, msg_type, topic: str, callback: Callable, qos: QoSProfile | int):
+    def subscription(
+        self, msg_type, topic: str, callback: Callable, qos: QoSProfile | int, internal=False
+    ):
+        """A subscription whose messages are counted (lock-step) or a plain one.
+
+        In the tick phase, a message that arrives before this node has run its own
+        timers for the tick (another node's timer was quicker) is held back and handled
+        right after them: every node runs its timers first and then what the others'
+        timers sent, whichever process the machine happened to schedule first.
+        """
         if not self.enabled:
             return self.node.create_subscription(msg_type, topic, callback, qos)
         holder: dict[str, str] = {}
 
-        def counted(msg) -> None:
+        def run(msg) -> None:
             self.in_callback = True
             try:
                 callback(msg)
@@ -152,6 +172,12 @@ class Participant:
                 self.in_callback = False
                 self.recv[holder["topic"]] += 1
                 self.ack()
+
+        def counted(msg) -> None:
+            if not internal and self._tick_pending():
+                self._deferred.append((run, msg))  # counted once handled
+                return
+            run(msg)
 
         sub = self.node.create_subscription(msg_type, topic, counted, _reliable(qos))
         holder["topic"] = sub.topic_name

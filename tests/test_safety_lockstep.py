@@ -146,11 +146,27 @@ def test_run_sets_a_private_domain_and_run_id_for_every_node(tmp_path, monkeypat
             seen.update(self.env)
             raise run_mod.RunError("spied")
 
+    import numpy as np
+    import yaml
+
+    from stack.planning.model import build_model
+    from stack.planning.policy import AlphaPolicy
+    from stack.planning.task import load_task
+
     monkeypatch.setattr(run_mod, "Launcher", Spy)
     monkeypatch.setenv("ROS_DOMAIN_ID", "0")
+    scenario = run_mod.REPO / "scenarios" / "5.1.1.yaml"
+    task = run_mod.load_scenario(scenario).task
+    n = build_model(load_task(task)).flat().n_states
+    AlphaPolicy(np.zeros((2, n)), np.array([0, 1]), {}).save(tmp_path / "p.npz")
+    config = yaml.safe_load((run_mod.REPO / "config" / "twin.yaml").read_text())
+    config.update(task=str(task), policy=str(tmp_path / "p.npz"))
+    config["twin"]["scene"] = str(run_mod.REPO / "config" / "twin-scene.yaml")
+    (tmp_path / "twin.yaml").write_text(yaml.safe_dump(config))
     with pytest.raises(run_mod.RunError, match="spied"):
         run_mod.run_scenario(
-            run_mod.REPO / "scenarios" / "5.1.1.yaml",
+            scenario,
+            config_path=tmp_path / "twin.yaml",
             out=tmp_path / "run",
             observations="table",
             say=lambda s: None,

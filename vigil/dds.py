@@ -8,8 +8,10 @@ addresses (127.0.0.1 in the twin, plus the robot network's address in hardware
 mode), and announces and seeks peers on those addresses only. Sockets are then bound
 to the whitelisted addresses, so a packet from another host never reaches them.
 
-Shared memory is left out on purpose: the segments live in ``/dev/shm``, which a
-process of another network namespace on the same machine can open.
+Shared memory stays (camera frames of 768 kB would otherwise be copied through the
+kernel once per subscriber; UDP-only measured a heavier, stalling twin under load): it
+only reaches processes of this machine, and only after discovery, which runs over the
+whitelisted UDP alone.
 
 Environment set for every node (:func:`dds_env`): ``FASTRTPS_DEFAULT_PROFILES_FILE``
 and ``FASTDDS_DEFAULT_PROFILES_FILE`` (both names, old and new releases),
@@ -70,6 +72,10 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
   <profiles>
     <transport_descriptors>
       <transport_descriptor>
+        <transport_id>vigil_shm</transport_id>
+        <type>SHM</type>
+      </transport_descriptor>
+      <transport_descriptor>
         <transport_id>vigil_udp</transport_id>
         <type>UDPv4</type>
         <maxInitialPeersRange>{MAX_PARTICIPANTS}</maxInitialPeersRange>
@@ -78,7 +84,10 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
     </transport_descriptors>
     <participant profile_name="vigil_participant" is_default_profile="true">
       <rtps>
-        <userTransports><transport_id>vigil_udp</transport_id></userTransports>
+        <userTransports>
+          <transport_id>vigil_shm</transport_id>
+          <transport_id>vigil_udp</transport_id>
+        </userTransports>
         <useBuiltinTransports>false</useBuiltinTransports>
         <builtin>
           <metatrafficUnicastLocatorList>{locators}</metatrafficUnicastLocatorList>{multicast}

@@ -240,9 +240,12 @@ def security_env(keystore: str | Path) -> dict[str, str]:
 
 
 def _fastdds_library() -> Path | None:
-    import rclpy
+    import importlib.util
 
-    venv_lib = Path(rclpy.__file__).resolve().parents[3]  # .../lib/python3.x/site-packages
+    spec = importlib.util.find_spec("rclpy")  # located, not imported: no ROS here
+    if spec is None or spec.origin is None:
+        return None
+    venv_lib = Path(spec.origin).resolve().parents[3]  # <prefix>/lib beside site-packages
     for folder in (venv_lib, venv_lib.parent, Path("/opt/ros/jazzy/lib")):
         for name in ("libfastrtps.so", "libfastdds.so"):
             if (folder / name).exists():

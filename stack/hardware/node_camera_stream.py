@@ -40,8 +40,8 @@ from stack.hardware.camera_stream import (
     load_calibration,
     redact_url,
 )
-from stack.qos import FRAME_QOS  # one QoS for frames, both ends
 from stack.ros_main import spin_node
+from stack.ros_qos import FRAME_QOS  # one QoS for frames, both ends
 
 STATUS_PERIOD_S = 1.0
 

@@ -20,7 +20,7 @@ Parameters: ``config_file`` (YAML with optional ``grid`` and ``camera`` sections
 ``frame_timeout_s``, ``max_future_stamp_s`` (1.0) and ``max_past_stamp_s`` (0: no limit): a frame
 stamped further from the node's clock is ignored and counted (:mod:`stack.stamp_guard`).
 
-QoS: frames are subscribed reliable, keep-last 2 (:data:`stack.qos.FRAME_QOS`, docs/SAFETY.md).
+QoS: frames are subscribed reliable, keep-last 2 (:data:`stack.ros_qos.FRAME_QOS`, docs/SAFETY.md).
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from stack.perception.errors import BadFrameError, CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.messages import image_from_msg, stamp_to_s
 from stack.perception.observation import NO_PERSON
-from stack.qos import FRAME_QOS
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_qos import FRAME_QOS
 from stack.stamp_guard import StampGuard
 
 

@@ -17,13 +17,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from stack.cells import CellGrid  # noqa: E402
-from stack.planning.model import (  # noqa: E402
-    ACTIONS,
-    DIRECTIONS,
-    NO_PERSON,
-    OUT_OF_MAP,
-    FactoredModel,
-)
+from stack.planning.model import FactoredModel  # noqa: E402
+from stack.vocabulary import ACTIONS, DIRECTIONS, NO_PERSON, OUT_OF_MAP  # noqa: E402
 from vigil.report.records import UNKNOWN, cell_of_label  # noqa: E402
 
 if TYPE_CHECKING:

@@ -1,0 +1,100 @@
+"""vigil.inprocess: the whole loop in one process, against the ROS run (the reference)."""
+
+import json
+
+import pytest
+
+from vigil.inprocess import _Timer, ros_time, run_inprocess
+from vigil.run import REPO
+
+SHORT = """\
+# A short visit to restricted cell 1 (task r1): the ROS run and the in-process loop.
+name: mc-short
+title: Short visit to cell 1
+task: {task}
+seed: 13
+steps: 8
+robot_cell: 5
+belief: {{person: none, direction: not moving}}
+person:
+  start: outside
+  walk:
+    - {{to: door, speed_mps: 1.0}}
+    - {{to: [5.5, 0.9], speed_mps: 0.8, pause_s: 8.0}}
+    - {{to: [4.4, 2.1], speed_mps: 0.6}}
+    - {{to: door, speed_mps: 1.0}}
+    - {{to: outside, speed_mps: 1.0, pause_s: 30.0}}
+"""
+
+
+def test_ros_time_keeps_nanoseconds_as_a_stamp_does():
+    assert ros_time(0.1 + 1e-12) == pytest.approx(0.1, abs=1e-12)
+    assert ros_time(2.000000000499) == 2.0
+    # as twin.bridge_node.stamp_of: nanoseconds that round up to 1e9 wrap to 0 without
+    # carrying into the seconds, so the twin's t = 2.999999999999891 is stamped 2.0 (a
+    # bridge bug, reported; mirrored here so that both runs see the same clock)
+    assert ros_time(2.999999999999891) == 2.0
+    assert ros_time(1.5) == 1.5
+
+
+def test_timers_fire_on_the_first_tick_then_at_the_first_tick_past_each_period():
+    fired = []
+    timer = _Timer(0.25, lambda: fired.append(t))
+    ticks = sorted({round(0.04 * k, 2) for k in range(30)} | {round(0.1 * k, 2) for k in range(12)})
+    for t in ticks:
+        timer.on_tick(t)
+    # the lock-step ticks at sensor instants (0.04 s and 0.1 s grids), so a 0.25 s timer
+    # fires at 0, 0.28, 0.5, 0.76, 1.0 as in the ROS run's observations node
+    assert fired[:5] == [0.0, 0.28, 0.5, 0.76, 1.0]
+
+
+def _records(path):
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def _moves(steps):
+    """The actions with consecutive repeats folded: the robot's course of moves."""
+    out = []
+    for r in steps:
+        if not out or out[-1] != r["action"]:
+            out.append(r["action"])
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_ros_run_and_inprocess_loop_make_the_same_decisions(tmp_path):
+    """What holds between the ROS run (the reference) and the in-process loop.
+
+    Measured: the in-process loop is repeatable to the byte, and one ROS run of this
+    scenario matched it to the byte (all 8 steps: stamps, observations, beliefs; the
+    whole trace). The ROS run itself is not always repeatable under load: a second ROS
+    run's robot was 1.5 mm elsewhere at t = 6 s (a velocity command applied one tick
+    apart), its camera saw the person enter cell 1 0.2 s later, and the steps after
+    that fell at other instants. So this asserts what held in every run: the first two
+    steps identical, the same course of moves, the same visits guarded with delays
+    within a second, and no false trip.
+    """
+    from vigil.run import run_scenario
+
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text(SHORT.format(task=REPO / "config" / "task-r1.yaml"))
+    ros = run_scenario(scenario, out=tmp_path / "ros", say=lambda _s: None)
+    mine = run_inprocess(scenario, tmp_path / "inprocess", say=lambda _s: None)
+    a = _records(tmp_path / "ros" / "steps.jsonl")
+    b = _records(tmp_path / "inprocess" / "steps.jsonl")
+    assert len(a) == len(b) == 8
+    same = sum(x["stamp_s"] == y["stamp_s"] and x["belief"] == y["belief"]
+               for x, y in zip(a, b, strict=True))  # fmt: skip
+    for x, y in zip(a[:2], b[:2], strict=True):
+        # same action from the same belief, the same observation at the same instant
+        assert (x["step"], x["action"], x["stamp_s"]) == (y["step"], y["action"], y["stamp_s"])
+        assert x["observation"] == y["observation"] and x["belief"] == y["belief"]
+        assert x["nav"] == y["nav"] and x["trigger"] == y["trigger"]
+    assert _moves(a) == _moves(b), f"{same}/8 steps identical"
+    va, vb = ros["metrics"]["visits"], mine["metrics"]["visits"]
+    assert [(v["cell"], v["guarded"]) for v in va] == [(v["cell"], v["guarded"]) for v in vb]
+    assert mine["metrics"]["guarded"] >= 1
+    for v, w in zip(va, vb, strict=True):
+        assert abs(v["delay_s"] - w["delay_s"]) <= 1.0
+    assert ros["metrics"]["n_false_trips"] == mine["metrics"]["n_false_trips"] == 0

@@ -1,0 +1,153 @@
+"""vigil montecarlo: random walks, statistics, the study's files, local and Ray workers."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from stack.cells import ConfigError
+from stack.planning.task import load_task
+from vigil.cli import build_parser
+from vigil.montecarlo import (
+    StudyConfig,
+    bootstrap_mean,
+    episode_scenarios,
+    plot_study,
+    run_study,
+    summarise,
+    summary_markdown,
+    wilson,
+)
+from vigil.run import REPO
+
+TASK = REPO / "config" / "task-r1.yaml"
+
+
+def test_same_seed_same_episodes_and_draws_stay_in_their_ranges():
+    study = StudyConfig(p_fault=0.5)
+    a = episode_scenarios(TASK, 20, seed=5, study=study)
+    assert a == episode_scenarios(TASK, 20, seed=5, study=study)
+    assert a != episode_scenarios(TASK, 20, seed=6, study=study)
+    # episode k does not depend on how many episodes the study has
+    assert episode_scenarios(TASK, 3, seed=5, study=study) == a[:3]
+    task = load_task(TASK)
+    for sc in a:
+        assert sc.robot_cell == task.rest_cell and sc.steps == 0
+        assert sc.walk[0].to == "door" and sc.walk[-1].to == "outside"
+        targets = sc.walk[1:-2]
+        assert 1 <= len(targets) <= 2
+        for leg in sc.walk:
+            assert 0.4 <= leg.speed_mps <= 1.4
+        for leg in targets:
+            assert task.grid.cell_at(*leg.to) is not None
+        for f in sc.faults:
+            assert f.kind in ("camera_off", "lidar_off") and 2.0 <= f.duration_s <= 8.0
+    cells = {task.grid.cell_at(*leg.to) for sc in a for leg in sc.walk[1:-2]}
+    assert 1 in cells and len(cells) > 2  # restricted and other cells are both drawn
+    assert 0 < sum(bool(sc.faults) for sc in a) < 20
+
+
+def test_wilson_interval_matches_known_values():
+    lo, hi = wilson(5, 10)
+    assert (round(lo, 3), round(hi, 3)) == (0.237, 0.763)
+    lo, hi = wilson(0, 10)
+    assert lo == 0.0 and round(hi, 3) == 0.278
+    assert wilson(10, 10)[1] == pytest.approx(1.0)
+    assert wilson(0, 0) == (None, None)
+
+
+def test_bootstrap_resamples_whole_episodes():
+    mean, lo, hi = bootstrap_mean([[1.0, 1.0, 1.0], [5.0]], seed=0)
+    assert mean == 2.0
+    # resampling episodes: the mean lies between the two episodes' means
+    assert 1.0 <= lo < mean < hi <= 5.0
+    assert bootstrap_mean([[], []]) == (None, None, None)
+    assert bootstrap_mean([[2.0], [2.0]])[1:] == (2.0, 2.0)
+
+
+def _episode(k, visits, guarded, delays, trips, fault=False):
+    return {
+        "episode": f"mc-{k:03d}", "title": "t", "seed": k, "steps": 10,
+        "faults": [{"kind": "camera_off"}] if fault else [],
+        "n_visits": visits, "guarded": guarded, "abandoned": 0, "delays_s": delays,
+        "n_false_trips": trips, "timely_warnings": guarded, "late_warnings": 0,
+        "miss_rate": 0.0, "sim_s": 30.0, "wall_s": 1.0,
+    }  # fmt: skip
+
+
+def test_summary_counts_and_intervals(tmp_path):
+    eps = [
+        _episode(0, 2, 2, [3.0, 5.0], 0),
+        _episode(1, 1, 0, [], 1, fault=True),
+        _episode(2, 0, 0, [], 0),
+        {"episode": "mc-003", "title": "t", "seed": 3, "faults": [], "error": "boom"},
+    ]
+    s = summarise(eps)
+    assert (s["episodes"], s["failed_episodes"], s["visits"], s["guarded"]) == (4, 1, 3, 2)
+    assert s["guarded_rate"] == pytest.approx(2 / 3, abs=1e-3)
+    lo, hi = s["guarded_rate_ci95"]
+    assert lo < 2 / 3 < hi
+    assert s["mean_delay_s"] == 4.0 and s["max_delay_s"] == 5.0
+    assert s["false_trips"] == 1 and s["episodes_with_false_trip"] == 1
+    assert s["false_trips_per_episode"] == pytest.approx(1 / 3, abs=1e-3)
+    assert s["episodes_with_fault"] == 1
+    assert s == summarise(eps)  # deterministic, bootstrap included
+    md = summary_markdown(s, "study")
+    assert "| guarded-visit rate | 67 % |" in md and "2 of 3 visits" in md
+    png = plot_study(tmp_path / "s.png", eps, s, "study")
+    assert png.stat().st_size > 1000
+
+
+def test_bad_study_settings_are_named(tmp_path):
+    with pytest.raises(ConfigError, match="speed_mps"):
+        StudyConfig(speed_mps=(0.4, 2.0))
+    with pytest.raises(ConfigError, match="p_fault"):
+        StudyConfig(p_fault=1.5)
+    with pytest.raises(ConfigError, match="targets"):
+        StudyConfig(targets=(2, 1))
+    with pytest.raises(ConfigError, match="pause_s"):
+        StudyConfig(pause_s=(math.nan, 1.0))
+    with pytest.raises(ConfigError, match="--episodes"):
+        run_study(TASK, 0, tmp_path)
+    with pytest.raises(ConfigError, match="TASK"):
+        run_study(tmp_path / "missing.yaml", 1, tmp_path)
+
+
+def test_cli_parses_the_montecarlo_command():
+    args = build_parser().parse_args(
+        ["montecarlo", str(TASK), "--episodes", "3", "--workers", "2", "--ray", "local"]
+    )
+    assert (args.episodes, args.workers, args.ray) == (3, 2, "local")
+    assert args.func.__name__ == "cmd_montecarlo"
+
+
+def _strip(record):
+    return [{k: v for k, v in e.items() if k != "wall_s"} for e in record["episodes"]]
+
+
+SHORT = StudyConfig(max_sim_s=4.0, p_fault=0.5)
+
+
+@pytest.mark.slow
+def test_same_seed_same_results_whatever_the_workers(tmp_path):
+    a = run_study(TASK, 2, tmp_path / "a", seed=3, workers=2, study=SHORT, say=lambda _s: None)
+    b = run_study(TASK, 2, tmp_path / "b", seed=3, workers=1, study=SHORT, say=lambda _s: None)
+    assert _strip(a) == _strip(b) and a["summary"] == b["summary"]
+    for k in range(2):
+        for name in ("steps.jsonl", "trace.jsonl"):
+            fa = tmp_path / "a" / "episodes" / f"{k:03d}" / name
+            assert fa.read_text() == (tmp_path / "b" / "episodes" / f"{k:03d}" / name).read_text()
+    saved = json.loads((tmp_path / "a" / "montecarlo.json").read_text())
+    assert saved["summary"] == a["summary"] and (tmp_path / "a" / "montecarlo.png").exists()
+    assert a["summary"]["sim_s"] == pytest.approx(8.0, abs=0.1)
+
+
+@pytest.mark.slow
+def test_a_local_ray_instance_gives_the_same_results(tmp_path):
+    pytest.importorskip("ray")
+    local = run_study(TASK, 1, tmp_path / "l", seed=9, workers=1, study=SHORT, say=lambda _s: None)
+    ray = run_study(TASK, 1, tmp_path / "r", seed=9, workers=1, ray="local", study=SHORT,
+                    say=lambda _s: None)  # fmt: skip
+    assert _strip(ray) == _strip(local)
+    assert np.isfinite(ray["wall_s"])

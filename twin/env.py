@@ -1,0 +1,300 @@
+"""The twin as a ``dm_env`` environment, through ``dm_control.rl.control``.
+
+:func:`make_environment` wraps one :class:`twin.twin.Twin` (its own MjSpec scene, kept
+as it is: the model and data are shared with dm_control, not rebuilt) in a
+:class:`dm_control.rl.control.Environment`:
+
+- **physics**: :class:`TwinPhysics`, a :class:`dm_control.mujoco.Physics` over the
+  twin's ``MjModel``/``MjData``; one physics "step" is one :meth:`Twin.step` (one
+  ``control_period_s``, the twin's own rate limits, person placement and odometry);
+- **action**: the robot's body-frame velocity command ``[vx, vy, wz]`` (m/s, m/s,
+  rad/s), bounded by the robot's limits;
+- **observations**: the ceiling camera's image, the lidar scan and the wheel odometry,
+  each at its own rate as the ROS bridge publishes them (``twin.bridge_node``: odometry
+  25 Hz, lidar and camera 10 Hz, nothing from a sensor during its outage), with the
+  simulated time each was taken (a stamp that did not change means no new reading);
+- **reward**: the task model's reward table (``stack.planning.model``, table 4.1) at
+  the true state (robot cell, person cell and direction) and the action's class (Do
+  nothing when the command is zero, else a move), spread over a decision step's length
+  so that one decision step of ``decision_step_s`` earns the table's value;
+- **episode**: the person's script (``twin.person``) from its start until the person
+  has stopped for good, plus ``tail_s``.
+
+Same twin config and seed, same episode: :meth:`GuardTask.initialize_episode` reseeds
+the twin's noise generator at every reset.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from dm_control import mujoco as dm_mujoco
+from dm_control.mujoco.wrapper import MjData
+from dm_control.rl import control
+from dm_env import specs
+
+from stack.cells import ConfigError
+from stack.perception.observation import direction_of_velocity
+from stack.planning.model import ACTIONS, FactoredModel
+from twin.config import TwinConfig
+from twin.twin import Twin, VelocityCommand
+
+SENSORS = ("odometry", "scan", "camera")
+STILL_BELOW_MPS = 0.05  # a true person speed below this is "Not moving" (vigil.report)
+DO_NOTHING = ACTIONS.index("Do nothing")
+A_MOVE = next(i for i, a in enumerate(ACTIONS) if a != "Do nothing")  # all moves cost alike
+
+
+@dataclass(frozen=True)
+class Outage:
+    """No readings from ``sensor`` ("camera" or "lidar") for ``t0_s <= t < t1_s``."""
+
+    sensor: str
+    t0_s: float
+    t1_s: float
+
+    def __post_init__(self) -> None:
+        if self.sensor not in ("camera", "lidar"):
+            raise ConfigError("outage.sensor", self.sensor, "must be camera or lidar")
+        if not (math.isfinite(self.t0_s) and math.isfinite(self.t1_s)) or self.t1_s < self.t0_s:
+            raise ConfigError("outage", (self.t0_s, self.t1_s), "finite times with t1 >= t0")
+
+
+class TwinPhysics(dm_mujoco.Physics):
+    """dm_control's Physics over a :class:`Twin`'s own model and data (shared).
+
+    Use :meth:`of_twin`; :meth:`set_control` takes the velocity command and
+    :meth:`step` advances one control period per step through :meth:`Twin.step`.
+    """
+
+    twin: Twin
+    command: VelocityCommand
+
+    @classmethod
+    def of_twin(cls, twin: Twin) -> TwinPhysics:
+        """Wrap ``twin`` (its MjData is shared: the twin and this physics are one)."""
+        physics = cls(MjData(twin.data))
+        physics.twin = twin
+        physics.command = VelocityCommand()
+        return physics
+
+    def timestep(self) -> float:
+        """One step is the twin's control period [s] (physics substeps inside)."""
+        return self.twin.config.control_period_s
+
+    def set_control(self, control_: np.ndarray) -> None:
+        vx, vy, wz = (float(v) for v in np.asarray(control_, float).reshape(3))
+        self.command = VelocityCommand(vx, vy, wz)
+
+    def step(self, nstep: int = 1) -> None:
+        with self.check_invalid_state():
+            for _ in range(nstep):
+                self.twin.step(self.command)
+
+    def reset(self, keyframe_id=None) -> None:  # noqa: ARG002 - the twin has one start
+        self.twin.reset()
+        self.command = VelocityCommand()
+
+
+class SensorSchedule:
+    """When each sensor reads, as the ROS bridge publishes (periods from its rates).
+
+    Args:
+        periods_s: sensor -> period [s].
+        outages: intervals without readings.
+    """
+
+    def __init__(self, periods_s: dict[str, float], outages: Sequence[Outage] = ()):
+        self.periods_s = dict(periods_s)
+        self.outages = tuple(outages)
+        self.next_s = dict.fromkeys(self.periods_s, 0.0)
+
+    def reset(self) -> None:
+        self.next_s = dict.fromkeys(self.periods_s, 0.0)
+
+    def due(self, name: str, t: float) -> bool:
+        """Whether ``name`` is due at ``t`` (then its next time moves on)."""
+        if t + 1e-9 < self.next_s[name]:
+            return False
+        while self.next_s[name] <= t + 1e-9:
+            self.next_s[name] += self.periods_s[name]
+        return True
+
+    def out(self, sensor: str, t: float) -> bool:
+        return any(o.sensor == sensor and o.t0_s <= t < o.t1_s for o in self.outages)
+
+    def next_time_s(self) -> float:
+        return min(self.next_s.values())
+
+
+class GuardTask(control.Task):
+    """The guarding task on the twin: sensors in, a velocity command out.
+
+    Args:
+        model: the task model (its grid, restricted cells and reward table).
+        seed: the twin's noise seed, drawn again at every reset.
+        outages: sensor outages (faults).
+        decision_step_s: the model's step length [s]: the reward table's value is
+            earned over this long (``vigil.system`` gives the planner ``min_step_s`` 2.5).
+        tail_s: the episode runs this long after the person's script has ended.
+        odom_rate_hz: odometry rate (the deployment's ``odom_rate_hz``).
+    """
+
+    def __init__(
+        self,
+        model: FactoredModel,
+        seed: int = 0,
+        outages: Sequence[Outage] = (),
+        decision_step_s: float = 2.5,
+        tail_s: float = 5.0,
+        odom_rate_hz: float = 25.0,
+    ):
+        super().__init__()
+        if not decision_step_s > 0 or not tail_s >= 0 or not odom_rate_hz > 0:
+            raise ConfigError(
+                "decision_step_s/tail_s/odom_rate_hz",
+                (decision_step_s, tail_s, odom_rate_hz),
+                "must be > 0, >= 0, > 0",
+            )
+        self.model = model
+        self.seed = int(seed)
+        self.outages = tuple(outages)
+        self.decision_step_s = float(decision_step_s)
+        self.tail_s = float(tail_s)
+        self.odom_period_s = 1.0 / odom_rate_hz
+        self._R = model.reward_table().reshape(model.n_states, len(ACTIONS))
+        self.schedule: SensorSchedule | None = None
+        self.due_now: tuple[str, ...] = ()  # sensors due at the last step (outages included)
+        self._obs: dict[str, np.ndarray] = {}
+
+    # -- dm_control hooks ---------------------------------------------------------------
+    def initialize_episode(self, physics: TwinPhysics) -> None:
+        twin = physics.twin
+        twin.rng = np.random.default_rng(self.seed)  # same seed, same episode
+        cfg = twin.config
+        periods = {
+            "odometry": self.odom_period_s,
+            "scan": 1.0 / cfg.lidar.rate_hz,
+            "camera": 1.0 / cfg.camera.rate_hz,
+        }
+        self.schedule = SensorSchedule(periods, self.outages)
+        self._obs = self._buffers(cfg)
+        self._read_sensors(twin)
+
+    @staticmethod
+    def _buffers(cfg: TwinConfig) -> OrderedDict:
+        c, lc = cfg.camera, cfg.lidar
+        return OrderedDict(
+            time=np.zeros((), np.float64),
+            odometry=np.zeros(6, np.float64),
+            odometry_stamp=np.full((), -1.0),
+            scan=np.full(lc.beams, np.inf, np.float32),
+            scan_stamp=np.full((), -1.0),
+            camera=np.zeros((c.height_px, c.width_px, 3), np.uint8),
+            camera_stamp=np.full((), -1.0),
+        )
+
+    def before_step(self, action: np.ndarray, physics: TwinPhysics) -> None:
+        physics.set_control(action)
+
+    def after_step(self, physics: TwinPhysics) -> None:
+        self._read_sensors(physics.twin)
+
+    def get_observation(self, physics: TwinPhysics) -> OrderedDict:
+        return OrderedDict((k, v.copy() if v.ndim == 0 else v) for k, v in self._obs.items())
+
+    def get_reward(self, physics: TwinPhysics) -> float:
+        return self.reward_of(physics.twin, physics.command) * (
+            physics.timestep() / self.decision_step_s
+        )
+
+    def get_termination(self, physics: TwinPhysics) -> float | None:
+        twin = physics.twin
+        end = twin.person.end_time_s if twin.person is not None else 0.0
+        return 1.0 if twin.time_s >= end + self.tail_s - 1e-9 else None
+
+    def action_spec(self, physics: TwinPhysics) -> specs.BoundedArray:
+        rc = physics.twin.config.robot
+        hi = np.array([rc.max_linear_mps, rc.max_linear_mps, rc.max_angular_radps])
+        return specs.BoundedArray((3,), np.float64, -hi, hi, name="velocity_vx_vy_wz")
+
+    def observation_spec(self, physics: TwinPhysics) -> OrderedDict:
+        obs = self._obs or self._buffers(physics.twin.config)
+        return OrderedDict((k, specs.Array(v.shape, v.dtype, name=k)) for k, v in obs.items())
+
+    # -- the reward -------------------------------------------------------------------------
+    def reward_of(self, twin: Twin, command: VelocityCommand) -> float:
+        """The reward table's value at the true state under ``command``'s action class."""
+        gt = twin.ground_truth()
+        person: list[tuple[int | None, str]] = [(None, "Not moving")]
+        if gt.person is not None and gt.person.cell is not None:
+            vx, vy = gt.person.velocity_mps
+            person = [(gt.person.cell, direction_of_velocity(vx, vy, STILL_BELOW_MPS).label)]
+        person += [(None, "Not moving")] * (self.model.people - 1)
+        s = self.model.state_index(gt.robot_cell, person)
+        moving = math.hypot(command.vx_mps, command.vy_mps) > 1e-6 or abs(command.wz_radps) > 1e-6
+        return float(self._R[s, A_MOVE if moving else DO_NOTHING])
+
+    # -- sensors ----------------------------------------------------------------------------
+    def _read_sensors(self, twin: Twin) -> None:
+        sched = self.schedule
+        assert sched is not None, "initialize_episode first"
+        t = twin.time_s
+        o = self._obs
+        o["time"][...] = t
+        self.due_now = tuple(name for name in SENSORS if sched.due(name, t))
+        if "odometry" in self.due_now:
+            od = twin.odometry()
+            o["odometry"][:] = (od.pose.x_m, od.pose.y_m, od.pose.yaw_rad, od.vx_mps, od.vy_mps,
+                                od.wz_radps)  # fmt: skip
+            o["odometry_stamp"][...] = t
+        if "scan" in self.due_now and not sched.out("lidar", t):
+            o["scan"][:] = twin.scan().ranges_m
+            o["scan_stamp"][...] = t
+        if "camera" in self.due_now and not sched.out("camera", t):
+            o["camera"][:] = twin.render_camera()
+            o["camera_stamp"][...] = t
+
+
+def make_environment(
+    config: TwinConfig,
+    model: FactoredModel,
+    seed: int = 0,
+    outages: Sequence[Outage] = (),
+    decision_step_s: float = 2.5,
+    tail_s: float = 5.0,
+    odom_rate_hz: float = 25.0,
+    time_limit_s: float = float("inf"),
+) -> GuardEnvironment:
+    """The twin as a ``dm_env.Environment`` (one step = one twin control period).
+
+    Args:
+        config: the twin's scene (with the person's script).
+        model: the task model (rewards, grid).
+        seed: the twin's noise seed.
+        outages, decision_step_s, tail_s, odom_rate_hz: see :class:`GuardTask`.
+        time_limit_s: an upper bound on the episode (the script's end comes first).
+
+    Raises:
+        ConfigError: a bad value (named).
+    """
+    twin = Twin(config, seed=seed)
+    physics = TwinPhysics.of_twin(twin)
+    task = GuardTask(model, seed, outages, decision_step_s, tail_s, odom_rate_hz)
+    return GuardEnvironment(physics, task, time_limit=time_limit_s, n_sub_steps=1)
+
+
+class GuardEnvironment(control.Environment):
+    """dm_control's Environment that also frees the twin's renderer on :meth:`close`."""
+
+    @property
+    def twin(self) -> Twin:
+        return self.physics.twin
+
+    def close(self) -> None:
+        self.physics.twin.close()
+        super().close()
