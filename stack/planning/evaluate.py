@@ -11,6 +11,7 @@ from stack.planning import belief as belief_ops
 from stack.planning.pbvi import draw, draw_row
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,21 @@ class Evaluation:
             "episodes": self.episodes,
             "horizon": self.horizon,
         }
+
+
+def _update(pomdp: POMDP, OTa, b: np.ndarray, a: int, z: int) -> np.ndarray:
+    """The exact belief update (eq. 2.14), reading O's column z as a row of O^T."""
+    pred = pomdp.TT(a) @ b
+    lo, hi = OTa.indptr[z], OTa.indptr[z + 1]
+    post = np.zeros_like(pred)
+    cols = OTa.indices[lo:hi]
+    post[cols] = OTa.data[lo:hi] * pred[cols]
+    total = post.sum()
+    if not total > 0.0:
+        raise belief_ops.ZeroProbabilityObservation(
+            f"observation {pomdp.observations[z]!r} after {pomdp.actions[a]!r} has probability 0"
+        )
+    return post / total
 
 
 def default_horizon(discount: float, tolerance: float = 0.01) -> int:
@@ -49,11 +65,17 @@ def evaluate(
     action for the current belief, draws the next state and observation from the
     model, and updates the belief exactly. Same seed, same result.
     """
+    with blas_threads(1):  # one small product per step: threads only cost here
+        return _evaluate(pomdp, policy, episodes, horizon, seed, b0)
+
+
+def _evaluate(pomdp, policy, episodes, horizon, seed, b0) -> Evaluation:
     rng = np.random.default_rng(seed)
     b0 = pomdp.b0 if b0 is None else b0
     horizon = horizon or default_horizon(pomdp.discount)
     T = [pomdp.T[a].tocsr() for a in range(pomdp.n_actions)]
     O = [pomdp.O[a].tocsr() for a in range(pomdp.n_actions)]
+    OT = [pomdp.OT(a) for a in range(pomdp.n_actions)]  # rows: P(z | s') for one z
     returns = []
     for _ in range(episodes):
         b = b0
@@ -65,7 +87,7 @@ def evaluate(
             g *= pomdp.discount
             s = draw_row(T[a], s, rng)
             z = draw_row(O[a], s, rng)
-            b = belief_ops.update(pomdp, b, a, z)
+            b = _update(pomdp, OT[a], b, a, z)
         returns.append(total)
     r = np.asarray(returns)
     ci = 1.96 * r.std(ddof=1) / math.sqrt(len(r)) if len(r) > 1 else float("inf")

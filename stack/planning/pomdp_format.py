@@ -20,6 +20,8 @@ over the whole file), single entries ``T: a : s : s' p`` take a short fast path,
 tables are kept as one row object per (action, state) -- a dict for sparse rows, a
 numpy array for rows given in full -- so that "later overrides earlier" costs one
 ``row[j] = p`` and the CSR matrices are assembled once at the end.
+The module is over 500 lines because the format has many statement shapes, each
+with its own error message; the reader and writer share the name rules.
 """
 
 from __future__ import annotations

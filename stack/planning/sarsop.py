@@ -25,6 +25,9 @@ mixed-observability saving of SARSOP's MOMDP solver falls out of the sparsity.
 The search stops when the root's gap is below the target, or at the deadline, which
 is checked between backups (a backup costs milliseconds), so the time limit holds.
 Same model, same settings, same result: there is no randomness in the search.
+
+The module is over 500 lines because the tree, both bounds and the trial rule share
+one set of cached per-node arrays; split apart they would pass them back and forth.
 """
 
 from __future__ import annotations
@@ -78,6 +81,8 @@ class SearchConfig:
     fib_share: float = 0.1
     progress_every_s: float = 1.0
     target_levels: bool = True
+    # [s] per vector entry kept from the time limit for writing the policy afterwards
+    write_s_per_value: float = 0.0
     blas_threads: int = 1  # see stack/planning/threads.py: one thread is faster here
 
 
@@ -552,6 +557,11 @@ class BeliefTreeSearch:
         self._pruned_at = self.K
 
     # -- the search -----------------------------------------------------------------
+    def _late(self) -> bool:
+        """Past the deadline, less the time writing the vectors will take."""
+        reserve = self.K * self.S * self.config.write_s_per_value
+        return time.perf_counter() >= self.deadline - reserve
+
     def _met(self, r: _Node) -> bool:
         gap = r.ub - r.lb
         return gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
@@ -561,7 +571,7 @@ class BeliefTreeSearch:
     def _done(self) -> str:
         if all(self._met(r) for r in self.roots):
             return "gap"
-        if time.perf_counter() >= self.deadline:
+        if self._late():
             return "time"
         if self.config.max_trials is not None and self.trials >= self.config.max_trials:
             return "trials"
@@ -578,7 +588,7 @@ class BeliefTreeSearch:
         node = root
         t = 0
         while t < self.config.max_depth:
-            if time.perf_counter() >= self.deadline:
+            if self._late():
                 break
             # stop where the gap is small enough for the root's target (HSVI), or where
             # both target levels are met, or where the upper bound cannot reach L
@@ -613,11 +623,11 @@ class BeliefTreeSearch:
         leaf = path[-1]
         if leaf.idx.size <= 32:
             for s in leaf.idx:
-                if time.perf_counter() >= self.deadline:
+                if self._late():
                     break
                 self._backup(self._node(np.array([s]), np.ones(1)))
         for n in reversed(path):
-            if time.perf_counter() >= self.deadline and n is not root:
+            if self._late() and n is not root:
                 continue
             self._backup(n)
         self.trials += 1
@@ -654,7 +664,7 @@ class BeliefTreeSearch:
             self._trial()
             self._report()
             stopped = self._done()
-        if time.perf_counter() < self.deadline:
+        if not self._late():
             self._prune()  # over the backed-up beliefs only: cheap
         self._report(force=True)
         policy = AlphaPolicy(self.alphas.copy(), self.actions.copy(), meta={"solver": "sarsop"})

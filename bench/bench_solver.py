@@ -1,0 +1,92 @@
+"""The belief-tree search against SARSOP on the shared benchmark files.
+
+For every file in ../shared/pomdp/ with a discount below 1, and every time limit:
+
+    vigil solve-pomdp FILE --time-limit T -o OUT.policy --json --quiet
+    vigil evaluate FILE --policy OUT.policy --episodes N --horizon 100 --json
+
+(the time limit covers the whole command: start-up, reading, solving, writing), and
+prints a Markdown table beside SARSOP's 60 s figures from ../shared/pomdp/README.md.
+
+    nice -n 5 .venv/bin/python bench/bench_solver.py --limits 10 60 --episodes 1000
+
+Progress: one line per run on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared" / "pomdp"
+VIGIL = [sys.executable, "-m", "vigil.cli"]
+SARSOP_60S = {  # LB / UB at 60 CPU seconds, ../shared/pomdp/README.md; simulated: issue 12
+    "Tiger.pomdp": ("19.371 / 19.372", ""),
+    "4x3.95.POMDP": ("1.8899 / 1.8909", ""),
+    "cheese.95.POMDP": ("3.4853 / 3.4862", ""),
+    "RockSample_4_4.pomdp": ("17.924 exact (0.23 s)", ""),
+    "Hallway.pomdp": ("0.995 / 1.206", "1.006 ± 0.009"),
+    "Hallway2.pomdp": ("0.364 / 0.904", "0.516 ± 0.008"),
+    "TagAvoid.pomdp": ("−6.200 / −1.998", "−6.07 ± 0.12"),
+    "RockSample_5_7.pomdp": ("24.475 / 27.107", "24.35 ± 0.14"),
+}
+
+
+def run(cmd: list[str]) -> dict:
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {out.stderr.strip()[-400:]}")
+    return json.loads(out.stdout)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--limits", type=float, nargs="+", default=[10.0, 60.0])
+    ap.add_argument("--episodes", type=int, default=1000)
+    ap.add_argument("--files", nargs="*", default=list(SARSOP_60S))
+    args = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.files:
+            path = SHARED / name
+            for limit in args.limits:
+                out = Path(tmp) / f"{path.stem}-{limit:g}.policy"
+                t0 = time.perf_counter()
+                s = run(
+                    VIGIL
+                    + ["solve-pomdp", str(path), "--time-limit", str(limit)]
+                    + ["-o", str(out), "--json", "--quiet"]
+                )
+                wall = time.perf_counter() - t0
+                ev = run(
+                    VIGIL
+                    + ["evaluate", str(path), "--policy", str(out), "--episodes"]
+                    + [str(args.episodes), "--horizon", "100", "--seed", "1", "--json"]
+                )
+                rows.append((name, limit, s, wall, ev))
+                print(
+                    f"{name} {limit:g} s: LB {s['lower_bound']:.4f} UB {s['upper_bound']:.4f} "
+                    f"simulated {ev['mean']:.3f} ± {ev['ci95']:.3f}, command {wall:.1f} s",
+                    file=sys.stderr,
+                    flush=True,
+                )
+    print("| file | limit | vigil LB / UB | simulated (95 % CI) | vectors | solve s | command s "
+          "| SARSOP 60 s LB / UB | SARSOP simulated |")  # fmt: skip
+    print("|---|---:|---|---|---:|---:|---:|---|---|")
+    for name, limit, s, wall, ev in rows:
+        ref, sim = SARSOP_60S.get(name, ("", ""))
+        print(
+            f"| {name} | {limit:g} s | {s['lower_bound']:.4f} / {s['upper_bound']:.4f} | "
+            f"{ev['mean']:.3f} ± {ev['ci95']:.3f} | {s['alpha_vectors']} | {s['seconds']:.2f} | "
+            f"{wall:.2f} | {ref} | {sim} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,264 @@
+"""The belief-tree search (stack/planning/sarsop.py), SARSOP's policy format and .pomdpx."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stack.planning import sarsop as sarsop_module
+from stack.planning.evaluate import evaluate
+from stack.planning.pbvi import sample_beliefs
+from stack.planning.policy import AlphaPolicy, read_policy_xml, write_policy_xml
+from stack.planning.pomdp import dense_to_pomdp
+from stack.planning.pomdp_format import read_pomdp
+from stack.planning.pomdpx import read_pomdpx
+from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.solve import SolverConfig, solve
+from vigil.cli import main as vigil
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+POMDP_DIR = SHARED / "pomdp"
+needs_shared = pytest.mark.skipif(not POMDP_DIR.is_dir(), reason=f"{POMDP_DIR} not present")
+
+
+def _model(name: str):
+    if not POMDP_DIR.is_dir():
+        pytest.skip(f"{POMDP_DIR} not present")
+    return read_pomdp(POMDP_DIR / name)
+
+
+def _search(pomdp, **kw):
+    kw.setdefault("time_limit_s", None)
+    kw.setdefault("progress_every_s", 0.0)  # a history entry per trial
+    return BeliefTreeSearch(pomdp, SearchConfig(**kw)).run()
+
+
+def _random_pomdp(seed: int, S=3, A=2, Z=2, discount=0.9):
+    rng = np.random.default_rng(seed)
+    T = rng.dirichlet(np.ones(S), size=(A, S))
+    O = rng.dirichlet(np.ones(Z), size=(A, S))
+    R = rng.normal(size=(S, A))
+    return dense_to_pomdp(T, O, R, discount, b0=rng.dirichlet(np.ones(S)))
+
+
+def _exact_value(pomdp, horizon: int = 60) -> float:
+    """V*(b0) by exhaustive search over the belief tree to ``horizon`` (small models),
+    bracketed: the tail beyond the horizon is bounded by gamma^H max|R| / (1 - gamma)."""
+    g = pomdp.discount
+
+    def v(b, h):
+        if h == 0:
+            return 0.0
+        best = -np.inf
+        for a in range(pomdp.n_actions):
+            pred = pomdp.TT(a) @ b
+            joint = pomdp.O[a].T.toarray() * pred  # (Z, S)
+            pz = joint.sum(axis=1)
+            total = pomdp.R[:, a] @ b
+            for z in np.flatnonzero(pz > 1e-15):
+                total += g * pz[z] * v(joint[z] / pz[z], h - 1)
+            best = max(best, total)
+        return best
+
+    return v(pomdp.b0, horizon)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_bounds_bracket_the_exact_value_of_small_models(seed):
+    pomdp = _random_pomdp(seed, discount=0.25)
+    H = 6  # 4^6 leaves; the tail beyond is 0.25^6 max|R| / 0.75 < 3e-4 max|R|
+    tail = 0.25**H * np.abs(pomdp.R).max() / 0.75
+    exact = _exact_value(pomdp, H)
+    r = _search(pomdp, target_gap=1e-4)
+    assert r.lower_bound <= exact + tail + 1e-9
+    assert r.upper_bound >= exact - tail - 1e-9
+    assert r.gap <= 1e-4
+
+
+def test_tiger_converges_and_brackets_sarsop_value():
+    tiger = _model("Tiger.pomdp")
+    r = _search(tiger, target_gap=1e-3)
+    assert r.stopped == "gap" and r.gap < 1e-3
+    # SARSOP: 19.371 <= V* <= 19.372 (../shared/pomdp/README.md)
+    assert r.lower_bound <= 19.3721 and r.upper_bound >= 19.3709
+
+
+def test_lower_bound_never_decreases_and_upper_never_increases():
+    pomdp = _model("4x3.95.POMDP")
+    r = _search(pomdp, max_trials=60)
+    lo = [s.lower for s in r.history]
+    up = [s.upper for s in r.history]
+    assert len(lo) > 10
+    assert all(b >= a - 1e-12 for a, b in zip(lo, lo[1:], strict=False))
+    assert all(b <= a + 1e-12 for a, b in zip(up, up[1:], strict=False))
+    assert lo[-1] > lo[0] and up[-1] < up[0]
+
+
+def test_same_settings_same_policy():
+    pomdp = _model("cheese.95.POMDP")
+    a = _search(pomdp, max_trials=8)
+    b = _search(pomdp, max_trials=8)
+    np.testing.assert_array_equal(a.policy.alphas, b.policy.alphas)
+    assert a.lower_bound == b.lower_bound and a.upper_bound == b.upper_bound
+
+
+@pytest.mark.slow  # 1,500 simulated episodes: ~15 s idle, ~45 s on the loaded machine
+def test_policy_executes_at_its_bound():
+    """The best vector's action, simulated, returns what the lower bound promises."""
+    pomdp = _model("Tiger.pomdp")
+    r = _search(pomdp, target_gap=1e-3)
+    ev = evaluate(pomdp, r.policy, episodes=1500, horizon=120, seed=3)
+    assert abs(ev.mean - r.lower_bound) <= ev.ci95
+
+
+def test_time_limit_is_checked_inside_trials(monkeypatch):
+    """With a clock that moves 10 ms per reading, the search stops within a few
+    readings of the limit, whatever a trial's length."""
+    pomdp = _model("RockSample_4_4.pomdp")
+    now = [0.0]
+
+    def clock():
+        now[0] += 0.01
+        return now[0]
+
+    monkeypatch.setattr(sarsop_module.time, "perf_counter", clock)
+    r = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=3.0, fib_share=0.0), start=0.0).run()
+    assert r.stopped in ("time", "gap")
+    assert r.seconds <= 3.0 + 0.2
+
+
+def test_sampler_skips_absorbing_states():
+    # state 2 is absorbing under both actions; action 1 sends everything there
+    T = np.array(
+        [
+            [[0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.0, 0.0, 1.0]],
+            [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]],
+        ]
+    )
+    O = np.array([[[0.8, 0.2], [0.2, 0.8], [0.5, 0.5]]] * 2)
+    R = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    pomdp = dense_to_pomdp(T, O, R, 0.9, b0=np.array([0.5, 0.5, 0.0]))
+    B = sample_beliefs(pomdp, [pomdp.b0], 40, np.random.default_rng(0), explore=0.9)
+    assert len(B) >= 3  # b0 and the two posteriors of action 0
+    assert (B[:, 2] > 1 - 1e-9).sum() == 0  # no belief wasted on the absorbing state
+
+
+def test_policy_xml_round_trip(tmp_path):
+    pomdp = _model("Hallway.pomdp")
+    r = _search(pomdp, max_trials=10)
+    path = write_policy_xml(r.policy, tmp_path / "h.policy", model="Hallway.pomdp")
+    back = read_policy_xml(path, n_states=pomdp.n_states)
+    np.testing.assert_allclose(back.alphas, r.policy.alphas, rtol=1e-15)
+    rng = np.random.default_rng(0)
+    for b in rng.dirichlet(np.ones(pomdp.n_states), size=20):
+        assert back.action(b) == r.policy.action(b)
+
+
+def test_save_writes_exactly_the_path_given(tmp_path):
+    policy = AlphaPolicy(np.array([[1.0, 2.0]]), np.array([0]))
+    for name in ("x.policy", "x.npz", "x.bin", "x"):
+        path = policy.save(tmp_path / name)
+        assert path == tmp_path / name and path.exists()
+        assert AlphaPolicy.load(path, n_states=2).action(np.array([0.5, 0.5])) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x", "x.bin", "x.npz", "x.policy"]
+
+
+@pytest.mark.slow  # 2,000 simulated episodes
+@needs_shared
+def test_sarsop_policy_read_and_evaluated():
+    """SARSOP's own Tiger policy simulates within its interval (sarsop-policies/README)."""
+    tiger = read_pomdp(POMDP_DIR / "Tiger.pomdp")
+    policy = AlphaPolicy.load(POMDP_DIR / "sarsop-policies" / "Tiger.policy", tiger.n_states)
+    assert policy.alphas.shape == (5, 2)
+    ev = evaluate(tiger, policy, episodes=2000, horizon=100, seed=1)
+    assert 17.91 <= ev.mean <= 20.57
+
+
+@needs_shared
+def test_cli_evaluate_a_pomdp_file_with_a_sarsop_policy(capsys):
+    code = vigil(
+        [
+            "evaluate",
+            str(POMDP_DIR / "Tiger.pomdp"),
+            "--policy",
+            str(POMDP_DIR / "sarsop-policies" / "Tiger.policy"),
+            "--episodes",
+            "300",
+            "--json",
+        ]
+    )
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert {"mean", "ci95"} <= set(out)
+    assert out["mean"] - 3 * out["ci95"] < 19.371 < out["mean"] + 3 * out["ci95"]
+
+
+@needs_shared
+def test_cli_solve_pomdp_writes_a_policy_pomdpsim_format(tmp_path, capsys):
+    out = tmp_path / "tiger.policy"
+    code = vigil(["solve-pomdp", str(POMDP_DIR / "Tiger.pomdp"), "-o", str(out), "--json"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["policy"] == str(out) and summary["gap"] < 1e-3
+    assert out.read_text().startswith("<?xml") and "numVectors" in out.read_text()
+    assert [p.name for p in tmp_path.iterdir()] == ["tiger.policy"]
+
+
+@needs_shared
+def test_pomdpx_tiger_is_the_pomdp_tiger():
+    x = read_pomdpx(SHARED / "pomdpx" / "Tiger.pomdpx")
+    p = read_pomdp(POMDP_DIR / "Tiger.pomdp")
+    assert x.discount == p.discount
+    assert x.actions == p.actions and x.n_states == p.n_states
+    for a in range(p.n_actions):
+        np.testing.assert_allclose(x.T[a].toarray(), p.T[a].toarray())
+        np.testing.assert_allclose(x.O[a].toarray(), p.O[a].toarray())
+    np.testing.assert_allclose(x.R, p.R)
+    np.testing.assert_allclose(x.b0, p.b0)
+    # and SARSOP's policy for the .pomdpx model reads as a flat policy of it
+    pol = read_policy_xml(POMDP_DIR / "sarsop-policies" / "Tiger.pomdpx.policy", x.n_states)
+    assert pol.action(np.array([0.5, 0.5])) == x.actions.index("listen")
+
+
+@needs_shared
+def test_pomdpx_with_a_fully_observed_variable_observes_it():
+    x = read_pomdpx(SHARED / "pomdpx" / "TagAvoid.pomdpx")
+    assert x.n_states == 870 and x.n_observations == 29 * 30
+    x.validate(tol=1e-6)
+
+
+def test_solve_dispatches_and_records_the_model_hash():
+    pomdp = _random_pomdp(4)
+    r = solve(pomdp, SolverConfig(algorithm="sarsop", trials=5))
+    assert r.policy.meta["solver"] == "sarsop"
+    assert r.policy.meta["model_sha256"] == pomdp.fingerprint()
+    with pytest.raises(ValueError, match="unknown solver"):
+        SolverConfig(algorithm="nope")
+
+
+def test_perseus_seeded_search_keeps_valid_bounds():
+    pomdp = _random_pomdp(5, S=4, A=2, Z=3, discount=0.25)
+    exact = _exact_value(pomdp, 6)
+    tail = 0.25**6 * np.abs(pomdp.R).max() / 0.75
+    r = solve(pomdp, SolverConfig(perseus_share=0.5, iterations=5, beliefs=20, target_gap=1e-4))
+    assert r.lower_bound <= exact + tail + 1e-9 <= r.upper_bound + 2 * tail + 1e-9
+    with pytest.raises(ValueError, match="perseus_share"):
+        SolverConfig(perseus_share=1.5)
+
+
+def test_absorbing_set_of_the_task_is_robot_out_of_the_map():
+    """The closed set found is exactly "robot out of the map" (whatever the person
+    does), and sampled beliefs never lie in it."""
+    from stack.planning.model import build_model
+    from stack.planning.pbvi import absorbing_states
+    from stack.planning.solve import task_starts
+    from stack.planning.task import load_task
+
+    model = build_model(load_task(Path(__file__).resolve().parents[1] / "config" / "task-r1.yaml"))
+    pomdp = model.flat()
+    trap = absorbing_states(pomdp).reshape(model.state_shape)
+    assert trap[model.robot_index(None)].all() and not trap[: model.n_cells].any()
+    B = sample_beliefs(pomdp, task_starts(model, pomdp), 60, np.random.default_rng(2))
+    out = B.reshape(len(B), *model.state_shape)[:, model.robot_index(None)].sum(axis=(1, 2))
+    assert (out > 1 - 1e-9).sum() == 0
