@@ -14,14 +14,14 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from stack.lockstep import RUN_ID_ENV
+from vigil.processes import ProcessSpec
 
 
 def _die_with_parent() -> None:
@@ -33,35 +33,6 @@ def _die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except OSError:  # not Linux: the launcher's own stop() still applies
         pass
-
-
-@dataclass
-class ProcessSpec:
-    """One node process.
-
-    Attributes:
-        name: the node's name (also the log file's).
-        module: the Python module with ``main()``.
-        params_file: the ROS parameters file (``--ros-args --params-file``).
-        restart: start it again when it exits while the system runs.
-        env: extra environment variables.
-        command: run this instead of the module (any program).
-    """
-
-    name: str
-    module: str
-    params_file: Path | None = None
-    restart: bool = True
-    env: dict[str, str] = field(default_factory=dict)
-    command: list[str] | None = None
-
-    def argv(self) -> list[str]:
-        if self.command is not None:
-            return list(self.command)
-        args = [sys.executable, "-u", "-m", self.module]
-        if self.params_file is not None:
-            args += ["--ros-args", "--params-file", str(self.params_file)]
-        return args
 
 
 @dataclass

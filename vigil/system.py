@@ -25,7 +25,7 @@ from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
 from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment
-from vigil.launch import ProcessSpec
+from vigil.processes import ProcessSpec
 from vigil.scenario import Scenario
 from vigil.security import security_env
 
