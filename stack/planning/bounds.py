@@ -91,6 +91,7 @@ def fast_informed_bound(
             for a2 in range(A):
                 M = pomdp.T[a] @ pomdp.O[a].multiply(Qp[:, a2][:, None]).tocsr()
                 best = M if best is None else best.maximum(M)
+            assert best is not None  # A >= 1
             new[:, a] = pomdp.R[:, a] + g * (np.asarray(best.sum(axis=1)).ravel() - shift)
         new = np.minimum(new, Q)  # numerical safety: iterates only decrease
         delta = np.abs(new - Q).max()

@@ -230,7 +230,7 @@ def read_policy_xml(
                     f"{path}: a vector has {vals.size} values, vectorLength says {length}"
                 )
             vectors.append(vals)
-            actions.append(int(v.get("action")))
+            actions.append(int(v.get("action", "")))  # missing: ValueError, reported below
             obs.append(int(v.get("obsValue", "0")))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, PolicyFileError):

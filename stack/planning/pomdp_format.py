@@ -234,7 +234,7 @@ class _Rewards:
                 if z == _ALL:
                     d[nxt] = v
                 else:
-                    cur = d.get(nxt)
+                    cur = d.get(nxt)  # type: ignore[assignment]
                     if cur is None:
                         cur = self.zbase.get(key, self.default[a, s])
                     d[nxt] = self._with_z(cur, z, v)
@@ -469,7 +469,7 @@ class _Parser:
             T=Tm,
             O=Om,
             R=Rm,
-            discount=float(self.discount),
+            discount=float(self.discount),  # type: ignore[arg-type]  # checked when parsed
             b0=b0,
             name=self.name,
             values=self.values or "reward",

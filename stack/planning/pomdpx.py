@@ -162,31 +162,41 @@ def read_pomdpx(path: str | os.PathLike) -> POMDP:
     except ET.ParseError as exc:
         raise PomdpxError(f"{path}: not XML ({exc})") from None
     try:
-        discount = float(root.findtext("Discount"))
+        discount = float(root.findtext("Discount") or "")
     except (TypeError, ValueError):
         raise PomdpxError(f"{path}: no numeric <Discount>") from None
     varel = root.find("Variable")
     if varel is None:
         raise PomdpxError(f"{path}: no <Variable> section")
     variables: dict[str, _Var] = {}
-    prev, curr, fully = [], [], []
+    prev: list[str] = []
+    curr: list[str] = []
+    fully: list[bool] = []
+
+    def name(el: ET.Element, attr: str) -> str:
+        value = el.get(attr)
+        if not value:
+            raise PomdpxError(f"{path}: a <{el.tag}> without {attr}")
+        return value
+
     for sv in varel.findall("StateVar"):
         vals = _values(sv, f"state variable {sv.get('vnameCurr')}")
-        p, c = sv.get("vnamePrev"), sv.get("vnameCurr")
+        p, c = name(sv, "vnamePrev"), name(sv, "vnameCurr")
         num = sv.find("ValueEnum") is None
         variables[p], variables[c] = _Var(p, vals, num), _Var(c, vals, num)
         prev.append(p)
         curr.append(c)
         fully.append(sv.get("fullyObs", "false").strip().lower() == "true")
-    obs = []
+    obs: list[str] = []
     for ov in varel.findall("ObsVar"):
         num = ov.find("ValueEnum") is None
-        variables[ov.get("vname")] = _Var(ov.get("vname"), _values(ov, "observation"), num)
-        obs.append(ov.get("vname"))
+        vname = name(ov, "vname")
+        variables[vname] = _Var(vname, _values(ov, "observation"), num)
+        obs.append(vname)
     acts = varel.findall("ActionVar")
     if len(acts) != 1:
         raise PomdpxError(f"{path}: {len(acts)} action variables (this reader takes one)")
-    act = acts[0].get("vname")
+    act = name(acts[0], "vname")
     variables[act] = _Var(
         act, _values(acts[0], "action variable"), acts[0].find("ValueEnum") is None
     )

@@ -419,8 +419,9 @@ class BeliefTreeSearch:
         for a in range(self.A):
             pred = pred_all[a * S : (a + 1) * S]
             nz = np.flatnonzero(pred > 0)
-            if self.O_dense[a] is not None:
-                joint = self.O_dense[a][nz] * pred[nz][:, None]
+            o_dense = self.O_dense[a]
+            if o_dense is not None:
+                joint = o_dense[nz] * pred[nz][:, None]
                 pz = joint.sum(axis=0)
                 zs = np.flatnonzero(pz > _PROB_EPS)
                 M = joint[:, zs] / pz[zs]

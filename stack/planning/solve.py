@@ -13,6 +13,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -74,7 +75,7 @@ class SolveResult:
     lower_bound: float
     upper_bound: float
     seconds: float
-    history: list[IterationStats] = field(default_factory=list)
+    history: list[Any] = field(default_factory=list)  # IterationStats or SearchStats
 
     @property
     def gap(self) -> float:

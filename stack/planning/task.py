@@ -302,7 +302,7 @@ def _section(key: str, data: Any, klass: type) -> Any:
         raise ConfigError(key, data, "must be a mapping")
     fields = {f.name: f for f in dataclasses.fields(klass)}
     _reject_unknown(f"{key}.", data, set(fields))
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for name, value in data.items():
         default = getattr(klass(), name)
         if isinstance(default, tuple):
