@@ -79,7 +79,7 @@ class PlannerNode(Node):
             raise ConfigError("task_file/policy_file", (task_file, policy_file), "both are needed")
         model = build_model(load_task(task_file))
         pomdp = model.flat()
-        policy = AlphaPolicy.load(policy_file, pomdp.n_states)
+        policy = AlphaPolicy.load(policy_file, pomdp.n_states, model_hash=pomdp.fingerprint())
         ini = model.task.initial
         first_person = ini.person if person < 0 else (person or None)
         b0 = model.initial_belief(
