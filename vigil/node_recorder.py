@@ -19,6 +19,7 @@ report reads the task), ``video`` (false: no frames), ``jpeg_quality``, ``lockst
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from pathlib import Path
@@ -36,6 +37,21 @@ from vigil.frames import FRAMES_FILE, FrameWriter
 
 TRACE_FILE = "trace.jsonl"
 TRUTH_GAP_S = 0.25  # camera silent this long: trace the ground truth without it
+
+
+def _skips_bad_messages(callback):
+    """A message of the wrong shape is logged and skipped: the recorder never dies of one."""
+
+    @functools.wraps(callback)
+    def guarded(self, msg):
+        try:
+            callback(self, msg)
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
+            self.get_logger().warning(
+                f"{callback.__name__}: message skipped ({exc!r})", throttle_duration_sec=5.0
+            )
+
+    return guarded
 
 
 class RecorderNode(Node):
@@ -74,15 +90,8 @@ class RecorderNode(Node):
         while len(self.images) > 4:
             del self.images[min(self.images)]
 
+    @_skips_bad_messages
     def on_truth(self, msg: String) -> None:
-        try:
-            self._on_truth(msg)
-        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
-            self.get_logger().warning(
-                f"on_truth: message skipped ({exc!r})", throttle_duration_sec=5.0
-            )
-
-    def _on_truth(self, msg: String) -> None:
         self.truth = _json(msg.data)
         t = (self.truth or {}).get("t")
         if isinstance(t, int | float) and t - self.last_t >= TRUTH_GAP_S - 1e-9:
@@ -95,15 +104,8 @@ class RecorderNode(Node):
         except ValueError:
             self.odom = None
 
+    @_skips_bad_messages
     def on_legs(self, msg: String) -> None:
-        try:
-            self._on_legs(msg)
-        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
-            self.get_logger().warning(
-                f"on_legs: message skipped ({exc!r})", throttle_duration_sec=5.0
-            )
-
-    def _on_legs(self, msg: String) -> None:
         data = _json(msg.data) or {}
         tracks = data.get("tracks", [])
         self.legs = [t["position_m"] for t in tracks if t.get("confirmed") and "position_m" in t]
@@ -111,30 +113,16 @@ class RecorderNode(Node):
     def on_warning(self, msg: String) -> None:
         self.speech.append(msg.data or "warning")  # every one: two may come between records
 
+    @_skips_bad_messages
     def on_speech_done(self, msg: String) -> None:
-        try:
-            self._on_speech_done(msg)
-        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
-            self.get_logger().warning(
-                f"on_speech_done: message skipped ({exc!r})", throttle_duration_sec=5.0
-            )
-
-    def _on_speech_done(self, msg: String) -> None:
         # an utterance's end comes on wall-clock time (espeak-ng): logged, not traced,
         # so that the trace of a lock-step run is the same on every machine
         data = _json(msg.data) or {}
         if data.get("kind") == "failed":
             self.get_logger().warning(f"speech failed: {data.get('error')}")
 
+    @_skips_bad_messages
     def on_person(self, msg: String) -> None:
-        try:
-            self._on_person(msg)
-        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
-            self.get_logger().warning(
-                f"on_person: message skipped ({exc!r})", throttle_duration_sec=5.0
-            )
-
-    def _on_person(self, msg: String) -> None:
         camera = _json(msg.data)
         if camera is None:
             return

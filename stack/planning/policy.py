@@ -260,3 +260,37 @@ def read_policy_xml(
         )
     meta = {"solver": "sarsop-xml", "model": root.get("model", ""), "file": str(path)}
     return AlphaPolicy(alphas=alphas, actions=np.asarray(actions, dtype=int), meta=meta)
+
+
+class BoundedResult:
+    """What a solve reports about its bounds; mixed into the solvers' result dataclasses
+    (which hold ``policy``, ``lower_bound``, ``upper_bound``, ``seconds``)."""
+
+    policy: AlphaPolicy
+    lower_bound: float
+    upper_bound: float
+    seconds: float
+
+    @property
+    def gap(self) -> float:
+        return self.upper_bound - self.lower_bound
+
+    @property
+    def relative_gap(self) -> float:
+        return self.gap / max(abs(self.lower_bound), abs(self.upper_bound), 1e-12)
+
+    @property
+    def n_iterations(self) -> int:
+        return 0
+
+    def summary(self) -> dict:
+        return {
+            "lower_bound": self.lower_bound,
+            "upper_bound": self.upper_bound,
+            "gap": self.gap,
+            "relative_gap": self.relative_gap,
+            "value_b0": self.lower_bound,
+            "alpha_vectors": int(self.policy.alphas.shape[0]),
+            "iterations": self.n_iterations,
+            "seconds": self.seconds,
+        }

@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp, require_discounted
-from stack.planning.policy import AlphaPolicy
+from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
 from stack.planning.threads import blas_threads
 
@@ -149,7 +149,7 @@ class _Node:
 
 
 @dataclass
-class SearchResult:
+class SearchResult(BoundedResult):
     policy: AlphaPolicy
     lower_bound: float
     upper_bound: float
@@ -160,26 +160,15 @@ class SearchResult:
     stopped: str = ""  # "gap", "time", "trials"
 
     @property
-    def gap(self) -> float:
-        return self.upper_bound - self.lower_bound
-
-    @property
-    def relative_gap(self) -> float:
-        return self.gap / max(abs(self.lower_bound), abs(self.upper_bound), 1e-12)
+    def n_iterations(self) -> int:
+        return self.trials
 
     def summary(self) -> dict:
         return {
-            "lower_bound": self.lower_bound,
-            "upper_bound": self.upper_bound,
-            "gap": self.gap,
-            "relative_gap": self.relative_gap,
-            "value_b0": self.lower_bound,
-            "alpha_vectors": int(self.policy.alphas.shape[0]),
-            "iterations": self.trials,
+            **super().summary(),
             "trials": self.trials,
             "backups": self.backups,
             "stopped": self.stopped,
-            "seconds": self.seconds,
         }
 
 

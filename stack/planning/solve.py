@@ -20,7 +20,7 @@ import numpy as np
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
 from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
-from stack.planning.policy import AlphaPolicy
+from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
 
 ALGORITHMS = ("sarsop", "perseus")
@@ -70,7 +70,7 @@ class SolverConfig:
 
 
 @dataclass
-class SolveResult:
+class SolveResult(BoundedResult):
     policy: AlphaPolicy
     lower_bound: float
     upper_bound: float
@@ -78,24 +78,8 @@ class SolveResult:
     history: list[Any] = field(default_factory=list)  # IterationStats or SearchStats
 
     @property
-    def gap(self) -> float:
-        return self.upper_bound - self.lower_bound
-
-    @property
-    def relative_gap(self) -> float:
-        return self.gap / max(abs(self.lower_bound), abs(self.upper_bound), 1e-12)
-
-    def summary(self) -> dict:
-        return {
-            "lower_bound": self.lower_bound,
-            "upper_bound": self.upper_bound,
-            "gap": self.gap,
-            "relative_gap": self.relative_gap,
-            "value_b0": self.lower_bound,
-            "alpha_vectors": int(self.policy.alphas.shape[0]),
-            "iterations": len(self.history),
-            "seconds": self.seconds,
-        }
+    def n_iterations(self) -> int:
+        return len(self.history)
 
 
 def solve(
