@@ -118,16 +118,26 @@ def test_launcher_reports_a_node_that_fails_at_shutdown(tmp_path):
     code = (
         "import signal, sys, time\n"
         "signal.signal(signal.SIGINT, lambda *a: (print('[ERROR] boom at exit'), sys.exit(1)))\n"
+        "print('ready', flush=True)\n"
         "time.sleep(60)\n"
     )
-    clean = "import time\ntry:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    pass\n"
+    clean = (
+        "import time\ntry:\n    print('ready', flush=True)\n    time.sleep(60)\n"
+        "except KeyboardInterrupt:\n    pass\n"
+    )
     specs = [
         ProcessSpec("bad", "", command=[sys.executable, "-u", "-c", code]),
         ProcessSpec("good", "", command=[sys.executable, "-u", "-c", clean]),
     ]
     la = Launcher(specs, tmp_path / "logs", say=lambda s: None)
     la.start()
-    time.sleep(1.0)
+    # both children have set up their SIGINT handling (a loaded machine starts them slowly)
+    deadline = time.monotonic() + 60.0
+    logs = [tmp_path / "logs" / f"{n}.log" for n in ("bad", "good")]
+    while time.monotonic() < deadline and not all(
+        p.exists() and "ready" in p.read_text() for p in logs
+    ):
+        time.sleep(0.1)
     assert la.poll()
     codes = la.stop(5.0)
     assert codes == {"bad": 1, "good": 0}

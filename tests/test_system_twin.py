@@ -82,7 +82,7 @@ def test_faults_do_not_break_the_run(tmp_path):
     scenario.update(
         name="faults",
         task=str(REPO / "config" / "task-r1.yaml"),
-        steps=9,
+        steps=14,  # past the obstacle: person events shorten steps (9 ended at 20 s)
         faults=[
             {"kind": "camera_off", "at_s": 9.0, "duration_s": 6.0},
             {"kind": "lidar_off", "at_s": 16.0, "duration_s": 8.0},
@@ -94,7 +94,7 @@ def test_faults_do_not_break_the_run(tmp_path):
     path.write_text(yaml.safe_dump(scenario))
     run_scenario(path, out=tmp_path / "run", say=lambda s: None)
     steps = steps_of(tmp_path / "run")
-    assert [s["step"] for s in steps] == list(range(1, 10))  # resumed, not restarted
+    assert [s["step"] for s in steps] == list(range(1, 15))  # resumed, not restarted
     assert any(s["resumed"] for s in steps[3:])
     trace = [json.loads(x) for x in (tmp_path / "run" / "trace.jsonl").read_text().splitlines()]
     # camera off: never "No person" (the camera cannot see): "Unseen" or the laser's
@@ -105,7 +105,12 @@ def test_faults_do_not_break_the_run(tmp_path):
         s["observation"]["person"] == "Unseen" or s["observation"].get("source") == "laser"
         for s in during
     )
-    assert any(r["camera"]["status"] != "person" for r in trace if 11.5 <= r["t"] < 15.0)
+    # the camera silent (no record of it) or not seeing the person at some instant
+    assert any(
+        r["camera"] is None or r["camera"]["status"] != "person"
+        for r in trace
+        if 11.5 <= r["t"] < 15.0
+    )
     # lidar off from 16 s: once the last track is stale (max_track_age_s, 1 s), a person
     # the camera sees moves at most "0-0.2"
     lidar_off = [
