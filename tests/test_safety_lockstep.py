@@ -130,7 +130,13 @@ def test_launcher_reports_a_node_that_fails_at_shutdown(tmp_path):
         ProcessSpec("good", "", command=[sys.executable, "-u", "-c", clean]),
     ]
     la = Launcher(specs, tmp_path / "logs", say=lambda s: None)
-    la.start()
+    # started from a process that ignores SIGINT (a background job, a test runner): the
+    # nodes must still get it
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        la.start()
+    finally:
+        signal.signal(signal.SIGINT, previous)
     # both children have set up their SIGINT handling (a loaded machine starts them slowly)
     deadline = time.monotonic() + 60.0
     logs = [tmp_path / "logs" / f"{n}.log" for n in ("bad", "good")]

@@ -26,7 +26,11 @@ from vigil.processes import ProcessSpec
 
 def _die_with_parent() -> None:
     """In the child, before exec: SIGTERM when the launcher dies, however it dies
-    (Linux prctl PR_SET_PDEATHSIG), so a killed launcher never leaves a twin running."""
+    (Linux prctl PR_SET_PDEATHSIG), so a killed launcher never leaves a twin running.
+    SIGINT and SIGTERM are reset to their defaults: a launcher started with them ignored
+    (a background job, a test runner) must still be able to stop its nodes gently."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         import ctypes
 
