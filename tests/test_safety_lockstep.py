@@ -3,6 +3,7 @@ for their own, a stalled run ends with an error naming what stalled, stamps roun
 correctly."""
 
 import os
+import signal
 import subprocess
 import sys
 import time
