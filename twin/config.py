@@ -44,16 +44,8 @@ RGB: Rule = (_unit_rgb, "must be three numbers in [0, 1]")
 
 class _FromDict(Config):
     """The twin's configurations: :class:`stack.config.Config` (checked whenever built,
-    from YAML or in code) with per-field ``_rules`` and cross-field ``_check``."""
-
-    def check(self) -> None:
-        try:
-            self._check("")
-        except ConfigError as err:  # _check names keys under a section: none here
-            raise ConfigError(err.key.lstrip("."), err.value, err.rule) from None
-
-    def _check(self, key: str) -> None:
-        """Cross-field rules; override in subclasses."""
+    from YAML or in code) with per-field ``_rules`` and cross-field ``check``; keys in
+    errors are the field's own, ``from_dict`` prefixes the section."""
 
 
 @dataclass(frozen=True)
@@ -143,9 +135,9 @@ class LidarConfig(_FromDict):
         "rate_hz": POSITIVE,
     }
 
-    def _check(self, key: str) -> None:
+    def check(self) -> None:
         if self.range_max_m <= self.range_min_m:
-            raise ConfigError(f"{key}.range_max_m", self.range_max_m, "must exceed range_min_m")
+            raise ConfigError("range_max_m", self.range_max_m, "must exceed range_min_m")
 
 
 @dataclass(frozen=True)
@@ -263,11 +255,11 @@ class MapConfig(_FromDict):
         "free_thresh": (lambda v: 0.0 < v < 1.0, "must be in (0, 1)"),
     }
 
-    def _check(self, key: str) -> None:
+    def check(self) -> None:
         if self.z_max_m <= self.z_min_m:
-            raise ConfigError(f"{key}.z_max_m", self.z_max_m, "must exceed z_min_m")
+            raise ConfigError("z_max_m", self.z_max_m, "must exceed z_min_m")
         if self.free_thresh >= self.occupied_thresh:
-            raise ConfigError(f"{key}.free_thresh", self.free_thresh, "must be < occupied_thresh")
+            raise ConfigError("free_thresh", self.free_thresh, "must be < occupied_thresh")
 
 
 @dataclass(frozen=True)
@@ -307,28 +299,25 @@ class TwinConfig(_FromDict):
         """
         return super().from_dict(data, key)
 
-    def _check(self, key: str) -> None:
-        prefix = f"{key}." if key else ""
+    def check(self) -> None:
         steps = self.control_period_s / self.timestep_s
         if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
             raise ConfigError(
-                f"{prefix}control_period_s",
+                "control_period_s",
                 self.control_period_s,
                 "must be a multiple of timestep_s",
             )
         if self.robot.start_cell not in self.grid.cells:
-            raise ConfigError(
-                f"{prefix}robot.start_cell", self.robot.start_cell, "not a cell of the grid"
-            )
+            raise ConfigError("robot.start_cell", self.robot.start_cell, "not a cell of the grid")
         if self.camera.distance_behind_m >= self.room.margin_west_m:
             raise ConfigError(
-                f"{prefix}camera.distance_behind_m",
+                "camera.distance_behind_m",
                 self.camera.distance_behind_m,
                 f"must be less than room.margin_west_m ({self.room.margin_west_m})",
             )
         if self.camera.height_m >= self.room.wall_height_m:
             raise ConfigError(
-                f"{prefix}camera.height_m", self.camera.height_m, "must be below the wall height"
+                "camera.height_m", self.camera.height_m, "must be below the wall height"
             )
 
 

@@ -54,7 +54,7 @@ from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
 from stack.perception.tracker import TrackEstimate, nearest_track
 from stack.perception.visibility import CameraVisibility
-from stack.vocabulary import NO_PERSON, NOT_MOVING, OUT_OF_MAP, UNSEEN
+from stack.vocabulary import NO_PERSON, NOT_MOVING, OUT_OF_MAP, UNSEEN, parse_hidden
 
 __all__ = ["NO_PERSON", "NOT_MOVING", "OUT_OF_MAP", "UNSEEN", "Observation", "ObservationCombiner"]
 
@@ -204,34 +204,13 @@ class Observation:
         speed = data.get("speed_mps")
         hidden = parse_hidden(data.get("hidden"))
         if str(data["person"]) == UNSEEN and obs.person_cell is None:
-            hidden = tuple((c, 1.0) for c, _ in hidden) or ()
+            hidden = tuple((c, 1.0) for c, _ in hidden)
         return cls(
             obs.stamp_s, obs.person_cell, obs.direction, obs.speed, obs.robot_cell,
             None if pos is None else (float(pos[0]), float(pos[1])),
             None if speed is None else float(speed),
             str(data.get("source", "camera")), hidden,
         )  # fmt: skip
-
-
-def parse_hidden(data: Any) -> tuple[tuple[int, float], ...]:
-    """The ``hidden`` field: {"3": 0.33, ...} or [[3, 0.33], ...] -> ((3, 0.33), ...).
-
-    Raises:
-        ValueError: not a mapping or list of (cell, fraction), or a fraction outside [0, 1].
-    """
-    if data is None:
-        return ()
-    items = data.items() if isinstance(data, Mapping) else data
-    out = []
-    try:
-        for cell, frac in items:
-            c, f = int(cell), float(frac)
-            if not 0.0 <= f <= 1.0:
-                raise ValueError(f"hidden fraction {frac!r} of cell {cell!r} is not in [0, 1]")
-            out.append((c, f))
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"hidden must map cells to fractions in [0, 1]: {err}") from None
-    return tuple(sorted(out))
 
 
 def _cell_label(text: str, what: str) -> int:

@@ -145,6 +145,8 @@ class CameraVisibility:
         w, h = homography.image_size_px
         self.shape = (max(1, round(h * s)), max(1, round(w * s)))
         self._scale = s
+        self._mask_pose: Pose2D | None = None
+        self._mask = np.zeros(self.shape, np.uint8)
         self._static = self._static_fractions()
 
     # -- projection --------------------------------------------------------------
@@ -170,6 +172,12 @@ class CameraVisibility:
             if px is not None:
                 self._fill(mask, px)
         return mask
+
+    def _robot(self, pose: Pose2D) -> np.ndarray:
+        """:meth:`robot_mask`, kept for the last pose (one step asks for it twice)."""
+        if self._mask_pose != pose:
+            self._mask, self._mask_pose = self.robot_mask(pose), pose
+        return self._mask
 
     def _person_quads(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Raster corners of the whole silhouette and of its legs at floor point (x, y)."""
@@ -248,7 +256,7 @@ class CameraVisibility:
         """
         if robot_pose is None:
             return dict(self._static)
-        robot = self.robot_mask(robot_pose)
+        robot = self._robot(robot_pose)
         if not robot.any():
             return dict(self._static)
         rxy = (robot_pose.x_m, robot_pose.y_m)
@@ -260,6 +268,6 @@ class CameraVisibility:
 
     def point_hidden(self, x: float, y: float, robot_pose: Pose2D | None) -> bool:
         """Whether a person at floor point (x, y) is hidden from the camera."""
-        robot = None if robot_pose is None else self.robot_mask(robot_pose)
+        robot = None if robot_pose is None else self._robot(robot_pose)
         rxy = None if robot_pose is None else (robot_pose.x_m, robot_pose.y_m)
         return self.point(x, y, robot, rxy).hidden

@@ -34,6 +34,7 @@ from stack.vocabulary import (
     OUT_OF_MAP,
     UNSEEN,
     VELOCITIES,
+    parse_hidden,
 )
 
 
@@ -76,14 +77,10 @@ class Observed:
             raise ObservationError(f"observation without {err.args[0]!r}: {data}") from None
         if not all(isinstance(v, str) for v in labels.values()):
             raise ObservationError(f"observation labels must be strings: {labels}")
-        hidden = data.get("hidden") or {}
         try:
-            items = hidden.items() if isinstance(hidden, dict) else hidden
-            parsed = tuple(sorted((int(c), float(f)) for c, f in items))
-        except (TypeError, ValueError):
-            raise ObservationError(f"hidden must map cells to fractions: {hidden!r}") from None
-        if not all(0.0 <= f <= 1.0 for _, f in parsed):
-            raise ObservationError(f"hidden fractions must lie in [0, 1]: {hidden!r}")
+            parsed = parse_hidden(data.get("hidden"))
+        except ValueError as err:
+            raise ObservationError(str(err)) from None
         source = data.get("source", "")
         return cls(
             labels["robot"], labels["person"], labels["velocity"], parsed,
