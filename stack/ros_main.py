@@ -5,9 +5,12 @@ Kept apart from the algorithm packages: only node files import it.
 Shutdown: rclpy's own signal handler shuts the context down from inside the signal,
 while a callback may still be publishing ("publisher's context is invalid", exit 1) and
 before the node's last words (a zero velocity) can go out. So rclpy installs no handler
-here: SIGINT and SIGTERM raise :class:`KeyboardInterrupt` in the spinning thread (the
-executor wakes every :data:`SPIN_WAKE_S` to let it), ``on_exit`` publishes with the
-context still valid, and only then is the node destroyed and the context shut down. A
+here: SIGINT and SIGTERM only set a flag that the spin loop checks (the executor wakes
+every :data:`SPIN_WAKE_S`), ``on_exit`` publishes with the context still valid, and only
+then is the node destroyed and the context shut down. The handler must not raise: an
+exception raised while rclpy's C++ side is converting a message into Python turns into
+pybind11's "Unable to convert call argument" RuntimeError and the node exits 1 (seen in
+CI on the planner at shutdown). A
 clean stop exits 0; a node that cannot start (bad configuration or file) prints one
 ``[FATAL]`` line naming what is wrong and exits 2.
 """
@@ -31,8 +34,14 @@ EXIT_BAD_CONFIG = 2
 SPIN_WAKE_S = 0.1
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+class _StopFlag:
+    """Set by SIGINT/SIGTERM; checked by the spin loop between callbacks."""
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+
+    def __call__(self, signum, frame) -> None:
+        self.signal = signal.Signals(signum).name
 
 
 N = TypeVar("N", bound=Node)
@@ -54,9 +63,10 @@ def spin_node(
     from stack.cells import ConfigError
 
     main_thread = threading.current_thread() is threading.main_thread()
+    stop = _StopFlag()
     if main_thread:
-        signal.signal(signal.SIGINT, _interrupt)
-        signal.signal(signal.SIGTERM, _interrupt)
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGTERM, stop)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
@@ -64,7 +74,7 @@ def spin_node(
         node = make_node()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while True:  # wake up at least every SPIN_WAKE_S so that a signal is handled
+        while stop.signal is None:  # wakes at least every SPIN_WAKE_S to check
             executor.spin_once(timeout_sec=SPIN_WAKE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -1,0 +1,59 @@
+"""The one node main loop (stack/ros_main.spin_node): a stop signal never interrupts a
+callback halfway (CI saw the planner exit 1 with pybind11's "Unable to convert call
+argument" when SIGINT raised inside rclpy's message conversion)."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+# the node's timer signals its own process, then keeps working: every line must be done
+NODE = textwrap.dedent(
+    """
+    import os, signal, sys
+    from rclpy.node import Node
+    from std_msgs.msg import String
+    from stack.ros_main import spin_node
+
+    class Busy(Node):
+        def __init__(self):
+            super().__init__("busy")
+            self.pub = self.create_publisher(String, "/busy", 10)
+            self.create_timer(0.05, self.tick)
+            self.ticks = 0
+
+        def tick(self):
+            self.ticks += 1
+            if self.ticks == 3:
+                os.kill(os.getpid(), signal.{sig})
+                for i in range(20000):  # far more bytecodes than a signal waits for
+                    self.pub.publish(String(data=str(i)))
+                print("callback finished", file=sys.stderr, flush=True)
+
+    def last_words(node):
+        print(f"last words after {{node.ticks}} ticks", file=sys.stderr, flush=True)
+
+    spin_node(Busy, on_exit=last_words)
+    """
+)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_during_a_callback_lets_it_finish_and_the_node_exits_0(sig):
+    proc = subprocess.run(
+        [sys.executable, "-c", NODE.format(sig=sig)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "callback finished" in proc.stderr
+    # the loop stops after the callback in which the signal came, before another tick
+    assert "last words after 3 ticks" in proc.stderr
+    assert "Traceback" not in proc.stderr
