@@ -166,12 +166,14 @@ class _Kids:
     action the next cells with their probabilities. Successor nodes are made only
     when a trial descends into them; until then their bounds live in ``lb``/``ub``."""
 
-    __slots__ = ("pz", "zs", "M", "xs", "nodes", "reward", "px", "lb", "ub", "seen")
+    __slots__ = ("pz", "zs", "b", "xs", "nodes", "reward", "px", "lb", "ub", "seen")
 
-    def __init__(self, pz, zs, M, xs, reward, px, lb, ub, seen):
+    def __init__(self, pz, zs, b, xs, reward, px, lb, ub, seen):
         self.pz = pz  # (nz,) P(z | b)
         self.zs = zs  # (nz,) the observations
-        self.M = M  # (Y, nz) posteriors as columns
+        # the parent's belief: the posteriors (Y, nz) are recomputed from it when needed
+        # (MixedSearch._posteriors) rather than kept, 88 kB a node in the task
+        self.b = b
         self.xs = xs  # next cells reachable under some action
         self.nodes: dict[tuple[int, int], _Node] = {}  # (i, j) -> node (xs[i], M[:, j])
         self.reward = reward  # (A,) R(x, b, a)
@@ -294,6 +296,8 @@ class MixedSearch:
             xs = np.flatnonzero(m.TX[:, x, :].max(axis=0) > 0)
             self.next_cells.append((xs, np.ascontiguousarray(m.TX[:, x, xs])))
         self.nodes: dict[bytes, _Node] = {}
+        self._post_for: _Kids | None = None
+        self._post = np.empty((0, 0))
         self.backups = 0
         self.trials = 0
         self.history: list[SearchStats] = []
@@ -349,14 +353,23 @@ class MixedSearch:
             lb[i] = np.minimum(self._lower(int(x2), M)[0], ub[i])
             seen[i] = self.cells[int(x2)].n_points
         reward = node.b @ m.R[node.x]  # (A,)
-        node.kids = _Kids(pz[zs], zs, M, xs, reward, px, lb, ub, seen)
+        node.kids = _Kids(pz[zs], zs, node.b, xs, reward, px, lb, ub, seen)
         return node.kids
+
+    def _posteriors(self, kids: _Kids) -> np.ndarray:
+        """The successor person beliefs (Y, nz) of ``kids``, computed as ``_expand`` did
+        (the same operations, so the same numbers); the last one is kept."""
+        if self._post_for is not kids:
+            joint = self.m.OY * (self.TYT @ kids.b)[:, None]
+            self._post = joint[:, kids.zs] / kids.pz
+            self._post_for = kids
+        return self._post
 
     def _child(self, kids: _Kids, i: int, j: int) -> _Node:
         node = kids.nodes.get((i, j))
         if node is None:
             x2 = int(kids.xs[i])
-            b = kids.M[:, j].copy()
+            b = self._posteriors(kids)[:, j].copy()
             key = bytes([x2]) + np.round(b, 10).tobytes()
             node = self.nodes.get(key)
             if node is None:
@@ -369,7 +382,8 @@ class MixedSearch:
         """Re-interpolate the successors in next cell xs[i] against new points."""
         c = self.cells[int(kids.xs[i])]
         if kids.seen[i] < c.n_points:
-            fresh = c.corner @ kids.M + c.sawtooth(kids.M, int(kids.seen[i]))
+            M = self._posteriors(kids)
+            fresh = c.corner @ M + c.sawtooth(M, int(kids.seen[i]))
             np.minimum(kids.ub[i], fresh, out=kids.ub[i])
             kids.seen[i] = c.n_points
 
@@ -390,7 +404,7 @@ class MixedSearch:
         lbs = np.empty((nx, kids.zs.size))
         best = []
         for i, x2 in enumerate(kids.xs):
-            v, k = self._lower(int(x2), kids.M)
+            v, k = self._lower(int(x2), self._posteriors(kids))
             best.append(k)
             lbs[i] = v
             # the vector values are what the new vector achieves: q_lower uses them, so
