@@ -2,7 +2,7 @@
 
 For every file in ../shared/pomdp/ with a discount below 1, and every time limit:
 
-    vigil solve-pomdp FILE --time-limit T -o OUT.policy --json --quiet
+    vigil solve-pomdp FILE --time-limit T SOLVER_ARGS -o OUT.policy --json --quiet
     vigil evaluate FILE --policy OUT.policy --episodes N --horizon 100 --json
 
 (the time limit covers the whole command: start-up, reading, solving, writing), and
@@ -50,6 +50,12 @@ def main() -> None:
     ap.add_argument("--limits", type=float, nargs="+", default=[10.0, 60.0])
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--files", nargs="*", default=list(SARSOP_60S))
+    ap.add_argument(
+        "--solver-args",
+        default="--perseus-share 0.3 --beliefs 1000 --iterations 1000",
+        help="extra solve-pomdp arguments (default: Perseus first for 30 %% of the limit, "
+        "its vectors seeding the search; '' for the search alone)",
+    )
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -61,6 +67,7 @@ def main() -> None:
                 s = run(
                     VIGIL
                     + ["solve-pomdp", str(path), "--time-limit", str(limit)]
+                    + args.solver_args.split()
                     + ["-o", str(out), "--json", "--quiet"]
                 )
                 wall = time.perf_counter() - t0
