@@ -63,40 +63,8 @@ R: open-right : tiger-left : * : * 10
 R: open-right : tiger-right : * : * -100
 """
 
-POLICY = "stack/planning/policy.AlphaPolicy.load: BadZipFile, EOFError, zlib/tokenize errors"
 # "reader:case" -> why it is not asserted yet (the owner of that reader fixes it)
-KNOWN_FAILURES: dict[str, str] = {
-    "policy:truncate@0": POLICY,
-    "policy:truncate@72": POLICY,
-    "policy:truncate@144": POLICY,
-    "policy:truncate@217": POLICY,
-    "policy:truncate@289": POLICY,
-    "policy:truncate@361": POLICY,
-    "policy:truncate@434": POLICY,
-    "policy:truncate@506": POLICY,
-    "policy:truncate@578": POLICY,
-    "policy:bytes#0": POLICY,
-    "policy:bytes#1": POLICY,
-    "policy:bytes#2": POLICY,
-    "policy:bytes#3": POLICY,
-    "policy:bytes#4": POLICY,
-    "policy:bytes#5": POLICY,
-    "policy:bytes#6": POLICY,
-    "policy:bytes#7": POLICY,
-    "policy:bytes#8": POLICY,
-    "policy:bytes#9": POLICY,
-    "policy:bytes#10": POLICY,
-    "policy:bytes#11": POLICY,
-    "policy:bytes#12": POLICY,
-    "policy:bytes#14": POLICY,
-    "policy:bytes#15": POLICY,
-    "policy:bytes#16": POLICY,
-    "policy:bytes#17": POLICY,
-    "policy:bytes#18": POLICY,
-    "policy:bytes#19": POLICY,
-    "policy:bytes#20": POLICY,
-    "policy:empty": POLICY,
-}
+KNOWN_FAILURES: dict[str, str] = {}
 
 
 def allowed_errors() -> tuple[type[BaseException], ...]:
