@@ -229,6 +229,6 @@ def test_config_from_dict_validates():
     with pytest.raises(ConfigError, match="follower.max_vy_mps: 0.0 is invalid: must be"):
         FollowerConfig.from_dict({"max_vy_mps": 0})
     with pytest.raises(ConfigError, match="nav.speed: .* unknown key"):
-        FollowerConfig.from_dict({"speed": 1.0}, prefix="nav")
+        FollowerConfig.from_dict({"speed": 1.0}, "nav")
     with pytest.raises(ConfigError, match="follower.timeout_s: 'long' is invalid: must be a num"):
         FollowerConfig.from_dict({"timeout_s": "long"})

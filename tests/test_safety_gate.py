@@ -89,7 +89,7 @@ def test_hardware_caps_are_bounded_by_the_platform(tmp_path):
     data["hardware"]["velocity_gate"]["max_linear_mps"] = 50.0
     with pytest.raises(ConfigError) as err:
         parse_deployment(data, tmp_path / "hardware.yaml")
-    assert err.value.key == "velocity_gate.max_linear_mps" and "platform" in str(err.value)
+    assert err.value.key == "hardware.velocity_gate.max_linear_mps" and "platform" in str(err.value)
 
 
 def test_in_hardware_mode_only_the_gate_publishes_the_base_topic(tmp_path):

@@ -283,22 +283,6 @@ class TwinConfig(_FromDict):
         "control_period_s": POSITIVE,
     }
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "") -> TwinConfig:
-        """Build from a mapping with optional sections ``grid``, ``room``, ``camera``, ...
-
-        Args:
-            data: the mapping (the ``twin`` section of a YAML file, or the whole file).
-            key: the dotted path of this section, used in error messages.
-
-        Returns:
-            The validated configuration.
-
-        Raises:
-            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
-        """
-        return super().from_dict(data, key)
-
     def check(self) -> None:
         steps = self.control_period_s / self.timestep_s
         if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:

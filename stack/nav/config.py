@@ -8,12 +8,11 @@ is :class:`stack.cells.ConfigError` naming the key, the value and the rule.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from stack.cells import ConfigError
-from stack.config import Config, from_mapping, read_yaml
+from stack.config import Config, read_yaml
 
 T = TypeVar("T")
 
@@ -38,6 +37,8 @@ class FollowerConfig(Config):
 
     Body frame: x forward, y left, z up (REP 103).
     """
+
+    section = "follower"  # errors name keys "follower.<field>"
 
     max_vx_mps: float = 0.5  # forward/backward speed limit [m/s]
     max_vy_mps: float = 0.4  # lateral speed limit; a mecanum base moves sideways [m/s]
@@ -105,15 +106,6 @@ class FollowerConfig(Config):
     def inflation_radius_m(self) -> float:
         return self.robot_radius_m + self.inflation_margin_m
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "follower") -> FollowerConfig:
-        """Validate a mapping (e.g. the ``follower`` section of a YAML file).
-
-        Raises:
-            ConfigError: unknown key, wrong type or a value out of range.
-        """
-        return from_mapping(cls, data, prefix)
-
 
 SPEECH_POLICIES = ("queue", "replace")
 DEFAULT_WARNINGS = {
@@ -125,6 +117,8 @@ DEFAULT_WARNINGS = {
 @dataclass(frozen=True)
 class SpeechConfig(Config):
     """The warning and how it is spoken (thesis 4.4: eSpeak)."""
+
+    section = "speech"  # errors name keys "speech.<field>"
 
     voice: str = "en"  # espeak-ng voice: "en" (default) or "pt" (Portuguese)
     warning_text: str = ""  # empty: the built-in warning for the voice's language (en, pt)
@@ -186,15 +180,6 @@ class SpeechConfig(Config):
     def warning(self) -> str:
         """The text to say: ``warning_text``, or the built-in one for the language."""
         return self.warning_text.strip() or DEFAULT_WARNINGS[self.language]
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "speech") -> SpeechConfig:
-        """Validate a mapping (e.g. the ``speech`` section of a YAML file).
-
-        Raises:
-            ConfigError: unknown key, wrong type or a value out of range.
-        """
-        return from_mapping(cls, data, prefix)
 
 
 def read_node_config(path: str, section: str, klass):

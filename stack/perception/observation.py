@@ -49,7 +49,7 @@ from typing import Any
 
 from stack.cells import CellGrid, Direction
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
 from stack.perception.tracker import TrackEstimate, nearest_track
@@ -237,6 +237,8 @@ class CombinerConfig(Config):
     last_seen_memory_s: how long the place the person was last seen is remembered [s].
     """
 
+    section = "observations"  # errors name keys "observations.<field>"
+
     speed_thresholds_mps: tuple[float, float] = (0.2, 0.7)
     association_gate_m: float = 1.0
     max_camera_age_s: float = 2.0
@@ -259,11 +261,6 @@ class CombinerConfig(Config):
                 "must be in [0, 1) m")  # fmt: skip
         require(0 < self.laser_only_min_hidden <= 1, "laser_only_min_hidden",
                 self.laser_only_min_hidden, "must be in (0, 1]")  # fmt: skip
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "observations") -> CombinerConfig:
-        """Validate a mapping into a CombinerConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 def direction_of_velocity(vx: float, vy: float, still_below_mps: float) -> Direction:
