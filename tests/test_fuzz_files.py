@@ -153,6 +153,7 @@ def _tree(tmp: Path) -> Path:
 
 def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
     """reader name -> (seed file, read(path))."""
+    from stack.nav.occupancy import OccupancyMap, load_map_yaml, save_map_yaml
     from stack.perception.homography import (
         calibrate,
         load_calibration,
@@ -166,7 +167,6 @@ def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
     from stack.planning.pomdp_format import read_pomdp
     from stack.planning.task import load_task
     from twin.config import load_twin_config
-    from twin.occupancy import OccupancyMap, load_map
     from vigil.deployment import load_deployment
     from vigil.scenario import load_scenario
 
@@ -198,7 +198,7 @@ def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
         )  # fmt: skip
     )
     occ = OccupancyMap(np.zeros((20, 30), np.int8), 0.05, (0.0, 0.0))
-    pgm, yml = occ.save(tmp, "map")
+    yml = save_map_yaml(occ, tmp / "map.yaml")
 
     def state_reader(path: Path):
         fresh = PlannerAgent(model, pomdp, policy, model.initial_belief())
@@ -214,7 +214,7 @@ def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
         "calibration": (tmp / "calib.yaml", load_calibration),
         "points": (tmp / "points.yaml", load_points_file),
         "state": (tmp / "state.json", state_reader),
-        "map": (yml, load_map),
+        "map": (yml, load_map_yaml),
         "policy": (tmp / "policy.npz", lambda p: AlphaPolicy.load(p, pomdp.n_states)),
     }
 

@@ -19,8 +19,9 @@ import mujoco
 import numpy as np
 
 from stack.geometry import Pose2D
+from stack.nav.occupancy import OccupancyMap, save_map_yaml
 from twin.config import TwinConfig
-from twin.occupancy import OccupancyMap, occupancy_from_model
+from twin.occupancy import occupancy_from_model
 from twin.person import PersonPose, PersonScript, default_waypoints
 from twin.scene import (
     CAMERA_NAME,
@@ -413,8 +414,6 @@ class Twin:
             self.layout.room,
             mc.resolution_m,
             (mc.z_min_m, mc.z_max_m),
-            occupied_thresh=mc.occupied_thresh,
-            free_thresh=mc.free_thresh,
         )
 
     def save_map(self, directory: str | Path, name: str = "lrm") -> tuple[Path, Path]:
@@ -427,4 +426,11 @@ class Twin:
         Returns:
             (pgm_path, yaml_path).
         """
-        return self.occupancy_map().save(directory, name)
+        mc = self.config.map
+        yml = save_map_yaml(
+            self.occupancy_map(),
+            Path(directory) / f"{name}.yaml",
+            occupied_thresh=mc.occupied_thresh,
+            free_thresh=mc.free_thresh,
+        )
+        return yml.with_suffix(".pgm"), yml
