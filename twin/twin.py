@@ -237,7 +237,8 @@ class Twin:
         command = command or VelocityCommand()
         rc = self.config.robot
         dt = self.config.control_period_s
-        want = np.array([command.vx_mps, command.vy_mps, command.wz_radps], float)
+        diff = rc.drive == "diff"
+        want = np.array([command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps])
         lin = np.hypot(want[0], want[1])
         if lin > rc.max_linear_mps:
             want[:2] *= rc.max_linear_mps / lin
@@ -259,6 +260,10 @@ class Twin:
             ctrl[self._act[0]] = c * self._cmd[0] - s * self._cmd[1]
             ctrl[self._act[1]] = s * self._cmd[0] + c * self._cmd[1]
             ctrl[self._act[2]] = self._cmd[2]
+            if diff:  # no slip sideways: keep only the slides' velocity along the heading
+                qv, ix, iy = self.data.qvel, self._dadr[0], self._dadr[1]
+                along = c * qv[ix] + s * qv[iy]
+                qv[ix], qv[iy] = c * along, s * along
             mujoco.mj_step(self.model, self.data)
         # the person is kinematic and touches nothing, so moving it once per control
         # period is enough (and 5x cheaper than at every physics step); mj_kinematics

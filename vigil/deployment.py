@@ -14,7 +14,8 @@ Sections (all optional except ``mode`` and ``task``)::
     ros: {domain_id: null, localhost_only: true}
     twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 25.0}
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
-    navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0}
+    navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0,
+                 drive: holonomic}        # or diff: the follower (and the twin's base)
     speech: {voice: en}
     planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
     nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
@@ -97,10 +98,13 @@ class NavigationSection(Config):
     pose_source: str = "odom"
     pose_topic: str = ""
     control_rate_hz: float = 20.0
+    drive: str = "holonomic"  # the base: holonomic (mecanum) or diff (differential drive)
 
     def __post_init__(self) -> None:
         if self.pose_source not in ("odom", "amcl"):
             raise ConfigError("pose_source", self.pose_source, "must be odom or amcl")
+        if self.drive not in ("holonomic", "diff"):
+            raise ConfigError("drive", self.drive, "must be holonomic or diff")
 
 
 @dataclass(frozen=True)

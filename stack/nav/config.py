@@ -31,11 +31,17 @@ def _non_negative(obj: Any, *names: str) -> None:
             raise ConfigError(name, v, "must be a finite number >= 0")
 
 
+DRIVES = ("holonomic", "diff")
+
+
 @dataclass(frozen=True)
 class FollowerConfig(Config):
-    """Limits and gains of the holonomic path follower (mecanum base).
+    """Limits and gains of the path follower.
 
-    Body frame: x forward, y left, z up (REP 103).
+    ``drive`` picks the base: ``holonomic`` (the MBot's mecanum wheels: any planar
+    direction, heading held) or ``diff`` (differential drive: forward speed and yaw
+    rate only; the robot turns towards the carrot, in place when it points more than
+    ``turn_in_place_rad`` away). Body frame: x forward, y left, z up (REP 103).
     """
 
     section = "follower"  # errors name keys "follower.<field>"
@@ -67,6 +73,15 @@ class FollowerConfig(Config):
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
     unknown_is_occupied: bool = True
+    drive: str = "holonomic"  # holonomic (mecanum) or diff (differential drive)
+    turn_gain_per_s: float = 2.5  # diff: yaw rate = gain * heading error [1/s]
+    turn_in_place_rad: float = 0.8  # diff: heading errors beyond this turn on the spot [rad]
+
+    _rules = {
+        "drive": (lambda v: v in DRIVES, f"must be one of {DRIVES}"),
+        "turn_in_place_rad": (lambda v: 0 < v <= math.pi / 2, "must be in (0, pi/2] rad"),
+        "turn_gain_per_s": (lambda v: v > 0, "must be > 0"),
+    }
 
     def check(self) -> None:
         """Check every value.
