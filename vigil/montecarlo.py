@@ -26,6 +26,10 @@ Confidence intervals: the guarded-visit rate and the share of episodes with a fa
 trip are binomial (Wilson score interval); the mean delay and the false trips per
 episode are bootstrapped over episodes (2000 resamples, seeded), because visits of
 one episode are not independent.
+
+Just over 500 lines because the study is one unit: drawing episodes, running them on
+processes or Ray, and summarising them with their intervals and figure share the
+episode record's layout, which reads best in one place.
 """
 
 from __future__ import annotations
