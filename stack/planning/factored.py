@@ -169,9 +169,7 @@ class PeopleBelief:
         """(n, n_person): every person's belief one step ahead, before observing."""
         return self.persons @ pm.transition
 
-    def update(
-        self, pm: PeopleModel, action: int, observation: tuple[int, ...]
-    ) -> PeopleBelief:
+    def update(self, pm: PeopleModel, action: int, observation: tuple[int, ...]) -> PeopleBelief:
         """The posterior after ``action`` and (z_R, z_P1, z_V1, ..., z_Pn, z_Vn).
 
         Raises:
