@@ -50,7 +50,7 @@ def test_the_two_person_task_is_task_r2_with_two_people(pm):
 # -- the leaf values ---------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("people", [1, 2])
+@pytest.mark.parametrize("people", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_factored_mdp_values_are_the_flat_models_qmdp(people):
     task = Task(
         name=f"small{people}",
