@@ -147,6 +147,15 @@ def test_anytime_stops_deepening_when_the_next_level_would_not_fit(pm):
     d = cut.decide(b)
     assert d.depth == 1 and d.nodes == 1
     np.testing.assert_allclose(d.values, full.history[0])
+    # a level that looked affordable but overran is abandoned midway: the clock stands
+    # still for five readings (start, level 1, the next level's start), then jumps
+    readings = iter([0.0] * 5 + [10.0] * 100)
+    late = OnlinePlanner(
+        pm, OnlineConfig(depth=3, samples=4, time_limit_s=1.0), clock=lambda: next(readings)
+    )
+    d = late.decide(b)
+    assert d.depth == 1 and d.nodes == 1
+    np.testing.assert_allclose(d.values, full.history[0])
     # three people: the pair leaf, and still an answer
     pm3 = PeopleModel.of(pm.task.replace(people=3))
     b3 = certain(pm3, 3, [(7, "not moving"), (1, "not moving"), (None, "not moving")])

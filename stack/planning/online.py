@@ -59,6 +59,11 @@ from stack.vocabulary import ACTIONS
 
 LEAVES = ("mdp", "single")
 STAY = ACTIONS.index("Do nothing")
+CHUNK = 256  # belief nodes between two looks at the clock (with a time limit)
+
+
+class _OutOfTime(Exception):
+    """The time limit passed while a level was being built."""
 
 
 @dataclass(frozen=True)
@@ -223,7 +228,6 @@ class OnlinePlanner:
         self.rng = np.random.default_rng(config.seed)
         self.gamma = pm.task.discount
         self.obs = pm.observation_table  # (n_person, Z1)
-        self.cdf_obs = self.obs  # kept for clarity: sampled through the predictive cdf
 
     def reset(self, seed: int | None = None) -> None:
         """Restart the sample stream (a new episode)."""
@@ -260,43 +264,74 @@ class OnlinePlanner:
         return (R + self.gamma * future).max(axis=-1)
 
     def decide(self, belief: PeopleBelief) -> Decision:
-        """The action for ``belief``, by iterative deepening up to ``config.depth``."""
+        """The action for ``belief``, by iterative deepening up to ``config.depth``.
+
+        With a time limit a level is skipped when its predicted cost (K times the
+        last level's) would overrun, and abandoned when the clock passes the limit
+        while it is built (checked every ``CHUNK`` nodes): the answer is then the
+        deepest finished level's.
+        """
         cfg = self.config
         t0 = self.clock()
+        deadline = None if cfg.time_limit_s is None else t0 + cfg.time_limit_s
         K = cfg.samples
         r0 = belief.robot
         levels = [belief.persons[None, :, :]]  # beliefs at depth 0, 1, ...
         history: list[np.ndarray] = []
         nodes = 1
         level_cost = 0.0
+        R0 = self.pm.expected_reward(belief.persons)[r0]  # (A,)
         for d in range(1, cfg.depth + 1):
-            if d >= 2:
-                # the next level has K times the nodes of the last: skip it when it
-                # would overrun the time limit (anytime)
-                if cfg.time_limit_s is not None and history:
-                    spent = self.clock() - t0
-                    if spent + level_cost * K * 1.2 > cfg.time_limit_s:
+            ts = self.clock()
+            try:
+                if d >= 2:
+                    # the next level has K times the nodes of the last
+                    if deadline is not None and ts + level_cost * K > deadline:
                         break
-                ts = self.clock()
-                levels.append(self._children(levels[-1], K))
-                nodes += len(levels[-1])
-            else:
-                ts = self.clock()
-            # values bottom-up: leaf at the deepest level's prediction
-            deepest = levels[-1]
-            C = self.leaf(deepest @ self.pm.transition)  # (N, nR)
+                    step = max(1, CHUNK // K)
+                    level = self._chunked(
+                        lambda B: self._children(B, K), levels[-1], step, deadline
+                    )
+                else:
+                    level = levels[-1]
+                # values bottom-up: the leaf at the deepest level's prediction
+                C = self._chunked(
+                    lambda B: self.leaf(B @ self.pm.transition), level, CHUNK, deadline
+                )
+            except _OutOfTime:
+                break
+            if d >= 2:
+                levels.append(level)
+                nodes += len(level)
             for lvl in range(len(levels) - 1, 0, -1):
                 V = self._backup(levels[lvl], C)  # (N_lvl, nR)
                 C = V.reshape(len(levels[lvl - 1]), K, -1).mean(axis=1)
-            R0 = self.pm.expected_reward(belief.persons)[r0]  # (A,)
             q = R0 + self.gamma * (self.pm.robot_T[:, r0, :] @ C[0])
             history.append(q)
             level_cost = self.clock() - ts
+        if not history:  # not even one step fitted: the one-step value with the leaf
+            C = self.leaf(levels[0] @ self.pm.transition)
+            history.append(R0 + self.gamma * (self.pm.robot_T[:, r0, :] @ C[0]))
         q = history[-1]
         best = q.max()
         near = q >= best - self.config.tie_tolerance
         action = STAY if near[STAY] else int(np.flatnonzero(near)[0])
         return Decision(action, q, len(history), nodes, self.clock() - t0, history)
+
+    def _chunked(
+        self, f: Callable[[np.ndarray], np.ndarray], X: np.ndarray, step: int, deadline
+    ) -> np.ndarray:
+        """f(X), in pieces of ``step`` rows with a look at the clock between pieces
+        (in one piece without a deadline, so that the samples drawn do not depend on
+        the chunking)."""
+        if deadline is None:
+            return f(X)
+        out = []
+        for i in range(0, len(X), step):
+            if self.clock() > deadline:
+                raise _OutOfTime
+            out.append(f(X[i : i + step]))
+        return np.concatenate(out)
 
     def action(self, belief: PeopleBelief) -> int:
         return self.decide(belief).action
