@@ -40,7 +40,10 @@ def load() -> str:
 
 def cmd_run(args: argparse.Namespace) -> None:
     pm = PeopleModel.of(load_task(TASK))
-    planner = make_planner(args.planner, pm)
+    config, name = OnlineConfig(), args.planner
+    if args.depth is not None:  # an ablation of the online planner: saved as online-dN
+        config, name = OnlineConfig(depth=args.depth), f"online-d{args.depth}"
+    planner = make_planner(args.planner, pm, config)
     before = load()
     t0 = time.perf_counter()
     ev = run_episodes(pm, planner, args.episodes, args.seed)
@@ -52,8 +55,8 @@ def cmd_run(args: argparse.Namespace) -> None:
         "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
     }
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / f"{args.planner}.json").write_text(json.dumps(out))
-    print(ev.line(), f"({out['seconds']:.0f} s, {before} -> {out['load_after']})")
+    (OUT / f"{name}.json").write_text(json.dumps(out))
+    print(name, ev.line(), f"({out['seconds']:.0f} s, {before} -> {out['load_after']})")
 
 
 def cmd_three(args: argparse.Namespace) -> None:
@@ -97,9 +100,10 @@ def ci(x: np.ndarray) -> float:
 
 
 def cmd_report(args: argparse.Namespace) -> None:
+    names = [*PLANNERS, *sorted(p.stem for p in OUT.glob("online-d*.json"))]
     res = {
         n: json.loads((OUT / f"{n}.json").read_text())
-        for n in PLANNERS
+        for n in names
         if (OUT / f"{n}.json").exists()
     }
     print(
@@ -119,8 +123,10 @@ def cmd_report(args: argparse.Namespace) -> None:
         print("\n| paired difference (same people, same observations) | mean | 95 % interval |")
         print("|---|---:|---|")
         x = np.asarray(res["online"]["returns"])
-        for n in ("greedy", "single"):
-            if n in res and len(res[n]["returns"]) == len(x):
+        for n in res:
+            if n == "online":
+                continue
+            if len(res[n]["returns"]) == len(x):
                 d = x - np.asarray(res[n]["returns"])
                 print(f"| online - {n} | {d.mean():.1f} | +- {ci(d):.1f} |")
 
@@ -132,6 +138,7 @@ def main() -> None:
     p.add_argument("--planner", choices=PLANNERS, required=True)
     p.add_argument("--episodes", type=int, default=1000)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--depth", type=int, default=None, help="online: another depth (ablation)")
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("three")
     p.add_argument("--steps", type=int, default=200)
