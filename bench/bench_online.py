@@ -126,9 +126,10 @@ def cmd_report(args: argparse.Namespace) -> None:
         for n in res:
             if n == "online":
                 continue
-            if len(res[n]["returns"]) == len(x):
-                d = x - np.asarray(res[n]["returns"])
-                print(f"| online - {n} | {d.mean():.1f} | +- {ci(d):.1f} |")
+            y = np.asarray(res[n]["returns"])
+            m = min(len(x), len(y))  # episode e is the same for any episode count
+            d = x[:m] - y[:m]
+            print(f"| online - {n} ({m} episodes) | {d.mean():.1f} | +- {ci(d):.1f} |")
 
 
 def main() -> None:

@@ -278,3 +278,16 @@ def test_every_planner_meets_the_same_people(pm):
     run_episodes(pm, Recorder("b", WEST), 1, seed=4, horizon=12)
     for x, y in zip(seen["a"], seen["b"], strict=True):
         np.testing.assert_allclose(x, y)
+
+
+def test_vigil_evaluate_runs_a_planner(capsys):
+    from vigil.cli import main
+
+    task = str(REPO / "config" / "task-r2-n2.yaml")
+    argv = ["evaluate", task, "--planner", "greedy", "--episodes", "2", "--horizon", "5"]
+    assert main([*argv, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["planner"] == "greedy" and out["episodes"] == 2 and "ci95" in out
+    # neither a policy nor a planner: a one-line error, exit 2
+    assert main(["evaluate", task]) == 2
+    assert "--planner" in capsys.readouterr().err
