@@ -142,7 +142,12 @@ class LidarConfig(_FromDict):
 
 @dataclass(frozen=True)
 class RobotConfig(_FromDict):
-    """The MBot's holonomic base: start pose, limits and actuator gains."""
+    """The robot's base: start pose, limits and actuator gains.
+
+    ``drive``: ``holonomic`` (the MBot's mecanum base) or ``diff`` (a differential
+    drive: the planar joint is constrained to move along the heading only; a lateral
+    command is dropped and lateral slip removed at every physics step).
+    """
 
     start_cell: int = 7  # the thesis's rest position (section 4.2)
     start_yaw_rad: float = 0.0
@@ -152,8 +157,10 @@ class RobotConfig(_FromDict):
     max_angular_accel_radps2: float = 3.0
     linear_gain_ns_per_m: float = 2000.0  # velocity actuator kv on the slides
     angular_gain_nms_per_rad: float = 100.0  # kv on the yaw hinge
+    drive: str = "holonomic"
 
     _rules: ClassVar[dict[str, Rule]] = {
+        "drive": (lambda v: v in ("holonomic", "diff"), "must be holonomic or diff"),
         "start_cell": POSITIVE,
         "max_linear_mps": POSITIVE,
         "max_angular_radps": POSITIVE,
@@ -282,22 +289,6 @@ class TwinConfig(_FromDict):
         "timestep_s": (lambda v: 1e-4 <= v <= 0.01, "must be in [0.0001, 0.01] s"),
         "control_period_s": POSITIVE,
     }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "") -> TwinConfig:
-        """Build from a mapping with optional sections ``grid``, ``room``, ``camera``, ...
-
-        Args:
-            data: the mapping (the ``twin`` section of a YAML file, or the whole file).
-            key: the dotted path of this section, used in error messages.
-
-        Returns:
-            The validated configuration.
-
-        Raises:
-            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
-        """
-        return super().from_dict(data, key)
 
     def check(self) -> None:
         steps = self.control_period_s / self.timestep_s

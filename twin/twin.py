@@ -19,8 +19,9 @@ import mujoco
 import numpy as np
 
 from stack.geometry import Pose2D
+from stack.nav.occupancy import OccupancyMap, save_map_yaml
 from twin.config import TwinConfig
-from twin.occupancy import OccupancyMap, occupancy_from_model
+from twin.occupancy import occupancy_from_model
 from twin.person import PersonPose, PersonScript, default_waypoints
 from twin.scene import (
     CAMERA_NAME,
@@ -236,7 +237,8 @@ class Twin:
         command = command or VelocityCommand()
         rc = self.config.robot
         dt = self.config.control_period_s
-        want = np.array([command.vx_mps, command.vy_mps, command.wz_radps], float)
+        diff = rc.drive == "diff"
+        want = np.array([command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps])
         lin = np.hypot(want[0], want[1])
         if lin > rc.max_linear_mps:
             want[:2] *= rc.max_linear_mps / lin
@@ -258,6 +260,10 @@ class Twin:
             ctrl[self._act[0]] = c * self._cmd[0] - s * self._cmd[1]
             ctrl[self._act[1]] = s * self._cmd[0] + c * self._cmd[1]
             ctrl[self._act[2]] = self._cmd[2]
+            if diff:  # no slip sideways: keep only the slides' velocity along the heading
+                qv, ix, iy = self.data.qvel, self._dadr[0], self._dadr[1]
+                along = c * qv[ix] + s * qv[iy]
+                qv[ix], qv[iy] = c * along, s * along
             mujoco.mj_step(self.model, self.data)
         # the person is kinematic and touches nothing, so moving it once per control
         # period is enough (and 5x cheaper than at every physics step); mj_kinematics
@@ -413,8 +419,6 @@ class Twin:
             self.layout.room,
             mc.resolution_m,
             (mc.z_min_m, mc.z_max_m),
-            occupied_thresh=mc.occupied_thresh,
-            free_thresh=mc.free_thresh,
         )
 
     def save_map(self, directory: str | Path, name: str = "lrm") -> tuple[Path, Path]:
@@ -427,4 +431,11 @@ class Twin:
         Returns:
             (pgm_path, yaml_path).
         """
-        return self.occupancy_map().save(directory, name)
+        mc = self.config.map
+        yml = save_map_yaml(
+            self.occupancy_map(),
+            Path(directory) / f"{name}.yaml",
+            occupied_thresh=mc.occupied_thresh,
+            free_thresh=mc.free_thresh,
+        )
+        return yml.with_suffix(".pgm"), yml

@@ -101,6 +101,8 @@ def prepare(
         stack_cfg.update(_read_yaml(extra))
     if grid_section:
         stack_cfg["grid"] = grid_section
+    # the base's drive: the follower steers for it (and the twin's base is built so)
+    stack_cfg["follower"] = {**stack_cfg.get("follower", {}), "drive": dep.navigation.drive}
     # speech warns in the task's restricted cells (not the node's default)
     restricted = list(task_data.get("restricted_cells", []))
     if restricted:
@@ -117,6 +119,7 @@ def prepare(
         scene = dict(scene.get("twin", scene))
         if grid_section:
             scene["grid"] = grid_section
+        scene["robot"] = {**scene.get("robot", {}), "drive": dep.navigation.drive}
         faults = scenario.faults if scenario else ()
         if scenario is not None:
             scene.setdefault("robot", {})

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -34,7 +33,7 @@ import numpy as np
 
 from stack.cells import CellGrid, Direction
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadFrameError
 from stack.perception.hog import (
@@ -108,6 +107,8 @@ class CameraConfig(Config):
         this factor (0.5: about 2-4 ms per 640 x 400 frame instead of 9-12).
     """
 
+    section = "camera"  # errors name keys "camera.<field>"
+
     hog: HogConfig = field(default_factory=HogConfig)
     foot: FootConfig = field(default_factory=FootConfig)
     direction: DirectionConfig = field(default_factory=DirectionConfig)
@@ -153,11 +154,6 @@ class CameraConfig(Config):
                 self.track_roi_margin_frac, "must be >= 0")  # fmt: skip
         require(self.full_search_period_frames >= 1, "full_search_period_frames",
                 self.full_search_period_frames, "must be >= 1")  # fmt: skip
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "camera") -> CameraConfig:
-        """Validate a mapping (optional hog/foot/direction sub-sections); raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,6 @@ cost. ``downscale`` and ``roi_px`` in :class:`HogConfig` are the levers.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,7 +22,7 @@ import cv2
 import numpy as np
 
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.errors import BadFrameError
 
 HOG_WINDOW_PX = (64, 128)  # (width, height) of the default people detector's window
@@ -45,6 +44,8 @@ class HogConfig(Config):
             None searches the whole frame.
         threads: OpenCV worker threads (0 leaves OpenCV's default).
     """
+
+    section = "hog"  # errors name keys "hog.<field>"
 
     win_stride_px: tuple[int, int] = (8, 8)
     padding_px: tuple[int, int] = (8, 8)
@@ -71,11 +72,6 @@ class HogConfig(Config):
             require(x >= 0 and y >= 0 and w > 0 and h > 0, "roi_px", self.roi_px,
                     "needs x, y >= 0 and width, height > 0")  # fmt: skip
         require(self.threads >= 0, "threads", self.threads, "must be >= 0")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "hog") -> HogConfig:
-        """Validate a mapping (one YAML section) into a HogConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 @dataclass(frozen=True)
@@ -117,6 +113,8 @@ class FootConfig(Config):
             a larger move means the mask is wrong (shadow, second person) and is ignored.
     """
 
+    section = "foot"  # errors name keys "foot.<field>"
+
     bottom_shrink_frac: float = 0.16
     use_foreground: bool = True
     search_width_frac: float = 0.6
@@ -134,11 +132,6 @@ class FootConfig(Config):
         require(self.min_foreground_px >= 1, "min_foreground_px", self.min_foreground_px,
                 "must be >= 1")  # fmt: skip
         require(self.max_refine_frac > 0.0, "max_refine_frac", self.max_refine_frac, "must be > 0")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "foot") -> FootConfig:
-        """Validate a mapping into a FootConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 def validate_frame(image: Any, black_max_level: float = 3.0) -> np.ndarray:
