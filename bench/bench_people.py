@@ -155,7 +155,9 @@ def part_twin(rate_hz: float) -> None:
                 visible += len(seen)
                 raw += len(state.boxes)
                 kept += len(state.people_m)
-                found += sum(any(math.dist(truth[i], q) < 0.5 for q in state.people_m) for i in seen)
+                found += sum(
+                    any(math.dist(truth[i], q) < 0.5 for q in state.people_m) for i in seen
+                )
                 extra += sum(all(math.dist(t, q) >= 0.5 for t in truth) for q in state.people_m)
                 for p in pp.update(tw.time_s, state.people_m):
                     if p.position_m is None:

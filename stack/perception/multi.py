@@ -76,6 +76,13 @@ class MultiTrackerConfig(Config):
         3.0: a 99 % gate for a 2-D Gaussian is 3.03.
     max_position_sigma_m: a track whose position standard deviation grows past this
         while coasting is dropped [m].
+    merge_m: two confirmed tracks predicted closer than this, with a detection in both
+        gates that only one of them gets, are people passing so close that the
+        detector sees one of them (non-maximum suppression kept one box): the
+        detection is ambiguous and neither track takes it, both coast on their
+        velocities until they separate [m]. 0 turns the rule off. Without it the
+        track that got the detections followed whichever person was in front, lost
+        its velocity and swapped identities after long merges (bench/bench_people.py).
     """
 
     section = "multi_tracker"
@@ -83,8 +90,10 @@ class MultiTrackerConfig(Config):
     filter: TrackerConfig = TrackerConfig(measurement_sigma_m=0.15, min_hits=2, max_coast_s=1.5)
     gate_sigma: float = 3.0
     max_position_sigma_m: float = 1.0
+    merge_m: float = 0.6
 
     def __post_init__(self) -> None:
+        require(self.merge_m >= 0, "merge_m", self.merge_m, "must be >= 0")
         require(self.gate_sigma > 0, "gate_sigma", self.gate_sigma, "must be > 0")
         require(self.max_position_sigma_m > 0, "max_position_sigma_m",
                 self.max_position_sigma_m, "must be > 0")  # fmt: skip
@@ -179,12 +188,16 @@ class MultiTracker:
         r = np.eye(2) * cfg.measurement_sigma_m**2
         covs = np.array([t.kf.P[:2, :2] + r for t in self._tracks]).reshape(-1, 2, 2)
         used = set()
-        for ti, di in gnn_assign(means, covs, z, self.config.gate_sigma):
+        pairs = gnn_assign(means, covs, z, self.config.gate_sigma)
+        ambiguous = self._ambiguous(pairs, means, covs, z)
+        for ti, di in pairs:
+            used.add(di)
+            if di in ambiguous:
+                continue
             track = self._tracks[ti]
             track.kf.update(zs[di], sigmas[di])
             track.hits += 1
             track.last_update_s = stamp_s
-            used.add(di)
         for di, zz in enumerate(zs):
             if di not in used:
                 self._tracks.append(_Track(self._next_id, zz, stamp_s, cfg))
@@ -197,6 +210,29 @@ class MultiTracker:
             and max(t.kf.P[0, 0], t.kf.P[1, 1]) <= limit
         ]
         return self.tracks()
+
+    def _ambiguous(
+        self, pairs: list[tuple[int, int]], means: np.ndarray, covs: np.ndarray, z: np.ndarray
+    ) -> set[int]:
+        """Detections that ``merge_m`` makes ambiguous (see :class:`MultiTrackerConfig`)."""
+        cfg = self.config
+        if cfg.merge_m <= 0 or not pairs:
+            return set()
+        matched = {ti for ti, _ in pairs}
+        confirmed = [t.hits >= cfg.filter.min_hits for t in self._tracks]
+        out = set()
+        for ti, di in pairs:
+            if not confirmed[ti]:
+                continue
+            for other in range(len(self._tracks)):
+                if other in matched or not confirmed[other]:
+                    continue
+                if float(np.linalg.norm(means[other] - means[ti])) > cfg.merge_m:
+                    continue
+                d = z[di] - means[other]
+                if float(d @ np.linalg.inv(covs[other]) @ d) <= cfg.gate_sigma**2:
+                    out.add(di)
+        return out
 
     def tracks(self) -> tuple[TrackEstimate, ...]:
         """Snapshots of the live tracks (at the latest update's time)."""
