@@ -235,3 +235,27 @@ def test_camera_pipeline_keeps_two_people_apart_through_a_crossing():
                 slot_of[p.slot] = nearest
     assert switches == 0
     assert sorted(slot_of.values()) == [0, 1]
+
+
+def box_at(xy_m, height_px=200.0, weight=1.0):
+    """A HOG-like box whose shrunk bottom-middle pixel sees map point xy_m."""
+    u, v = CAMERA.project(np.array([[xy_m[0], xy_m[1], 0.0]]))[0]
+    h, shrink = height_px, 0.16
+    return PersonBox(x=round(u - h / 4), y=round(v - h * (1 - shrink)), width=round(h / 2),
+                     height=round(h), weight=weight)  # fmt: skip
+
+
+def test_camera_state_lists_every_person_of_the_frame_and_only_of_that_frame():
+    image_px, map_m = floor_calibration_points(CAMERA, GRID)
+    cal = calibrate(image_px, map_m)
+    cfg = CameraConfig(short_box_ratio=None)
+    cam = CameraPeopleTracker(cfg, GRID, cal.homography)
+    a, b = (1.5, 0.7), (3.5, 2.3)
+    dup = box_at(a, 190, weight=0.5)  # a second, weaker box on the first person
+    st = cam.update((box_at(a, weight=2.0), box_at(b, weight=1.0), dup), 0.0)
+    assert len(st.people_m) == 2 and len(st.boxes) == 3
+    for got, want in zip(st.people_m, (a, b), strict=True):
+        assert math.dist(got, want) < 0.05
+    assert math.dist(st.position_m, a) < 0.05  # the one-person choice is unchanged
+    st = cam.update((), 0.1)  # one missed frame keeps the person, not the people
+    assert st.position_m is not None and st.people_m == ()

@@ -473,7 +473,13 @@ class CameraPeopleTracker:
         ):
             # One miss: keep the person where they were (thesis 4.5).
             self._state = replace(
-                prev, stamp_s=stamp_s, boxes=boxes, missed_frames=self._missed, warning=bad
+                prev,
+                stamp_s=stamp_s,
+                boxes=boxes,
+                missed_frames=self._missed,
+                warning=bad,
+                people_m=(),
+                people_boxes=(),
             )
             return self._state
         self._direction.reset()
