@@ -23,8 +23,8 @@ Without a calibration, boxes are still reported but the status is ``UNKNOWN``.
 
 Several people (issue 16): every state also lists all the frame's people
 (``people_m``, after non-maximum suppression) for ``stack.perception.multi``; the
-chosen person and the rules above are unchanged. The module is a little over 500
-lines because the one-person rules and the all-people list share one pass over the
+chosen person and the rules above are unchanged. The module is over 500 lines
+because the one-person rules and the all-people list share one pass over the
 candidate boxes and one configuration; splitting them would duplicate that pass.
 """
 
