@@ -105,9 +105,7 @@ def test_the_lidar_sees_two_pairs_of_legs():
         )
         found = detect_legs(s, LegConfig(allow_single_leg=False), laser)
         pairs = [p for p in found.people if len(p.legs) == 2]
-        near = [
-            min(math.dist(p.position_m, w) for p in pairs) for w in ((2.6, 0.8), (2.6, 2.2))
-        ]
+        near = [min(math.dist(p.position_m, w) for p in pairs) for w in ((2.6, 0.8), (2.6, 2.2))]
         assert max(near) < 0.15, near
 
 
