@@ -126,7 +126,7 @@ def test_identities_survive_crossings_over_many_seeds():
     assert total == 0
 
 
-def test_lone_legs_count_less_and_a_stamp_must_increase():
+def test_a_stamp_must_increase():
     tracker = MultiTracker()
     tracker.update(0.0, [(0.0, 0.0)])
     with pytest.raises(Exception, match="not after"):
