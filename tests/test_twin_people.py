@@ -181,3 +181,25 @@ def test_an_unknown_cell_in_a_second_walk_names_it():
     with pytest.raises(ConfigError) as err:
         sc.people_waypoints(CellGrid(), (7.0, 5.2))
     assert err.value.key == "people[1].walk[0].to"
+
+
+def test_prepare_writes_every_walker_into_the_twin_scene(tmp_path):
+    import yaml
+
+    from vigil.deployment import parse_deployment
+    from vigil.system import prepare
+
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((REPO / "config" / "twin.yaml").read_text())
+    task = str(REPO / "config" / "task-r2-n2.yaml")
+    data.update(task=task, policy=str(tmp_path / "policy.npz"))
+    data["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
+    dep = parse_deployment(data, tmp_path / "twin.yaml")
+    sc = load_scenario(REPO / "scenarios" / "people" / "crossing.yaml")
+    prepare(dep, tmp_path / "run", sc, say=lambda s: None)
+    scene = yaml.safe_load((tmp_path / "run" / "twin.yaml").read_text())["twin"]
+    assert "person" not in scene and len(scene["people"]) == 2
+    for walker, walk in zip(scene["people"], sc.walkers, strict=True):
+        assert len(walker["waypoints"]) == len(walk.walk) + 1
+    cfg = TwinConfig.from_dict(scene)
+    assert len(cfg.walkers) == 2 and cfg.robot.start_cell == sc.robot_cell
