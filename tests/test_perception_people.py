@@ -259,3 +259,15 @@ def test_camera_state_lists_every_person_of_the_frame_and_only_of_that_frame():
     assert math.dist(st.position_m, a) < 0.05  # the one-person choice is unchanged
     st = cam.update((), 0.1)  # one missed frame keeps the person, not the people
     assert st.position_m is not None and st.people_m == ()
+
+
+def test_slots_become_the_models_per_person_observation():
+    from stack.perception.multi import SlotPerson, model_persons
+
+    people = (
+        SlotPerson(1),  # nobody in slot 1
+        SlotPerson(0, 3, (0.5, 0.7), 11, Direction.EAST, 0.9),
+    )
+    assert model_persons(people) == [(11, "East higher"), (None, "Not moving")]
+    assert SlotPerson(0, 3, (0.5, 0.7), 11, Direction.NORTH, None).velocity_label == "North 0-0.2"
+    assert SlotPerson(0, 3, (9.0, 0.7), None, Direction.EAST, 1.0).velocity_label == "Not moving"

@@ -60,7 +60,9 @@ from stack.config import Config
 from stack.perception._config import require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadScanError
+from stack.perception.observation import speed_class
 from stack.perception.tracker import ConstantVelocityKalman, TrackerConfig, TrackEstimate
+from stack.vocabulary import NOT_MOVING
 
 _FAR = 1e6  # cost of a forbidden pair (outside the gate)
 
@@ -379,6 +381,21 @@ class SlotPerson:
     cell: int | None = None
     direction: Direction = Direction.NOT_MOVING
     speed_mps: float | None = None
+
+    @property
+    def velocity_label(self) -> str:
+        """The model's velocity label, by the thesis's rules (4.5) for this person:
+        "Not moving" outside the region or when the camera sees no movement; else the
+        direction and the laser's speed class ("0-0.2" without a laser track)."""
+        if self.cell is None or self.direction is Direction.NOT_MOVING:
+            return NOT_MOVING
+        return f"{self.direction.label} {speed_class(self.speed_mps or 0.0).label}"
+
+
+def model_persons(people: Sequence[SlotPerson]) -> list[tuple[int | None, str]]:
+    """The slots as ``FactoredModel.observation_index`` takes them: [(cell or None,
+    velocity label)], slot 0 first (None: "No person")."""
+    return [(p.cell, p.velocity_label) for p in sorted(people, key=lambda p: p.slot)]
 
 
 class PeoplePerception:
