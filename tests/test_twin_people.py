@@ -203,3 +203,43 @@ def test_prepare_writes_every_walker_into_the_twin_scene(tmp_path):
         assert len(walker["waypoints"]) == len(walk.walk) + 1
     cfg = TwinConfig.from_dict(scene)
     assert len(cfg.walkers) == 2 and cfg.robot.start_cell == sc.robot_cell
+
+
+@pytest.mark.slow
+def test_twin_crossing_keeps_both_people_in_their_slots():
+    """scenarios/people/crossing.yaml: HOG, NMS, tracker and slots on rendered frames."""
+    from stack.perception.camera import CameraConfig, CameraPeopleTracker
+    from stack.perception.multi import PeoplePerception
+    from twin.calibration import calibrate_twin
+    from twin.scene import layout_of
+
+    sc = load_scenario(REPO / "scenarios" / "people" / "crossing.yaml")
+    grid = CellGrid()
+    scene: dict = {"robot": {"start_cell": sc.robot_cell}}
+    door = layout_of(TwinConfig.from_dict(scene)).door_center_m
+    scene.update(_scene_people(scene, sc, grid, door))
+    with Twin(TwinConfig.from_dict(scene), seed=sc.seed) as tw:
+        cal = calibrate_twin(tw)
+        cam = CameraPeopleTracker(CameraConfig(max_people=2), grid, cal.homography)
+        people = PeoplePerception(grid)
+        tw.run(8.0)  # both are in the room, walking to the ends of column 1
+        slot_of: dict[int, int] = {}
+        switches = judged = 0
+        while tw.time_s < 15.0:  # they pass through each other at 12.1 s
+            tw.run(0.2)
+            truth = [(p.pose.x_m, p.pose.y_m) for p in tw.ground_truth().people]
+            frame = np.ascontiguousarray(tw.render_camera()[:, :, ::-1])
+            state = cam.process_frame(frame, tw.time_s)
+            for p in people.update(tw.time_s, state.people_m):
+                if p.position_m is None or math.dist(*truth) < 0.5:
+                    continue
+                d = [math.dist(p.position_m, t) for t in truth]
+                i = int(np.argmin(d))
+                if d[i] > 0.5:
+                    continue
+                judged += 1
+                if slot_of.setdefault(p.slot, i) != i:
+                    switches += 1
+                    slot_of[p.slot] = i
+    assert switches == 0
+    assert sorted(slot_of.values()) == [0, 1] and judged > 30
