@@ -22,7 +22,10 @@ render), HOG's raw boxes, the boxes after NMS, recall (a visible person with a
 ``people_m`` position within 0.5 m of their pelvis), extra positions (further than
 0.5 m from everyone), and the person slots of ``multi.PeoplePerception`` (slot
 switches: a slot's estimate nearest another person than before, judged when within
-0.5 m of someone).
+0.5 m of someone). The lidar (10 Hz) runs ``detect_legs`` with the twin's
+occupancy map as the static map and ``MultiTracker`` on the scans; "legs" is the share
+of slot estimates on a person (within 0.5 m) that got a laser track, and "right legs"
+the share of those whose laser track is on the same person (within 0.5 m).
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from stack.perception.synthetic import crossing_paths  # noqa: E402
 from stack.perception.tracker import LegTracker, TrackerConfig  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
+LIDAR_X_M = 0.24  # the lidar site on the MBot (twin/assets/mbot.xml)
 
 
 def crossing_switches(make, lateral_m, speed, noise_m, seed, miss=0.1, merge_m=0.45):
@@ -122,16 +126,24 @@ def part_twin(rate_hz: float) -> None:
     from twin.calibration import calibrate_twin
 
     print("\n## twin frames (5 Hz, 640 x 400, robot standing at its start cell)")
+    from stack.perception.legs import LegConfig, Pose2D, Scan, StaticMap, detect_legs
+
     print("| scenario | frames | visible people | raw boxes | after NMS | recall | extra "
-          "| slot switches |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|")
-    totals = np.zeros(6)
+          "| slot switches | legs | right legs |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    totals = np.zeros(9)
     for path in sorted((REPO / "scenarios" / "people").glob("*.yaml")):
         tw, grid = scenario_twin(path)
         with tw:
             cal = calibrate_twin(tw)
             cam = CameraPeopleTracker(CameraConfig(max_people=2), grid, cal.homography)
             pp = PeoplePerception(grid)
+            occ = tw.occupancy_map()
+            smap = StaticMap(np.asarray(occ.data) >= 65, occ.resolution_m, occ.origin_m)
+            legs = MultiTracker()
+            laser_tracks: tuple = ()
+            scan_every = round(1.0 / tw.config.lidar.rate_hz / tw.config.control_period_s)
+            on_person = with_legs = right_legs = 0
             ids = [set(tw.person_geom_ids(i).tolist()) for i in range(len(tw.people))]
             period = round(1.0 / rate_hz / tw.config.control_period_s)
             end = min(tw.end_time_s, 60.0)
@@ -142,6 +154,15 @@ def part_twin(rate_hz: float) -> None:
             while tw.time_s < end:
                 tw.step()
                 k += 1
+                if k % scan_every == 0:
+                    sc = tw.scan()
+                    g = tw.ground_truth().robot
+                    c, s_ = math.cos(g.yaw_rad), math.sin(g.yaw_rad)
+                    laser = Pose2D(g.x_m + LIDAR_X_M * c, g.y_m + LIDAR_X_M * s_, g.yaw_rad)
+                    scan = Scan(np.asarray(sc.ranges_m, float), sc.angle_min_rad,
+                                sc.angle_increment_rad, sc.range_min_m, sc.range_max_m)  # fmt: skip
+                    found_legs = detect_legs(scan, LegConfig(), laser, smap)
+                    laser_tracks = legs.update(tw.time_s, found_legs.people)
                 if k % period:
                     continue
                 gt = tw.ground_truth()
@@ -159,22 +180,29 @@ def part_twin(rate_hz: float) -> None:
                     any(math.dist(truth[i], q) < 0.5 for q in state.people_m) for i in seen
                 )
                 extra += sum(all(math.dist(t, q) >= 0.5 for t in truth) for q in state.people_m)
-                for p in pp.update(tw.time_s, state.people_m):
+                for p in pp.update(tw.time_s, state.people_m, laser_tracks):
                     if p.position_m is None:
                         continue
                     d = [math.dist(p.position_m, t) for t in truth]
                     i = int(np.argmin(d))
                     if d[i] > 0.5 or math.dist(*truth) < 0.5:
                         continue
+                    on_person += 1
+                    if p.speed_mps is not None:
+                        with_legs += 1
+                        leg = [t for t in laser_tracks if t.track_id == p.laser_track_id]
+                        right_legs += any(math.dist(t.position_m, truth[i]) < 0.5 for t in leg)
                     if slot_of.setdefault(p.slot, i) != i:
                         switches += 1
                         slot_of[p.slot] = i
             rec = found / max(visible, 1)
+            lg, rl = with_legs / max(on_person, 1), right_legs / max(with_legs, 1)
             print(f"| {path.stem} | {frames} | {visible} | {raw} | {kept} | {rec:.2f} | {extra} "
-                  f"| {switches} |")  # fmt: skip
-            totals += (frames, visible, raw, kept, found, extra)
-    f, v, r, kk, fo, ex = totals
-    print(f"| all | {f:.0f} | {v:.0f} | {r:.0f} | {kk:.0f} | {fo / max(v, 1):.2f} | {ex:.0f} | |")
+                  f"| {switches} | {lg:.2f} | {rl:.2f} |")  # fmt: skip
+            totals += (frames, visible, raw, kept, found, extra, on_person, with_legs, right_legs)
+    f, v, r, kk, fo, ex, op, wl, rl = totals
+    print(f"| all | {f:.0f} | {v:.0f} | {r:.0f} | {kk:.0f} | {fo / max(v, 1):.2f} | {ex:.0f} "
+          f"| | {wl / max(op, 1):.2f} | {rl / max(wl, 1):.2f} |")  # fmt: skip
 
 
 def main() -> None:

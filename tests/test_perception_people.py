@@ -206,6 +206,7 @@ def test_people_perception_reports_each_slot_with_its_laser_speed():
     assert out[0].cell == GRID.cell_at(1.4, 0.7) and out[1].cell == 4
     assert out[0].direction is Direction.EAST and out[1].direction is Direction.NOT_MOVING
     assert out[0].speed_mps == pytest.approx(0.8) and out[1].speed_mps == 0.0
+    assert (out[0].laser_track_id, out[1].laser_track_id) == (20, 21)
 
 
 # -- the camera pipeline on rendered frames -------------------------------------------------

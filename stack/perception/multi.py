@@ -373,6 +373,7 @@ class SlotPerson:
         cell: the cell there; None outside the region (or nobody): "No person".
         direction: from the track's positions (thesis rule, per person).
         speed_mps: the associated laser track's speed (eq. 4.8); None without one.
+        laser_track_id: that laser track's id; None without one.
     """
 
     slot: int
@@ -381,6 +382,7 @@ class SlotPerson:
     cell: int | None = None
     direction: Direction = Direction.NOT_MOVING
     speed_mps: float | None = None
+    laser_track_id: int | None = None
 
     @property
     def velocity_label(self) -> str:
@@ -462,6 +464,7 @@ class PeoplePerception:
                     cell=self.grid.cell_at(*slot.position_m),
                     direction=self._directions[slot.track_id].direction,
                     speed_mps=None if leg is None else leg.speed_mps,
+                    laser_track_id=None if leg is None else leg.track_id,
                 )
             )
         return tuple(out)
