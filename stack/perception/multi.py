@@ -1,7 +1,7 @@
 """Several people at once (issue 16): multi-target tracking, camera-laser association
 and the person slots the planner's observation is ordered by.
 
-Pure (numpy, scipy), no rclpy. Three pieces:
+Pure (numpy, scipy), no rclpy. The pieces:
 
 - :class:`MultiTracker`: tracks every person in the map frame over frames or scans.
   Each track is a constant-velocity Kalman filter (:class:`ConstantVelocityKalman`,
@@ -18,11 +18,18 @@ Pure (numpy, scipy), no rclpy. Three pieces:
   its side, and while they overlap (one merged detection) the other track coasts.
   Unlike leg_tracker's per-detection gate, the cost of a pair also carries the
   log-determinant of the innovation covariance (the negative log-likelihood), so a
-  long-coasted, vague track does not steal a detection from a fresh one.
+  long-coasted, vague track does not steal a detection from a fresh one; and a
+  detection that two confirmed, nearly coincident tracks could both take while only
+  one gets it (two people overlapping in the image, one box) updates neither
+  (``MultiTrackerConfig.merge_m``), so both coast through the merge on their own
+  velocities.
 - :func:`associate`: camera tracks to laser tracks, Hungarian on the Euclidean
   distance within a gate (the speed class of each camera person comes from its
   laser track, thesis 4.5, per person).
 - :class:`PersonSlots`: which track is "person 1", "person 2", ... for the planner.
+- :class:`PeoplePerception`: the three together, per frame, giving one
+  :class:`SlotPerson` per slot; :func:`model_persons` turns them into the per-person
+  observation ``FactoredModel.observation_index`` takes.
 
 Person slots. The n-person model is symmetric between people: every person has the
 same transition and observation tables and the reward asks only whether *some*
@@ -39,7 +46,8 @@ factor per slot, and a person must keep feeding the same factor. The rules:
    they vanished gets their old slot, so their belief factor continues;
 4. with more confirmed tracks than slots, the tracks already holding slots keep
    them; the others wait (oldest first) for a slot to free;
-5. ties go to the lowest slot index, so the assignment is deterministic.
+5. ties put the i-th waiting track in the i-th free slot, so the result is
+   deterministic.
 
 A free slot is observed as "No person" (or as hidden, when the camera could not
 look); because of the symmetry it does not matter which free slot a new person
