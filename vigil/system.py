@@ -135,10 +135,7 @@ def prepare(
             from twin.scene import layout_of
 
             door_m = layout_of(TwinConfig.from_dict(scene)).door_center_m
-            scene["person"] = {
-                **scene.get("person", {}),
-                "waypoints": scenario.person_waypoints(grid, door_m),
-            }
+            scene.update(_scene_people(scene, scenario, grid, door_m))
         twin_file = run_dir / "twin.yaml"
         twin_file.write_text(yaml.safe_dump({"twin": scene}, sort_keys=False))
         twin_cfg = TwinConfig.from_dict(scene)
@@ -292,6 +289,27 @@ def _write(
     if dep.mode == "twin":
         env.setdefault("MUJOCO_GL", "egl")
     return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
+
+
+def _scene_people(
+    scene: dict[str, Any], scenario: Scenario, grid: CellGrid, door_m: tuple[float, float]
+) -> dict[str, Any]:
+    """The twin scene's ``person`` (one walker) or ``people`` (several) for a scenario.
+
+    Every walker takes the scene file's person section (``person``, or the first of
+    ``people``) with its own waypoints; walkers after the first drop its clothes so
+    that the twin dresses them apart (``twin.config.walker_config``).
+    """
+    listed = scene.pop("people", None)
+    base = dict(scene.pop("person", None) or (listed[0] if listed else {}))
+    base.pop("waypoints", None)
+    walks = scenario.people_waypoints(grid, door_m)
+    if len(walks) == 1:
+        return {"person": {**base, "waypoints": walks[0]}}
+    plain = {k: v for k, v in base.items() if k not in ("shirt_rgb", "trousers_rgb")}
+    return {
+        "people": [{**(base if i == 0 else plain), "waypoints": w} for i, w in enumerate(walks)]
+    }
 
 
 def _calibrate_twin(twin_cfg, path: Path, say) -> None:

@@ -245,6 +245,61 @@ class HogPeopleDetector:
         boxes.sort(key=lambda b: -b.weight)
         return tuple(boxes)
 
+    def detect_people(
+        self,
+        image: np.ndarray,
+        roi_px: tuple[int, int, int, int] | None = None,
+        iou_threshold: float = 0.4,
+        containment_frac: float = 0.8,
+    ) -> tuple[PersonBox, ...]:
+        """Every person in a frame, one box each: :meth:`detect` then
+        :func:`non_max_suppression` (issue 16: several people at once)."""
+        return non_max_suppression(self.detect(image, roi_px), iou_threshold, containment_frac)
+
+
+def box_overlap(a: PersonBox, b: PersonBox) -> tuple[float, float]:
+    """(intersection over union, intersection over the smaller box) of two boxes."""
+    w = min(a.x + a.width, b.x + b.width) - max(a.x, b.x)
+    h = min(a.y + a.height, b.y + b.height) - max(a.y, b.y)
+    if w <= 0 or h <= 0:
+        return 0.0, 0.0
+    inter = float(w * h)
+    area_a, area_b = a.width * a.height, b.width * b.height
+    return inter / (area_a + area_b - inter), inter / min(area_a, area_b)
+
+
+def non_max_suppression(
+    boxes: tuple[PersonBox, ...] | list[PersonBox],
+    iou_threshold: float = 0.4,
+    containment_frac: float = 0.8,
+) -> tuple[PersonBox, ...]:
+    """All the people of a frame, one box each (greedy non-maximum suppression).
+
+    OpenCV's grouping (``group_threshold``) merges near-identical windows, but a person
+    still often gets two boxes: at two pyramid scales, or a full-body box and one
+    around the upper body. Boxes are taken strongest first; a box overlapping a kept
+    one by more than ``iou_threshold`` (intersection over union) or lying inside it by
+    ``containment_frac`` of the smaller box is the same person and dropped. Two
+    people side by side overlap little and are both kept; people passing each other
+    in the image overlap more and merge (the tracker coasts through that).
+
+    Args:
+        boxes: the frame's detections, any order.
+        iou_threshold: largest IoU of two kept boxes (0-1).
+        containment_frac: largest share of the smaller box inside a kept one (0-1].
+
+    Returns:
+        The kept boxes, strongest first.
+    """
+    kept: list[PersonBox] = []
+    for box in sorted(boxes, key=lambda b: -b.weight):
+        if all(
+            iou <= iou_threshold and inside <= containment_frac
+            for iou, inside in (box_overlap(box, k) for k in kept)
+        ):
+            kept.append(box)
+    return tuple(kept)
+
 
 def foot_point(
     box: PersonBox, config: FootConfig = FootConfig(), foreground: np.ndarray | None = None
