@@ -14,7 +14,7 @@ run: setup
 	$(VENV)/bin/vigil run scenarios/5.2.2.yaml --out runs/main
 
 replay: setup
-	$(VENV)/bin/vigil main --out runs/replay
+	$(VENV)/bin/vigil replay-report --out runs/replay
 
 test: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)

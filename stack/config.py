@@ -34,6 +34,7 @@ class Config:
     """
 
     _rules: ClassVar[dict[str, Rule]] = {}
+    section: ClassVar[str] = ""  # the YAML section's name: the default key of errors
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -55,13 +56,15 @@ class Config:
         """Cross-field rules; override (raise with :func:`require`)."""
 
     @classmethod
-    def from_dict(cls: type[T], data: Mapping[str, Any] | None, key: str = "") -> T:
+    def from_dict(cls: type[T], data: Mapping[str, Any] | None, key: str | None = None) -> T:
         """Build from a mapping (a YAML section); missing keys keep their defaults.
+
+        ``key`` names the section in errors (default: the class's ``section``).
 
         Raises:
             ConfigError: an unknown key, a value of the wrong type, or a broken rule.
         """
-        return from_mapping(cls, data, key)
+        return from_mapping(cls, data, cls.section if key is None else key)  # type: ignore[attr-defined]
 
 
 def check_fields(obj: Any) -> None:
@@ -116,38 +119,6 @@ def _check_value(key: str, value: Any, hint: Any) -> None:
             raise ConfigError(key, value, f"must be a {hint.__name__}")
 
 
-def coerce_like(key: str, value: Any, default: Any) -> Any:
-    """``value`` checked against the type of ``default`` (a field's default value).
-
-    bool needs a bool; float takes any number; int needs an integer; str takes a string
-    (or an integer, e.g. a device index written as a number); tuple takes a list.
-
-    Raises:
-        ConfigError: the value has the wrong type.
-    """
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(key, value, "must be true or false")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(key, value, "must be a number")
-        return float(value)
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(key, value, "must be an integer")
-        return value
-    if isinstance(default, str):
-        if isinstance(value, bool) or not isinstance(value, str | int):
-            raise ConfigError(key, value, "must be a string")
-        return str(value)
-    if isinstance(default, tuple):
-        if isinstance(value, str) or not isinstance(value, list | tuple):
-            raise ConfigError(key, value, "must be a list")
-        return tuple(value)
-    return value
-
-
 MAX_FILE_BYTES = 16 * 2**20  # no configuration, task, map or state file is near this
 
 
@@ -185,6 +156,21 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError("config_file", str(path), "must hold a mapping")
     return data
+
+
+def read_section(path: str | Path | None, section: str) -> Mapping[str, Any]:
+    """The raw ``section`` mapping of a YAML file ({} when the path is empty or the
+    section absent), for a node that validates it with its Config class.
+
+    Raises:
+        ConfigError: unreadable file, not a mapping, or the section not a mapping.
+    """
+    if not path:
+        return {}
+    sect = read_yaml(path).get(section) or {}
+    if not isinstance(sect, Mapping):
+        raise ConfigError(section, sect, "must be a mapping")
+    return sect
 
 
 def from_mapping(cls: type[T], data: Mapping[str, Any] | None, key: str) -> T:

@@ -34,6 +34,24 @@ def ros():
     rclpy.shutdown()
 
 
+@pytest.fixture(scope="module")
+def private_ros_domain():
+    """A ROS domain of the module's own (vigil.ros_domain), for tests where messages of
+    other test sessions on the shared per-process domain were seen to leak in; use with
+    ``pytestmark = pytest.mark.usefixtures("private_ros_domain")``."""
+    from vigil.ros_domain import claim_domain
+
+    claim = claim_domain()
+    old = os.environ.get("ROS_DOMAIN_ID")
+    os.environ["ROS_DOMAIN_ID"] = str(claim.domain_id)
+    yield claim.domain_id
+    if old is None:
+        os.environ.pop("ROS_DOMAIN_ID", None)
+    else:
+        os.environ["ROS_DOMAIN_ID"] = old
+    claim.release()
+
+
 # Files whose tests run the twin end to end, render through EGL or run HOG on rendered
 # frames: `pytest -m "not slow"` leaves them out (the quick loop), CI runs everything.
 SLOW_FILES = {

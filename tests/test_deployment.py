@@ -48,12 +48,25 @@ def base(**changes):
         (base(hardware={"armed": True}), "hardware"),
         (base(mode="hardware", twin={"seed": 1}), "twin"),
         (base(mode="hardware", lockstep=True), "lockstep"),
+        (base(nodes={"stop_timeout_s": 0}), "nodes.stop_timeout_s"),
+        (base(nodes={"max_restarts": -2}), "nodes.max_restarts"),
+        (base(twin={"stall_timeout_s": float("inf")}), "twin.stall_timeout_s"),
+        (base(ros={"interfaces": ["10.0.0.300"]}), "ros.interfaces"),
     ],
 )
 def test_bad_deployments_name_the_key(data, key):
     with pytest.raises(ConfigError) as err:
         parse_deployment(data, None)
     assert err.value.key == key
+
+
+def test_a_section_built_in_code_is_checked_like_one_read_from_a_file():
+    from vigil.deployment import PlannerSection, RosSection
+
+    with pytest.raises(ConfigError, match="nav_timeout_s: nan"):
+        PlannerSection(nav_timeout_s=float("nan"))
+    with pytest.raises(ConfigError, match="localhost_only.*true or false"):
+        RosSection(localhost_only=1)  # type: ignore[arg-type]
 
 
 def test_hardware_mode_needs_calibration_and_a_valid_stream(tmp_path):
@@ -239,7 +252,12 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path):
     system = prepare(dep, tmp_path / "run", scenario, say=lambda s: None)
     p = system.params
     assert p["twin_bridge"]["lockstep"] is True
-    assert set(p["twin_bridge"]["participants"]) == {s.name for s in system.specs} - {"twin_bridge"}
+    # every node takes part in the lock-step but the viewer's markers, which only draw
+    assert set(p["twin_bridge"]["participants"]) == {s.name for s in system.specs} - {
+        "twin_bridge",
+        "markers",
+    }
+    assert "markers" in {s.name for s in system.specs}
     assert (
         "<address>127.0.0.1</address></interfaceWhiteList>"
         in Path(system.env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()

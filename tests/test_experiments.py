@@ -85,7 +85,10 @@ def test_run_set_table_totals_and_docs(tmp_path):
     assert t["misses"] == 3 and t["steps_with_person"] == 3  # steps at 2, 4, 6 s
     assert any(x.startswith("[occlusion] [run] step 1/5") for x in lines)
     md = (tmp_path / "set" / "experiments.md").read_text()
-    assert "| occlusion | 1 | 1 | 0 |" in md and "failed: RuntimeError" in md
+    row = next(line for line in md.splitlines() if line.startswith("| occlusion |"))
+    assert row.startswith("| occlusion | 1 | 1 | ") and "failed: RuntimeError" in md
+    reachable = by["occlusion"]["metrics"]["reachable"]
+    assert f"| {reachable} ({by['occlusion']['metrics']['guarded_reachable']}) |" in row
     assert "**total (2 runs)**" in md and "seed 21" in md
     assert (tmp_path / "set" / "experiments.png").stat().st_size > 0
     # the section in a docs file, twice: replaced, not repeated

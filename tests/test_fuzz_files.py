@@ -63,40 +63,8 @@ R: open-right : tiger-left : * : * 10
 R: open-right : tiger-right : * : * -100
 """
 
-POLICY = "stack/planning/policy.AlphaPolicy.load: BadZipFile, EOFError, zlib/tokenize errors"
 # "reader:case" -> why it is not asserted yet (the owner of that reader fixes it)
-KNOWN_FAILURES: dict[str, str] = {
-    "policy:truncate@0": POLICY,
-    "policy:truncate@72": POLICY,
-    "policy:truncate@144": POLICY,
-    "policy:truncate@217": POLICY,
-    "policy:truncate@289": POLICY,
-    "policy:truncate@361": POLICY,
-    "policy:truncate@434": POLICY,
-    "policy:truncate@506": POLICY,
-    "policy:truncate@578": POLICY,
-    "policy:bytes#0": POLICY,
-    "policy:bytes#1": POLICY,
-    "policy:bytes#2": POLICY,
-    "policy:bytes#3": POLICY,
-    "policy:bytes#4": POLICY,
-    "policy:bytes#5": POLICY,
-    "policy:bytes#6": POLICY,
-    "policy:bytes#7": POLICY,
-    "policy:bytes#8": POLICY,
-    "policy:bytes#9": POLICY,
-    "policy:bytes#10": POLICY,
-    "policy:bytes#11": POLICY,
-    "policy:bytes#12": POLICY,
-    "policy:bytes#14": POLICY,
-    "policy:bytes#15": POLICY,
-    "policy:bytes#16": POLICY,
-    "policy:bytes#17": POLICY,
-    "policy:bytes#18": POLICY,
-    "policy:bytes#19": POLICY,
-    "policy:bytes#20": POLICY,
-    "policy:empty": POLICY,
-}
+KNOWN_FAILURES: dict[str, str] = {}
 
 
 def allowed_errors() -> tuple[type[BaseException], ...]:
@@ -185,6 +153,7 @@ def _tree(tmp: Path) -> Path:
 
 def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
     """reader name -> (seed file, read(path))."""
+    from stack.nav.occupancy import OccupancyMap, load_map_yaml, save_map_yaml
     from stack.perception.homography import (
         calibrate,
         load_calibration,
@@ -198,7 +167,6 @@ def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
     from stack.planning.pomdp_format import read_pomdp
     from stack.planning.task import load_task
     from twin.config import load_twin_config
-    from twin.occupancy import OccupancyMap, load_map
     from vigil.deployment import load_deployment
     from vigil.scenario import load_scenario
 
@@ -230,7 +198,7 @@ def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
         )  # fmt: skip
     )
     occ = OccupancyMap(np.zeros((20, 30), np.int8), 0.05, (0.0, 0.0))
-    pgm, yml = occ.save(tmp, "map")
+    yml = save_map_yaml(occ, tmp / "map.yaml")
 
     def state_reader(path: Path):
         fresh = PlannerAgent(model, pomdp, policy, model.initial_belief())
@@ -246,7 +214,7 @@ def seed_files(tmp: Path) -> dict[str, tuple[Path, Callable[[Path], object]]]:
         "calibration": (tmp / "calib.yaml", load_calibration),
         "points": (tmp / "points.yaml", load_points_file),
         "state": (tmp / "state.json", state_reader),
-        "map": (yml, load_map),
+        "map": (yml, load_map_yaml),
         "policy": (tmp / "policy.npz", lambda p: AlphaPolicy.load(p, pomdp.n_states)),
     }
 

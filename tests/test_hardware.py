@@ -152,7 +152,7 @@ def test_gate_config_from_dict_and_require_arming_false():
         GateConfig.from_dict({"speed": 1.0})
     with pytest.raises(ConfigError, match="require_arming.*true or false"):
         GateConfig.from_dict({"require_arming": 1})
-    with pytest.raises(ConfigError, match="velocity_gate.max_linear_mps: nan"):
+    with pytest.raises(ConfigError, match="max_linear_mps: nan"):  # built in code: the field
         GateConfig(max_linear_mps=math.nan)
 
 
@@ -212,11 +212,13 @@ class FakeFactory:
 
 
 def test_stream_config_validation():
-    cfg = StreamConfig.from_dict({"url": 0, "rate_hz": 5})
+    cfg = StreamConfig.from_dict({"url": "0", "rate_hz": 5})
     assert cfg.url == "0" and cfg.source == 0 and cfg.rate_hz == 5.0
     assert StreamConfig(url="http://cam/mjpg").source == "http://cam/mjpg"
-    with pytest.raises(ConfigError, match="camera_stream.url: None is invalid: is required"):
+    with pytest.raises(ConfigError, match="camera_stream.url: '' is invalid: must name a URL"):
         StreamConfig.from_dict({})
+    with pytest.raises(ConfigError, match="camera_stream.url: 0 is invalid: must be a string"):
+        StreamConfig.from_dict({"url": 0})  # a device index is written "0"
     with pytest.raises(ConfigError, match="camera_stream.url: '  '"):
         StreamConfig.from_dict({"url": "  "})
     with pytest.raises(ConfigError, match="camera_stream.width_px.*both"):

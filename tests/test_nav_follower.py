@@ -95,6 +95,37 @@ def test_reaches_every_cells_waypoint_within_tolerance_respecting_limits():
         assert cmds[-1].is_zero() and np.hypot(*v[-1, :2]) < 0.2
 
 
+def test_a_differential_drive_tours_every_cell_forward_only_turning_on_the_spot():
+    cfg = FollowerConfig(drive="diff")
+    follower = PathFollower(cfg, room())
+    waypoints = CellWaypoints(GRID)
+    base = KinematicBase(Pose2D(*GRID.center(7), yaw_rad=math.pi))  # facing away from 5
+    tour = ["East", "East", "East", "North", "West", "West", "West", "West", "West", "South"]
+    visited, t, all_cmds = set(), 0.0, []
+    for action in tour:
+        cell = waypoints.cell_of(base.pose.x_m, base.pose.y_m)
+        target = waypoints.target(cell, action)
+        status, cmds, _, t = drive(follower, base, target.waypoint_m, t0=t)
+        assert status.result is NavResult.SUCCEEDED, (action, status)
+        assert waypoints.cell_of(base.pose.x_m, base.pose.y_m) == target.cell
+        visited.add(target.cell)
+        all_cmds += cmds
+        t += 1.0
+    assert len(visited) == len(tour)
+    v = np.array([[c.vx_mps, c.vy_mps, c.wz_radps] for c in all_cmds])
+    assert (v[:, 1] == 0.0).all()  # never sideways
+    assert (v[:, 0] >= 0.0).all()  # never backwards
+    assert (np.abs(v[:, 2]) <= cfg.max_wz_radps + 1e-9).all()
+    # the first move starts facing away: it turns on the spot before driving
+    first = v[: int(1.0 / DT)]
+    assert (first[:, 0] == 0.0).all() and np.abs(first[:, 2]).max() > 0.5
+
+
+def test_holonomic_and_diff_are_the_only_drives():
+    with pytest.raises(ConfigError, match="follower.drive"):
+        FollowerConfig.from_dict({"drive": "ackermann"})
+
+
 def test_orientation_is_ignored_at_the_goal():
     follower = PathFollower(CFG, room())
     base = KinematicBase(Pose2D(*GRID.center(5), yaw_rad=-2.5))
@@ -229,6 +260,6 @@ def test_config_from_dict_validates():
     with pytest.raises(ConfigError, match="follower.max_vy_mps: 0.0 is invalid: must be"):
         FollowerConfig.from_dict({"max_vy_mps": 0})
     with pytest.raises(ConfigError, match="nav.speed: .* unknown key"):
-        FollowerConfig.from_dict({"speed": 1.0}, prefix="nav")
+        FollowerConfig.from_dict({"speed": 1.0}, "nav")
     with pytest.raises(ConfigError, match="follower.timeout_s: 'long' is invalid: must be a num"):
         FollowerConfig.from_dict({"timeout_s": "long"})

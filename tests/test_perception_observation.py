@@ -165,3 +165,32 @@ def test_combiner_config_validation():
         CombinerConfig.from_dict({"speed_thresholds_mps": [0.8, 0.3]})
     with pytest.raises(ConfigError, match="list of 2"):
         CombinerConfig.from_dict({"speed_thresholds_mps": [0.8]})
+
+
+class _RobotHidesCell1:
+    """A stand-in for CameraVisibility: the robot in cell 3 hides cell 1 wholly."""
+
+    def hidden_fractions(self, pose):
+        return {c: (1.0 if c == 1 else 0.0) for c in GRID.cells}
+
+    def point_hidden(self, x, y, pose):
+        return GRID.cell_at(x, y) == 1
+
+
+def test_a_cell_hidden_behind_the_robot_is_no_person_with_the_cell_hidden_not_unseen():
+    # the camera sees the rest of the grid: "No person" there is information the
+    # planner must keep (before: every listed hidden cell at 1.0 read as "Unseen")
+    comb = ObservationCombiner(GRID, visibility=_RobotHidesCell1())
+    robot = Pose2D(*GRID.center(3))
+    seen = comb.combine(9.0, person(GRID.center(1), Direction.EAST, stamp_s=9.0), [], robot)
+    assert seen.person_cell == 1
+    lost = comb.combine(10.0, CameraPersonState(stamp_s=10.0, status=PersonStatus.NO_PERSON),
+                        [], robot)  # fmt: skip
+    assert lost.person_label == "No person" and not lost.blind
+    assert dict(lost.hidden) == {1: 1.0}
+    back = Observation.from_dict(json.loads(lost.to_json()))
+    assert back.person_label == "No person" and back.hidden == lost.hidden
+    # the same with the camera out: blind, "Unseen"
+    out = comb.combine(20.0, None, [], robot)
+    assert out.blind and out.person_label == "Unseen"
+    assert Observation.from_labels(20.0, "3", "Unseen", "Not moving").person_label == "Unseen"

@@ -163,6 +163,11 @@ def test_malformed_hidden_and_impossible_out_of_map_are_refused(solved):
     before = agent.belief.copy()
     with pytest.raises(ObservationError, match="Out of the map"):
         agent.observe(Observed("Out of the map", "No person", "Not moving"))
+    # a rogue publisher's cell 99 (issue 13) names what is wrong and changes nothing
+    with pytest.raises(ObservationError, match="person cell '99'"):
+        agent.observe(Observed("3", "99", "Not moving"))
+    with pytest.raises(ObservationError, match="robot cell '99'"):
+        agent.observe(Observed("99", "No person", "Not moving"))
     np.testing.assert_array_equal(agent.belief, before)
 
 

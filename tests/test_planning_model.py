@@ -202,6 +202,9 @@ def test_two_people_build_and_track(r1):
         ({"grid": {"numbering": [[1, 2], [3]]}}, "grid.numbering[1]"),
         ({"grid": {"numbering": [[1, 2], [2, 4]]}}, "grid.numbering"),
         ({"initial": {"person": "nobody"}}, "initial.person"),
+        ({"rewards": {"restricted_guarded": float("nan")}}, "rewards.restricted_guarded"),
+        ({"discount": float("inf")}, "discount"),
+        ({"initial": {"direction": "up"}}, "initial.direction"),
     ],
 )
 def test_bad_task_values_are_rejected_naming_the_key(patch, key):
@@ -209,6 +212,15 @@ def test_bad_task_values_are_rejected_naming_the_key(patch, key):
         Task.from_dict(patch)
     assert err.value.key == key
     assert key in str(err.value)
+
+
+def test_a_task_built_in_code_is_checked_like_a_file():
+    from stack.planning.task import Rewards
+
+    with pytest.raises(ConfigError, match="move: nan"):
+        Rewards(move=float("nan"))  # was solved into a NaN policy (issue 13)
+    with pytest.raises(ConfigError, match="people"):
+        Task(people=True)  # type: ignore[arg-type]
 
 
 def test_malformed_task_file_names_the_problem(tmp_path):

@@ -56,6 +56,33 @@ def test_robot_arriving_after_the_person_left_is_not_guarded():
     assert m["every_visit_guarded"] is False and m["guarded"] == 0 and m["n_visits"] == 1
 
 
+def test_a_visit_is_reachable_when_an_ideal_guard_could_have_been_there():
+    from stack.cells import CellGrid
+    from vigil.report.metrics import reach_time_s
+
+    grid = CellGrid()  # from cell 7 the nearest point of cell 1 is 2.5 m away: 5 s
+    assert reach_time_s(grid, 7, 1, 0.5) == pytest.approx(5.0)
+    # the person enters the room (cell 4) at 2 s, is in cell 1 from 3 s to 6 s: no robot
+    # at 0.5 m/s starting in 7 at 2 s could be there before 6 s
+    short = timeline({(2, 3): 4, (3, 6): 1, (6, 30): 4}, {(0, 30): 7})
+    (v,) = find_visits(short, [1], grid=grid)
+    assert v.reachable is False and not v.guarded
+    m = guard_metrics(short, [1], [], [], grid=grid)
+    assert (m["n_visits"], m["reachable"], m["guarded_reachable"]) == (1, 0, 0)
+    # the same walk with a 6 s stay is reachable (2 + 5 < 9), and unguarded here
+    long = timeline({(2, 3): 4, (3, 9): 1, (9, 30): 4}, {(0, 30): 7})
+    (v,) = find_visits(long, [1], grid=grid)
+    assert v.reachable is True and not v.guarded
+    # a second visit races from the end of the first, with the robot where it was then
+    two = timeline(
+        {(2, 3): 4, (3, 9): 1, (9, 11): 3, (11, 13): 1, (13, 30): 4},
+        {(0, 4): 7, (4, 30): 11},
+    )
+    first, second = find_visits(two, [1], grid=grid)
+    assert first.reachable is True and second.reachable is False  # from 11 it is 7 s
+    assert find_visits(long, [1])[0].reachable is None  # no grid: not judged
+
+
 def test_abandoned_when_the_robot_leaves_while_the_person_stays():
     tl = timeline({(5, 20): 1}, {(0, 7): 3, (7, 11): 1, (11, 30): 3})
     (v,) = find_visits(tl, [1])

@@ -33,21 +33,8 @@ except ImportError:  # pragma: no cover
 needs_ros = pytest.mark.skipif(not HAVE_ROS, reason="rclpy not installed")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def private_domain():
-    """A ROS domain of its own (vigil.ros_domain): tests of other worktrees on the shared
-    per-process domains (conftest) cannot talk into these (seen: extra messages)."""
-    from vigil.ros_domain import claim_domain
-
-    claim = claim_domain()
-    old = os.environ.get("ROS_DOMAIN_ID")
-    os.environ["ROS_DOMAIN_ID"] = str(claim.domain_id)
-    yield claim.domain_id
-    if old is None:
-        os.environ.pop("ROS_DOMAIN_ID", None)
-    else:
-        os.environ["ROS_DOMAIN_ID"] = old
-    claim.release()
+# a ROS domain of its own (conftest.private_ros_domain)
+pytestmark = pytest.mark.usefixtures("private_ros_domain")
 
 
 def hardware_data(tmp_path, **changes):
@@ -89,7 +76,7 @@ def test_hardware_caps_are_bounded_by_the_platform(tmp_path):
     data["hardware"]["velocity_gate"]["max_linear_mps"] = 50.0
     with pytest.raises(ConfigError) as err:
         parse_deployment(data, tmp_path / "hardware.yaml")
-    assert err.value.key == "velocity_gate.max_linear_mps" and "platform" in str(err.value)
+    assert err.value.key == "hardware.velocity_gate.max_linear_mps" and "platform" in str(err.value)
 
 
 def test_in_hardware_mode_only_the_gate_publishes_the_base_topic(tmp_path):

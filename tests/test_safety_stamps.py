@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 
 import numpy as np
@@ -39,21 +38,8 @@ GRID = CellGrid()
 CAMERA = PinholeCamera.mount_a(GRID)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def private_domain():
-    """A ROS domain of its own (vigil.ros_domain): tests of other worktrees on the shared
-    per-process domains (conftest) cannot talk into these (seen: extra messages)."""
-    from vigil.ros_domain import claim_domain
-
-    claim = claim_domain()
-    old = os.environ.get("ROS_DOMAIN_ID")
-    os.environ["ROS_DOMAIN_ID"] = str(claim.domain_id)
-    yield claim.domain_id
-    if old is None:
-        os.environ.pop("ROS_DOMAIN_ID", None)
-    else:
-        os.environ["ROS_DOMAIN_ID"] = old
-    claim.release()
+# a ROS domain of its own (conftest.private_ros_domain)
+pytestmark = pytest.mark.usefixtures("private_ros_domain")
 
 
 def test_stamp_guard_rejects_and_counts():

@@ -85,3 +85,27 @@ def test_noisy_odometry_drifts_with_the_configured_noise():
     odom, gt = twin.odometry(), twin.ground_truth()
     drift = math.hypot(odom.pose.x_m - gt.robot.x_m, odom.pose.y_m - gt.robot.y_m)
     assert 0.0 < drift < 0.2
+
+
+def test_a_differential_base_never_moves_sideways():
+    twin = _twin(drive="diff", start_yaw_rad=0.7)
+    start = twin.ground_truth().robot
+    twin.run(2.0, VelocityCommand(0.0, 0.3, 0.0))  # a lateral command is dropped
+    gt = twin.ground_truth().robot
+    assert math.hypot(gt.x_m - start.x_m, gt.y_m - start.y_m) < 2e-3
+    # an arc: forward and turning at once; the motion stays along the heading
+    prev = gt
+    for _ in range(60):
+        twin.step(VelocityCommand(0.3, 0.2, 0.6))
+        now = twin.ground_truth().robot
+        dx, dy = now.x_m - prev.x_m, now.y_m - prev.y_m
+        mid = prev.yaw_rad + math.remainder(now.yaw_rad - prev.yaw_rad, math.tau) / 2
+        lateral = -math.sin(mid) * dx + math.cos(mid) * dy
+        assert abs(lateral) < 2e-4, lateral
+        prev = now
+    assert math.hypot(prev.x_m - gt.x_m, prev.y_m - gt.y_m) > 0.3
+    # the holonomic base does slide sideways under the same lateral command
+    holo = _twin(start_yaw_rad=0.7)
+    holo.run(2.0, VelocityCommand(0.0, 0.3, 0.0))
+    moved = holo.ground_truth().robot
+    assert math.hypot(moved.x_m - start.x_m, moved.y_m - start.y_m) > 0.4

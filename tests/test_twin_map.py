@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from twin.occupancy import FREE, OCCUPIED, UNKNOWN, load_map
+from stack.nav.occupancy import FREE, OCCUPIED, UNKNOWN
+from stack.nav.occupancy import load_map_yaml as load_map
 from twin.twin import Twin
 
 

@@ -13,7 +13,7 @@ file's ``grid`` section, so moving ``grid.origin_m`` moves the whole room with i
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -142,7 +142,12 @@ class LidarConfig(_FromDict):
 
 @dataclass(frozen=True)
 class RobotConfig(_FromDict):
-    """The MBot's holonomic base: start pose, limits and actuator gains."""
+    """The robot's base: start pose, limits and actuator gains.
+
+    ``drive``: ``holonomic`` (the MBot's mecanum base) or ``diff`` (a differential
+    drive: the planar joint is constrained to move along the heading only; a lateral
+    command is dropped and lateral slip removed at every physics step).
+    """
 
     start_cell: int = 7  # the thesis's rest position (section 4.2)
     start_yaw_rad: float = 0.0
@@ -152,8 +157,10 @@ class RobotConfig(_FromDict):
     max_angular_accel_radps2: float = 3.0
     linear_gain_ns_per_m: float = 2000.0  # velocity actuator kv on the slides
     angular_gain_nms_per_rad: float = 100.0  # kv on the yaw hinge
+    drive: str = "holonomic"
 
     _rules: ClassVar[dict[str, Rule]] = {
+        "drive": (lambda v: v in ("holonomic", "diff"), "must be holonomic or diff"),
         "start_cell": POSITIVE,
         "max_linear_mps": POSITIVE,
         "max_angular_radps": POSITIVE,
@@ -222,6 +229,37 @@ class PersonConfig(_FromDict):
     }
 
 
+# Clothes of the second, third, ... walker when their file leaves the default colours
+# (the first walker keeps PersonConfig's, so a one-person scene renders as before):
+# (shirt, trousers), chosen far apart in hue and in grey level for the camera.
+WALKER_CLOTHES: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = (
+    ((0.14, 0.42, 0.70), (0.28, 0.26, 0.22)),  # blue shirt, dark khaki trousers
+    ((0.20, 0.55, 0.22), (0.10, 0.10, 0.12)),  # green shirt, black trousers
+    ((0.85, 0.70, 0.15), (0.30, 0.18, 0.10)),  # yellow shirt, brown trousers
+)
+
+
+def walker_config(person: PersonConfig, index: int) -> PersonConfig:
+    """The ``index``-th walker (0-based) with distinct clothes if it kept the defaults.
+
+    Args:
+        person: the walker's configuration.
+        index: its place in ``TwinConfig.walkers``.
+
+    Returns:
+        ``person`` itself for index 0 or colours of its own; otherwise a copy dressed
+        from :data:`WALKER_CLOTHES`.
+    """
+    default = PersonConfig()
+    if index == 0 or (person.shirt_rgb, person.trousers_rgb) != (
+        default.shirt_rgb,
+        default.trousers_rgb,
+    ):
+        return person
+    shirt, trousers = WALKER_CLOTHES[(index - 1) % len(WALKER_CLOTHES)]
+    return replace(person, shirt_rgb=shirt, trousers_rgb=trousers)
+
+
 @dataclass(frozen=True)
 class Obstacle(_FromDict):
     """A box standing on the floor (e.g. a crate left on a cell's waypoint)."""
@@ -264,7 +302,13 @@ class MapConfig(_FromDict):
 
 @dataclass(frozen=True)
 class TwinConfig(_FromDict):
-    """Everything the twin needs. ``grid`` is the shared cell geometry (stack.cells)."""
+    """Everything the twin needs. ``grid`` is the shared cell geometry (stack.cells).
+
+    People: ``people`` lists the walkers (issue 16: several at once, each with its
+    own script); when it is empty the single ``person`` is the one walker (or none
+    when ``person.present`` is false). A file gives one of the two keys, not both.
+    :attr:`walkers` is the list the scene and the twin use.
+    """
 
     grid: CellGrid = field(default_factory=CellGrid)
     room: RoomConfig = field(default_factory=RoomConfig)
@@ -273,6 +317,7 @@ class TwinConfig(_FromDict):
     robot: RobotConfig = field(default_factory=RobotConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     person: PersonConfig = field(default_factory=PersonConfig)
+    people: tuple[PersonConfig, ...] = ()
     map: MapConfig = field(default_factory=MapConfig)
     obstacles: tuple[Obstacle, ...] = ()
     timestep_s: float = 0.002
@@ -284,20 +329,22 @@ class TwinConfig(_FromDict):
     }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "") -> TwinConfig:
-        """Build from a mapping with optional sections ``grid``, ``room``, ``camera``, ...
-
-        Args:
-            data: the mapping (the ``twin`` section of a YAML file, or the whole file).
-            key: the dotted path of this section, used in error messages.
-
-        Returns:
-            The validated configuration.
-
-        Raises:
-            ConfigError: an unknown key, a value of the wrong type, or a broken rule.
-        """
+    def from_dict(cls, data: Mapping[str, Any] | None, key: str | None = None) -> TwinConfig:
+        """As :meth:`stack.config.Config.from_dict`; ``person`` and ``people`` exclude
+        each other."""
+        if isinstance(data, Mapping) and "person" in data and "people" in data:
+            prefix = f"{key}." if key else ""
+            raise ConfigError(
+                f"{prefix}people", "<list>", "give either person (one) or people (a list)"
+            )
         return super().from_dict(data, key)
+
+    @property
+    def walkers(self) -> tuple[PersonConfig, ...]:
+        """The people in the scene, in order, dressed apart (:func:`walker_config`)."""
+        listed = self.people if self.people else (self.person,)
+        present = [p for p in listed if p.present]
+        return tuple(walker_config(p, i) for i, p in enumerate(present))
 
     def check(self) -> None:
         steps = self.control_period_s / self.timestep_s

@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from stack.cells import ConfigError
-from twin.config import TwinConfig
+from twin.config import PersonConfig, TwinConfig
 from twin.person import BodyDims
 
 ASSETS = Path(__file__).resolve().parent / "assets"
@@ -27,7 +27,7 @@ ROBOT_PREFIX = "mbot/"
 ROBOT_BODY = ROBOT_PREFIX + "base"
 LIDAR_SITE = ROBOT_PREFIX + "lidar"
 CAMERA_NAME = "ceiling"
-PERSON_PREFIX = "person/"
+PERSON_PREFIX = "person/"  # the first walker's; the others' are person_prefix(i)
 # the person's mocap bodies: (name, kind); kinds are laid out in twin.twin
 PERSON_SEGMENTS = (
     "torso",
@@ -40,6 +40,15 @@ PERSON_SEGMENTS = (
     "arm_l",
     "arm_r",
 )
+
+
+def person_prefix(index: int) -> str:
+    """Name prefix of the ``index``-th walker's bodies, geoms and materials (0-based).
+
+    The first is ``person/`` (as before several walkers existed, so a one-person
+    scene is unchanged), then ``person2/``, ``person3/``, ...
+    """
+    return PERSON_PREFIX if index == 0 else f"person{index + 1}/"
 
 
 @dataclass(frozen=True)
@@ -157,8 +166,8 @@ def build_spec(config: TwinConfig) -> tuple[mujoco.MjSpec, SceneLayout]:
         )
     _add_robot(spec)
     _add_camera(spec, config, layout)
-    if config.person.present:
-        _add_person(spec, config)
+    for i, walker in enumerate(config.walkers):
+        _add_person(spec, walker, person_prefix(i))
     return spec, layout
 
 
@@ -328,13 +337,13 @@ def _add_camera(spec: mujoco.MjSpec, config: TwinConfig, layout: SceneLayout) ->
     )
 
 
-def _add_person(spec: mujoco.MjSpec, config: TwinConfig) -> None:
-    """The person as mocap bodies moved by twin.person; geoms never collide.
+def _add_person(spec: mujoco.MjSpec, p: PersonConfig, prefix: str) -> None:
+    """One person as mocap bodies moved by twin.person; geoms never collide.
 
     Segment bodies carry a capsule along their local z, centred on the body origin; the
     twin sets each body's position to the segment midpoint and turns z along it.
+    Every name starts with ``prefix`` (:func:`person_prefix`).
     """
-    p = config.person
     d = BodyDims(p.height_m)
     for name, rgb in (
         ("shirt", p.shirt_rgb),
@@ -343,61 +352,61 @@ def _add_person(spec: mujoco.MjSpec, config: TwinConfig) -> None:
         ("hair", p.hair_rgb),
         ("shoes", p.shoes_rgb),
     ):
-        spec.add_material(name=PERSON_PREFIX + name, rgba=[*rgb, 1.0], specular=0.1)
+        spec.add_material(name=prefix + name, rgba=[*rgb, 1.0], specular=0.1)
     ghost = {"contype": 0, "conaffinity": 0}
     cap = mujoco.mjtGeom.mjGEOM_CAPSULE
     h = p.height_m
-    torso = spec.worldbody.add_body(name=PERSON_PREFIX + "torso", mocap=True)
+    torso = spec.worldbody.add_body(name=prefix + "torso", mocap=True)
     # torso frame: on the floor under the pelvis, x = heading, z up
     hip, sh = d.hip_height_m, d.shoulder_height_m
     torso.add_geom(
-        name=PERSON_PREFIX + "pelvis",
+        name=prefix + "pelvis",
         type=cap,
         fromto=[0, -d.hip_half_width_m, hip + 0.02, 0, d.hip_half_width_m, hip + 0.02],
         size=[0.085 * h / 1.75, 0, 0],
-        material=PERSON_PREFIX + "trousers",
+        material=prefix + "trousers",
         **ghost,
     )
     torso.add_geom(
-        name=PERSON_PREFIX + "chest",
+        name=prefix + "chest",
         type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
         pos=[0, 0, (hip + sh) / 2 + 0.02],
         size=[0.12 * h / 1.75, 0.19 * h / 1.75, (sh - hip) / 2 + 0.06],
-        material=PERSON_PREFIX + "shirt",
+        material=prefix + "shirt",
         **ghost,
     )
     torso.add_geom(
-        name=PERSON_PREFIX + "shoulders",
+        name=prefix + "shoulders",
         type=cap,
         fromto=[0, -d.shoulder_half_width_m, sh, 0, d.shoulder_half_width_m, sh],
         size=[0.055 * h / 1.75, 0, 0],
-        material=PERSON_PREFIX + "shirt",
+        material=prefix + "shirt",
         **ghost,
     )
     torso.add_geom(
-        name=PERSON_PREFIX + "neck",
+        name=prefix + "neck",
         type=cap,
         fromto=[0, 0, sh, 0, 0, 0.88 * h],
         size=[0.045 * h / 1.75, 0, 0],
-        material=PERSON_PREFIX + "skin",
+        material=prefix + "skin",
         **ghost,
     )
     head_r = 0.065 * h
     head_z = h - head_r
     torso.add_geom(
-        name=PERSON_PREFIX + "head",
+        name=prefix + "head",
         type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
         pos=[0, 0, head_z],
         size=[head_r * 0.95, head_r * 0.85, head_r],
-        material=PERSON_PREFIX + "skin",
+        material=prefix + "skin",
         **ghost,
     )
     torso.add_geom(
-        name=PERSON_PREFIX + "hair",
+        name=prefix + "hair",
         type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
         pos=[-0.015 * h / 1.75, 0, head_z + 0.025 * h / 1.75],
         size=[head_r * 0.97, head_r * 0.88, head_r * 0.9],
-        material=PERSON_PREFIX + "hair",
+        material=prefix + "hair",
         **ghost,
     )
     # legs are about 0.15 m wide at lidar height (FEASIBILITY), arms a little thinner
@@ -408,31 +417,31 @@ def _add_person(spec: mujoco.MjSpec, config: TwinConfig) -> None:
     }
     for side in ("l", "r"):
         for kind, (length, radius, mat) in segments.items():
-            body = spec.worldbody.add_body(name=f"{PERSON_PREFIX}{kind}_{side}", mocap=True)
+            body = spec.worldbody.add_body(name=f"{prefix}{kind}_{side}", mocap=True)
             body.add_geom(
-                name=f"{PERSON_PREFIX}{kind}_{side}_geom",
+                name=f"{prefix}{kind}_{side}_geom",
                 type=cap,
                 fromto=[0, 0, -length / 2, 0, 0, length / 2],
                 size=[radius, 0, 0],
-                material=PERSON_PREFIX + mat,
+                material=prefix + mat,
                 **ghost,
             )
             if kind == "arm":
                 body.add_geom(
-                    name=f"{PERSON_PREFIX}hand_{side}",
+                    name=f"{prefix}hand_{side}",
                     type=mujoco.mjtGeom.mjGEOM_SPHERE,
                     pos=[0, 0, -length / 2],
                     size=[0.045 * h / 1.75, 0, 0],
-                    material=PERSON_PREFIX + "skin",
+                    material=prefix + "skin",
                     **ghost,
                 )
-        foot = spec.worldbody.add_body(name=f"{PERSON_PREFIX}foot_{side}", mocap=True)
+        foot = spec.worldbody.add_body(name=f"{prefix}foot_{side}", mocap=True)
         # foot frame: at the ankle, x = heading; the shoe reaches forward of the ankle
         foot.add_geom(
-            name=f"{PERSON_PREFIX}foot_{side}_geom",
+            name=f"{prefix}foot_{side}_geom",
             type=mujoco.mjtGeom.mjGEOM_BOX,
             pos=[0.05 * h / 1.75, 0, -d.ankle_height_m / 2],
             size=[0.13 * h / 1.75, 0.05 * h / 1.75, d.ankle_height_m / 2],
-            material=PERSON_PREFIX + "shoes",
+            material=prefix + "shoes",
             **ghost,
         )

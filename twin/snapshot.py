@@ -29,8 +29,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from stack.nav.occupancy import FREE, OCCUPIED, OccupancyMap  # noqa: E402
 from twin.config import TwinConfig, load_twin_config  # noqa: E402
-from twin.occupancy import FREE, OCCUPIED, OccupancyMap  # noqa: E402
 from twin.scene import LIDAR_SITE  # noqa: E402
 from twin.twin import Twin, VelocityCommand  # noqa: E402
 

@@ -6,6 +6,11 @@ control period under a body-frame velocity command, and the sensors are read on 
 happened. Same config and seed, same run: MuJoCo is deterministic on one machine, the
 person's script is a pure function of time, and all noise comes from one
 ``np.random.Generator`` drawn in a fixed order.
+
+Several people (issue 16): every walker of ``config.walkers`` has its own script and
+its own mocap bodies (``twin.scene.person_prefix``); the lidar and the camera see them
+all, and ``ground_truth().people`` reports each in the config's order. ``person`` and
+``ground_truth().person`` remain the first walker, so one-person code is unchanged.
 """
 
 from __future__ import annotations
@@ -19,18 +24,19 @@ import mujoco
 import numpy as np
 
 from stack.geometry import Pose2D
+from stack.nav.occupancy import OccupancyMap, save_map_yaml
 from twin.config import TwinConfig
-from twin.occupancy import OccupancyMap, occupancy_from_model
+from twin.occupancy import occupancy_from_model
 from twin.person import PersonPose, PersonScript, default_waypoints
 from twin.scene import (
     CAMERA_NAME,
     LIDAR_SITE,
-    PERSON_PREFIX,
     PERSON_SEGMENTS,
     ROBOT_BODY,
     ROBOT_PREFIX,
     SceneLayout,
     build_spec,
+    person_prefix,
 )
 from twin.sensors import (
     OPTICAL_FROM_MUJOCO_CAMERA,
@@ -104,7 +110,9 @@ class GroundTruth:
         robot: the robot's pose (read from its body, not the joints).
         robot_velocity: body-frame (vx, vy, wz) [m/s, m/s, rad/s].
         robot_cell: the cell under the robot's centre, None outside the region.
-        person: the person's state, None when the scene has no person.
+        person: the (first) person's state, None when the scene has no person.
+        people: every walker's state, in ``config.walkers`` order (``people[0]`` is
+            ``person``).
     """
 
     time_s: float
@@ -112,6 +120,7 @@ class GroundTruth:
     robot_velocity: tuple[float, float, float]
     robot_cell: int | None
     person: PersonTruth | None
+    people: tuple[PersonTruth, ...] = ()
 
 
 def _wrap(a: float) -> float:
@@ -127,8 +136,12 @@ def _segment_quat(u: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
+# a walker beyond the first without waypoints takes the default tour this much later
+DEFAULT_TOUR_STAGGER_S = 4.0
+
+
 class Twin:
-    """The headless digital twin: the LRM room, the MBot, the ceiling camera, a person.
+    """The headless digital twin: the LRM room, the MBot, the ceiling camera, people.
 
     Args:
         config: the configuration; None for the defaults.
@@ -166,12 +179,17 @@ class Twin:
         self.lidar = Lidar(self.config.lidar, self._robot_body)
         self.camera_info: CameraInfo = camera_info_of(self.config.camera)
         self._renderer: mujoco.Renderer | None = None
-        self.person: PersonScript | None = None
-        self._mocap: dict[str, int] = {}
-        if self.config.person.present:
-            wps = self.config.person.waypoints or self._default_waypoints(self.layout)
-            self.person = PersonScript(dataclasses.replace(self.config.person, waypoints=wps))
-            self._mocap = {s: m.body(PERSON_PREFIX + s).mocapid[0] for s in PERSON_SEGMENTS}
+        self.people: list[PersonScript] = []
+        self._mocaps: list[dict[str, int]] = []
+        for i, walker in enumerate(self.config.walkers):
+            wps = walker.waypoints or self._default_waypoints(self.layout)
+            start = 0.0 if walker.waypoints else DEFAULT_TOUR_STAGGER_S * i
+            script = PersonScript(dataclasses.replace(walker, waypoints=wps), start_time_s=start)
+            self.people.append(script)
+            prefix = person_prefix(i)
+            self._mocaps.append({s: m.body(prefix + s).mocapid[0] for s in PERSON_SEGMENTS})
+        # the first walker, as one-person code knows it
+        self.person: PersonScript | None = self.people[0] if self.people else None
         self.reset()
 
     def _default_waypoints(self, layout: SceneLayout):
@@ -236,7 +254,8 @@ class Twin:
         command = command or VelocityCommand()
         rc = self.config.robot
         dt = self.config.control_period_s
-        want = np.array([command.vx_mps, command.vy_mps, command.wz_radps], float)
+        diff = rc.drive == "diff"
+        want = np.array([command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps])
         lin = np.hypot(want[0], want[1])
         if lin > rc.max_linear_mps:
             want[:2] *= rc.max_linear_mps / lin
@@ -258,6 +277,10 @@ class Twin:
             ctrl[self._act[0]] = c * self._cmd[0] - s * self._cmd[1]
             ctrl[self._act[1]] = s * self._cmd[0] + c * self._cmd[1]
             ctrl[self._act[2]] = self._cmd[2]
+            if diff:  # no slip sideways: keep only the slides' velocity along the heading
+                qv, ix, iy = self.data.qvel, self._dadr[0], self._dadr[1]
+                along = c * qv[ix] + s * qv[iy]
+                qv[ix], qv[iy] = c * along, s * along
             mujoco.mj_step(self.model, self.data)
         # the person is kinematic and touches nothing, so moving it once per control
         # period is enough (and 5x cheaper than at every physics step); mj_kinematics
@@ -298,12 +321,19 @@ class Twin:
         self._odom[2] = _wrap(self._odom[2] + v[2] * dt)
         self._odom_vel = v
 
+    @property
+    def end_time_s(self) -> float:
+        """When the last walker stops for good [s] (0 without people)."""
+        return max((p.end_time_s for p in self.people), default=0.0)
+
     def _place_person(self) -> None:
-        if self.person is None:
-            return
-        p = self.person.pose(float(self.data.time))
+        now = float(self.data.time)
+        for script, mocap in zip(self.people, self._mocaps, strict=True):
+            self._place_one(script.pose(now), mocap)
+
+    def _place_one(self, p: PersonPose, mocap: dict[str, int]) -> None:
         mp, mq = self.data.mocap_pos, self.data.mocap_quat
-        t = self._mocap["torso"]
+        t = mocap["torso"]
         mp[t] = (p.position_m[0], p.position_m[1], -p.pelvis_drop_m)
         mq[t] = (math.cos(p.heading_rad / 2), 0.0, 0.0, math.sin(p.heading_rad / 2))
         for k, side in enumerate(("l", "r")):
@@ -312,11 +342,11 @@ class Twin:
                 ("shin", p.knees_m[k], p.ankles_m[k]),
                 ("arm", p.shoulders_m[k], p.hands_m[k]),
             ):
-                i = self._mocap[f"{name}_{side}"]
+                i = mocap[f"{name}_{side}"]
                 seg = a - b  # +z of the segment body points from the far end to the near
                 mp[i] = (a + b) / 2
                 mq[i] = _segment_quat(seg / np.linalg.norm(seg))
-            f = self._mocap[f"foot_{side}"]
+            f = mocap[f"foot_{side}"]
             mp[f] = p.ankles_m[k]
             mq[f] = mq[t]
 
@@ -353,11 +383,17 @@ class Twin:
         ids[seg[..., 1] != mujoco.mjtObj.mjOBJ_GEOM] = -1
         return ids
 
-    def person_geom_ids(self) -> np.ndarray:
-        """Ids of the person's geoms (empty without a person)."""
+    def person_geom_ids(self, index: int | None = None) -> np.ndarray:
+        """Ids of the people's geoms (empty without people).
+
+        Args:
+            index: only this walker's (0-based, ``config.walkers`` order); None: all.
+        """
         m = self.model
+        which = range(len(self.people)) if index is None else [index]
+        prefixes = tuple(person_prefix(i) for i in which)
         names = [m.geom(i).name for i in range(m.ngeom)]
-        return np.array([i for i, n in enumerate(names) if n.startswith(PERSON_PREFIX)], int)
+        return np.array([i for i, n in enumerate(names) if n.startswith(prefixes)], int)
 
     def scan(self) -> LaserScan:
         """One lidar scan from the robot's current pose (range noise from the twin's rng)."""
@@ -371,30 +407,33 @@ class Twin:
         return Odometry(self.time_s, Pose2D(*map(float, o)), float(v[0]), float(v[1]), float(v[2]))
 
     def ground_truth(self) -> GroundTruth:
-        """The true state of robot and person."""
+        """The true state of the robot and every person."""
         x, y, yaw = self._robot_pose_array()
         d = self._dadr
         vw = self.data.qvel[list(d)]
         c, s = math.cos(yaw), math.sin(yaw)
         vel = (float(c * vw[0] + s * vw[1]), float(-s * vw[0] + c * vw[1]), float(vw[2]))
         grid = self.config.grid
-        person = None
-        if self.person is not None:
-            p: PersonPose = self.person.pose(self.time_s)
+        people = []
+        for script in self.people:
+            p: PersonPose = script.pose(self.time_s)
             px, py = p.position_m
-            person = PersonTruth(
-                pose=Pose2D(px, py, p.heading_rad),
-                velocity_mps=p.velocity_mps,
-                cell=grid.cell_at(px, py),
-                in_room=self.layout.in_room(px, py),
-                feet_m=p.ankles_m.copy(),
+            people.append(
+                PersonTruth(
+                    pose=Pose2D(px, py, p.heading_rad),
+                    velocity_mps=p.velocity_mps,
+                    cell=grid.cell_at(px, py),
+                    in_room=self.layout.in_room(px, py),
+                    feet_m=p.ankles_m.copy(),
+                )
             )
         return GroundTruth(
             time_s=self.time_s,
             robot=Pose2D(float(x), float(y), float(yaw)),
             robot_velocity=vel,
             robot_cell=grid.cell_at(x, y),
-            person=person,
+            person=people[0] if people else None,
+            people=tuple(people),
         )
 
     def camera_pose(self) -> CameraPose:
@@ -413,8 +452,6 @@ class Twin:
             self.layout.room,
             mc.resolution_m,
             (mc.z_min_m, mc.z_max_m),
-            occupied_thresh=mc.occupied_thresh,
-            free_thresh=mc.free_thresh,
         )
 
     def save_map(self, directory: str | Path, name: str = "lrm") -> tuple[Path, Path]:
@@ -427,4 +464,11 @@ class Twin:
         Returns:
             (pgm_path, yaml_path).
         """
-        return self.occupancy_map().save(directory, name)
+        mc = self.config.map
+        yml = save_map_yaml(
+            self.occupancy_map(),
+            Path(directory) / f"{name}.yaml",
+            occupied_thresh=mc.occupied_thresh,
+            free_thresh=mc.free_thresh,
+        )
+        return yml.with_suffix(".pgm"), yml

@@ -5,7 +5,7 @@ vigil export-pomdp TASK.yaml -o F.pomdp  write the task model in Cassandra forma
 vigil solve-pomdp F.pomdp [-o P.policy]  solve any .pomdp/.pomdpx file, print bounds
 vigil evaluate MODEL --policy P          mean discounted return by simulation (any model/policy)
 vigil replay --table all                 chapter 5's tables against our planner
-vigil main --out DIR                     the main job: solve, replay, report
+vigil replay-report --out DIR            solve, replay chapter 5, simulate, report
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
 vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
 vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
@@ -61,7 +61,7 @@ def _solver_args(
     p.add_argument(
         "--fib-time", type=float, default=0.0, help="Perseus: seconds for the fast informed bound"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the belief sampler")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -226,6 +226,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.planner is not None:  # the n-person task's online planner or a baseline (issue 16)
+        from stack.planning.evaluate_people import evaluate_planners
+
+        out = evaluate_planners(
+            args.model, args.planner, args.episodes, args.seed, args.json, horizon=args.horizon
+        )
+        print(out)
+        return 0
+    if args.policy is None:
+        raise ValueError("give --policy (a solved policy) or --planner (online, greedy, single)")
     pomdp = read_model(args.model)
     policy = AlphaPolicy.load(args.policy, n_states=pomdp.n_states, model_hash=pomdp.fingerprint())
     ev = evaluate(pomdp, policy, episodes=args.episodes, horizon=args.horizon, seed=args.seed)
@@ -389,60 +399,85 @@ def cmd_twin_snapshot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _command(sub, name: str, what: str, **kwargs) -> argparse.ArgumentParser:
+    """A subcommand whose --help says what it does and every option's default."""
+    return sub.add_parser(
+        name,
+        help=what,
+        description=what[0].upper() + what[1:] + ".",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        **kwargs,
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="vigil", description="vigil: human-aware planning under uncertainty"
+        prog="vigil",
+        description="vigil: a robot and a ceiling camera keep people out of restricted cells, "
+        "planning under uncertainty (POMDP). `vigil COMMAND --help` for each command.",
     )
     sub = ap.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("solve", help="solve a task file")
-    p.add_argument("task")
+    p = _command(sub, "solve", "solve a task file into a policy")
+    p.add_argument("task", help="task file, e.g. config/task-r1.yaml")
     p.add_argument("-o", "--output", required=True, help="policy file (.npz, or .policy XML)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
     _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
     p.set_defaults(func=cmd_solve)
 
-    p = sub.add_parser("export-pomdp", help="write a task model as a Cassandra .pomdp file")
-    p.add_argument("task")
-    p.add_argument("-o", "--output", required=True)
+    p = _command(sub, "export-pomdp", "write a task model as a Cassandra .pomdp file")
+    p.add_argument("task", help="task file, e.g. config/task-r1.yaml")
+    p.add_argument("-o", "--output", required=True, help="the .pomdp file to write")
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("solve-pomdp", help="solve a .pomdp (Cassandra) or .pomdpx file")
-    p.add_argument("file")
+    p = _command(sub, "solve-pomdp", "solve a .pomdp (Cassandra) or .pomdpx file")
+    p.add_argument("file", help="the model file")
     p.add_argument(
         "-o", "--output", help="policy file: exactly this path; .policy writes SARSOP's XML"
     )
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
     _solver_args(p, iterations=1000)
     p.set_defaults(func=cmd_solve_pomdp)
 
-    p = sub.add_parser("evaluate", help="evaluate a policy by simulation")
+    p = _command(sub, "evaluate", "mean discounted return of a policy, by simulation")
     p.add_argument("model", help="a task file (.yaml), a .pomdp or a .pomdpx file")
-    p.add_argument("--policy", required=True, help="ours (.npz) or SARSOP's (.policy XML)")
-    p.add_argument("--episodes", type=int, default=100)
-    p.add_argument("--horizon", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--policy", help="ours (.npz) or SARSOP's (.policy XML)")
+    p.add_argument(
+        "--planner",
+        choices=("online", "greedy", "single"),
+        help="instead of --policy: a task file's n-person planner (issue 16)",
+    )
+    p.add_argument("--episodes", type=int, default=100, help="simulated episodes")
+    p.add_argument(
+        "--horizon",
+        type=int,
+        default=None,
+        help="steps per episode (None: until the discount falls below 1e-3)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulation")
+    p.add_argument("--json", action="store_true", help="print mean, ci95 ... as JSON")
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("replay", help="replay chapter 5's tables")
-    p.add_argument("--table", choices=["5.1", "5.2", "5.3", "5.4", "all"], default="all")
-    p.add_argument("--json", action="store_true")
+    p = _command(sub, "replay", "replay chapter 5's tables through our planner")
+    p.add_argument(
+        "--table", choices=["5.1", "5.2", "5.3", "5.4", "all"], default="all", help="which table"
+    )
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
     _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
     p.set_defaults(func=cmd_replay)
 
-    p = sub.add_parser("twin", help="the digital twin")
+    p = _command(sub, "twin", "the digital twin")
     twin_sub = p.add_subparsers(dest="twin_command", required=True)
-    q = twin_sub.add_parser("snapshot", help="camera view and top view with lidar, as PNG")
-    q.add_argument("--out", default="runs/snapshot")
+    q = _command(twin_sub, "snapshot", "camera view and top view with lidar, as PNG")
+    q.add_argument("--out", default="runs/snapshot", help="folder for the images")
     q.add_argument("--config", default=None, help="twin config YAML (default: built-in)")
-    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--seed", type=int, default=0, help="the twin's seed")
     q.set_defaults(func=cmd_twin_snapshot)
 
-    p = sub.add_parser("run", help="run a scenario through the ROS stack and write its report")
+    p = _command(sub, "run", "run a scenario through the ROS stack and write its report")
     p.add_argument("scenario", help="scenario file, e.g. scenarios/5.2.2.yaml")
     p.add_argument("--config", default=None, help="deployment file (default config/twin.yaml)")
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--out", default=None, help="run folder (default runs/<scenario>)")
     p.add_argument(
         "--observations",
@@ -453,9 +488,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=1800.0, help="wall-clock seconds")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser(
+    p = _command(
+        sub,
         "experiments",
-        help="run a folder of scenarios; metric table per scenario and totals, and a figure",
+        "run a folder of scenarios; metric table per scenario and totals, and a figure",
     )
     p.add_argument("scenarios", help="folder of scenario files (or one file), e.g. scenarios/guard")
     p.add_argument("--out", required=True, help="the set's folder, e.g. runs/guard")
@@ -472,46 +508,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heading", default="", help="heading for a new section (default: none)")
     p.set_defaults(func=cmd_experiments)
 
-    p = sub.add_parser(
-        "montecarlo",
-        help="the whole loop in-process (dm-control) over randomised walks and faults",
+    p = _command(
+        sub, "montecarlo", "the whole loop in-process (dm-control) over randomised walks and faults"
     )
     p.add_argument("task", type=Path, help="task file, e.g. config/task-r1.yaml")
-    p.add_argument("--episodes", type=int, default=12)
+    p.add_argument("--episodes", type=int, default=12, help="randomised episodes")
     p.add_argument("--workers", type=int, default=1, help="local processes (or Ray CPUs)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=Path("runs/montecarlo"))
+    p.add_argument("--seed", type=int, default=0, help="seed of the walks and faults")
+    p.add_argument("--out", type=Path, default=Path("runs/montecarlo"), help="results folder")
     p.add_argument("--ray", default=None, help="'local' or a Ray cluster address")
     p.add_argument("--config", type=Path, default=None, help="deployment file")
     p.add_argument("--p-fault", type=float, default=0.25, help="chance of a sensor outage")
     p.add_argument("--max-sim-s", type=float, default=60.0, help="episode length bound")
     p.set_defaults(func=cmd_montecarlo)
 
-    p = sub.add_parser("launch", help="start the whole system from a deployment file")
+    p = _command(sub, "launch", "start the whole system from a deployment file; Ctrl-C stops it")
     p.add_argument("config", help="config/twin.yaml or config/hardware.yaml")
     p.add_argument("--out", default="runs/launch", help="folder for logs and node files")
     p.set_defaults(func=cmd_launch)
 
-    p = sub.add_parser("calibrate", help="the ceiling camera's floor homography")
+    p = _command(sub, "calibrate", "the ceiling camera's floor homography")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--twin", help="twin config YAML ('default' for the built-in scene)")
     g.add_argument("--points", help="YAML of clicked/measured {pixel: [u, v], map: [x, y]}")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("-o", "--output", required=True, help="the calibration YAML to write")
     p.set_defaults(func=cmd_calibrate)
 
-    p = sub.add_parser("security", help="SROS2 for hardware mode (docs/SAFETY.md)")
+    p = _command(sub, "security", "SROS2 for hardware mode (docs/SAFETY.md)")
     sec = p.add_subparsers(dest="security_command", required=True)
-    q = sec.add_parser("keystore", help="write a keystore: CA, enclaves, governance, permissions")
+    q = _command(sec, "keystore", "write a keystore: CA, enclaves, governance, permissions")
     q.add_argument("path", help="a new or empty folder")
     q.add_argument("--domain", type=int, required=True, help="the deployment's ros.domain_id")
     q.add_argument("--base-topic", default="/cmd_vel", help="the base driver's velocity topic")
     q.set_defaults(func=cmd_security_keystore)
-    q = sec.add_parser("check", help="can the installed DDS enforce a keystore?")
+    q = _command(sec, "check", "can the installed DDS enforce a keystore?")
     q.set_defaults(func=cmd_security_check)
 
-    p = sub.add_parser("main", help="the main job: solve, replay chapter 5, write a report")
-    p.add_argument("--out", default="runs/main")
-    p.add_argument("--episodes", type=int, default=50)
+    p = _command(
+        sub,
+        "replay-report",
+        "solve both tasks, replay chapter 5's tables, simulate, write a report ('main' is an "
+        "older name for it)",
+        aliases=["main"],
+    )
+    p.add_argument("--out", default="runs/main", help="report folder")
+    p.add_argument("--episodes", type=int, default=50, help="simulated episodes per task")
     _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
     p.set_defaults(func=cmd_main)
     return ap

@@ -14,7 +14,8 @@ Sections (all optional except ``mode`` and ``task``)::
     ros: {domain_id: null, localhost_only: true}
     twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 25.0}
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
-    navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0}
+    navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0,
+                 drive: holonomic}        # or diff: the follower (and the twin's base)
     speech: {voice: en}
     planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
     nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
@@ -30,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
-from stack.config import from_mapping, read_yaml
+from stack.config import Config, read_yaml
 
 MODES = ("twin", "hardware")
 NAV_CMD_VEL = "/nav/cmd_vel"  # hardware mode: navigation -> gate; only the gate drives the base
@@ -38,7 +39,7 @@ TWIN_ONLY = ("twin", "lockstep")
 
 
 @dataclass(frozen=True)
-class RosSection:
+class RosSection(Config):
     """Who can hear the system.
 
     Attributes:
@@ -72,43 +73,47 @@ def _is_ipv4(text: str) -> bool:
 
 
 @dataclass(frozen=True)
-class TwinSection:
+class TwinSection(Config):
     scene: str = "twin-scene.yaml"
     seed: int = 0
     realtime: bool = False
     odom_rate_hz: float = 25.0
     stall_timeout_s: float = 30.0
 
-    def __post_init__(self) -> None:
-        if not self.odom_rate_hz > 0:
-            raise ConfigError("odom_rate_hz", self.odom_rate_hz, "must be > 0")
+    _rules = {
+        "odom_rate_hz": (lambda v: v > 0, "must be > 0"),
+        "stall_timeout_s": (lambda v: v > 0, "must be > 0"),
+    }
 
 
 @dataclass(frozen=True)
-class PerceptionSection:
+class PerceptionSection(Config):
     config: str = ""
     calibration: str = ""
 
 
 @dataclass(frozen=True)
-class NavigationSection:
+class NavigationSection(Config):
     config: str = ""
     pose_source: str = "odom"
     pose_topic: str = ""
     control_rate_hz: float = 20.0
+    drive: str = "holonomic"  # the base: holonomic (mecanum) or diff (differential drive)
 
     def __post_init__(self) -> None:
         if self.pose_source not in ("odom", "amcl"):
             raise ConfigError("pose_source", self.pose_source, "must be odom or amcl")
+        if self.drive not in ("holonomic", "diff"):
+            raise ConfigError("drive", self.drive, "must be holonomic or diff")
 
 
 @dataclass(frozen=True)
-class SpeechSection:
+class SpeechSection(Config):
     voice: str = "en"
 
 
 @dataclass(frozen=True)
-class PlannerSection:
+class PlannerSection(Config):
     max_steps: int = 0
     start_delay_s: float = 1.0
     nav_timeout_s: float = 60.0
@@ -123,14 +128,19 @@ class PlannerSection:
 
 
 @dataclass(frozen=True)
-class NodesSection:
+class NodesSection(Config):
     restart: bool = True
     max_restarts: int = 3
     stop_timeout_s: float = 5.0
 
+    _rules = {
+        "max_restarts": (lambda v: v >= 0, "must be >= 0"),
+        "stop_timeout_s": (lambda v: v > 0, "must be > 0"),
+    }
+
 
 @dataclass(frozen=True)
-class TopicsSection:
+class TopicsSection(Config):
     scan: str = "/scan"
     odom: str = "/odom"
     cmd_vel: str = "/cmd_vel"
@@ -208,7 +218,7 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
     hardware = data.get("hardware") or {}
     if not isinstance(hardware, Mapping):
         raise ConfigError("hardware", hardware, "must be a mapping")
-    sections = {name: from_mapping(cls, data.get(name), name) for name, cls in _SECTIONS.items()}
+    sections = {name: cls.from_dict(data.get(name), name) for name, cls in _SECTIONS.items()}
     dep = Deployment(
         mode=mode,
         task=Path(task),
@@ -236,8 +246,8 @@ def _check_hardware(dep: Deployment) -> None:
             raise ConfigError(
                 f"hardware.{k}", dep.hardware[k], f"unknown key (known: {sorted(known)})"
             )
-    StreamConfig.from_dict(dep.hardware.get("camera_stream"))
-    GateConfig.from_dict(dep.hardware.get("velocity_gate"))
+    StreamConfig.from_dict(dep.hardware.get("camera_stream"), "hardware.camera_stream")
+    GateConfig.from_dict(dep.hardware.get("velocity_gate"), "hardware.velocity_gate")
     if not isinstance(dep.hardware.get("armed", False), bool):
         raise ConfigError("hardware.armed", dep.hardware["armed"], "must be true or false")
     if not dep.perception.calibration:

@@ -26,6 +26,10 @@ Confidence intervals: the guarded-visit rate and the share of episodes with a fa
 trip are binomial (Wilson score interval); the mean delay and the false trips per
 episode are bootstrapped over episodes (2000 resamples, seeded), because visits of
 one episode are not independent.
+
+Just over 500 lines because the study is one unit: drawing episodes, running them on
+processes or Ray, and summarising them with their intervals and figure share the
+episode record's layout, which reads best in one place.
 """
 
 from __future__ import annotations
@@ -184,6 +188,8 @@ def run_episode(scenario: Scenario, out_dir: str, config_path: str | None, study
         "steps": summary["steps"],
         "n_visits": m["n_visits"],
         "guarded": m["guarded"],
+        "reachable": m.get("reachable", 0),
+        "guarded_reachable": m.get("guarded_reachable", 0),
         "abandoned": m["abandoned"],
         "delays_s": [v["delay_s"] for v in m["visits"] if v["delay_s"] is not None],
         "n_false_trips": m["n_false_trips"],
@@ -232,6 +238,9 @@ def summarise(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
     ok = [e for e in episodes if "error" not in e]
     visits = sum(e["n_visits"] for e in ok)
     guarded = sum(e["guarded"] for e in ok)
+    reachable = sum(e.get("reachable", 0) for e in ok)
+    guarded_reachable = sum(e.get("guarded_reachable", 0) for e in ok)
+    q_lo, q_hi = wilson(guarded_reachable, reachable)
     with_trip = sum(e["n_false_trips"] > 0 for e in ok)
     d_mean, d_lo, d_hi = bootstrap_mean([e["delays_s"] for e in ok], seed)
     t_mean, t_lo, t_hi = bootstrap_mean([[e["n_false_trips"]] for e in ok], seed + 1)
@@ -249,6 +258,10 @@ def summarise(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "abandoned": sum(e["abandoned"] for e in ok),
         "guarded_rate": r(guarded / visits) if visits else None,
         "guarded_rate_ci95": [r(r_lo), r(r_hi)],
+        "reachable": reachable,
+        "guarded_reachable": guarded_reachable,
+        "guarded_reachable_rate": r(guarded_reachable / reachable) if reachable else None,
+        "guarded_reachable_rate_ci95": [r(q_lo), r(q_hi)],
         "mean_delay_s": r(d_mean, 2),
         "mean_delay_ci95_s": [r(d_lo, 2), r(d_hi, 2)],
         "max_delay_s": r(max((d for e in ok for d in e["delays_s"]), default=None), 2),
@@ -268,6 +281,14 @@ def _ci(v: Sequence[float | None], fmt: str) -> str:
     return "-" if v[0] is None else f"[{fmt.format(v[0])}, {fmt.format(v[1])}]"
 
 
+def _pct(v: float | None) -> str:
+    return "-" if v is None else f"{100 * v:.0f} %"
+
+
+def _pct_ci(v: Sequence[float | None] | None) -> str:
+    return "-" if not v or v[0] is None else f"[{_pct(v[0])}, {_pct(v[1])}]"
+
+
 def summary_markdown(s: dict[str, Any], title: str) -> str:
     """The summary as a Markdown table."""
     rate = "-" if s["guarded_rate"] is None else f"{100 * s['guarded_rate']:.0f} %"
@@ -283,6 +304,9 @@ def summary_markdown(s: dict[str, Any], title: str) -> str:
         "|---|---|---|---|",
         f"| guarded-visit rate | {rate} | {rate_ci} | {s['guarded']} of {s['visits']} "
         "visits (Wilson) |",
+        f"| reachable visits guarded | {_pct(s.get('guarded_reachable_rate'))} | "
+        f"{_pct_ci(s.get('guarded_reachable_rate_ci95'))} | {s.get('guarded_reachable')} of "
+        f"{s.get('reachable')} visits an ideal guard at 0.5 m/s could reach (Wilson) |",
         f"| mean delay | {delay} | {_ci(s['mean_delay_ci95_s'], '{:.1f} s')} | guarded "
         f"visits, bootstrap over episodes; max {s['max_delay_s']} s |",
         f"| false trips per episode | {s['false_trips_per_episode']} | "

@@ -28,6 +28,21 @@ seed, and faults to inject. Waypoints are written in the terms the thesis uses::
 "door" is just inside the doorway, "outside" beyond it (the person is out of the
 room and out of the camera's view). Errors name the key and the rule
 (:class:`stack.cells.ConfigError`).
+
+Several people (issue 16): ``people:`` is a list of walks, each with its own
+``start`` and ``walk`` (the same keys as ``person:``); a file gives ``person:`` or
+``people:``, not both. ``belief`` is then every person's initial belief::
+
+    task: ../../config/task-r2-n2.yaml
+    people:
+      - {start: outside, walk: [{to: door}, {to: 1, speed_mps: 0.8, pause_s: 6}]}
+      - start: outside
+        walk:
+          - {to: door, speed_mps: 0.9}
+          - {to: 12, speed_mps: 0.8, pause_s: 6}
+
+Errors name the key as ``people[1].walk[0].to``. :attr:`Scenario.walkers` lists
+every person's walk; ``start`` and ``walk`` are the first person's.
 """
 
 from __future__ import annotations
@@ -56,6 +71,14 @@ class Leg:
 
 
 @dataclass(frozen=True)
+class Walker:
+    """One person's walk: where they start and the legs they walk."""
+
+    start: Any  # "door" | "outside" | int cell | (x, y)
+    walk: tuple[Leg, ...]
+
+
+@dataclass(frozen=True)
 class Fault:
     kind: str
     at_s: float = 0.0
@@ -80,35 +103,55 @@ class Scenario:
     faults: tuple[Fault, ...] = ()
     thesis_table: str = ""
     source: Path | None = None
+    others: tuple[Walker, ...] = ()  # the second, third, ... person (``people:``)
+
+    @property
+    def walkers(self) -> tuple[Walker, ...]:
+        """Every person's walk, the first (``start``, ``walk``) first."""
+        return (Walker(self.start, self.walk), *self.others)
+
+    def people_waypoints(
+        self, grid: CellGrid, door_m: tuple[float, float], inside_m: float = 0.8
+    ) -> list[list[dict[str, float]]]:
+        """Every person's walk as twin waypoints (see :meth:`person_waypoints`)."""
+        return [
+            _waypoints(w, grid, door_m, inside_m, "person" if not self.others else f"people[{i}]")
+            for i, w in enumerate(self.walkers)
+        ]
 
     def person_waypoints(
         self, grid: CellGrid, door_m: tuple[float, float], inside_m: float = 0.8
     ) -> list[dict[str, float]]:
-        """The walk as twin waypoints (``twin.config.Waypoint`` mappings).
+        """The (first) person's walk as twin waypoints (``twin.config.Waypoint`` mappings).
 
         Args:
             grid: the cell geometry.
             door_m: the doorway's centre on the north wall (twin SceneLayout.door_center_m).
             inside_m: how far inside the room "door" is (outside is 1.5 times that).
         """
+        return self.people_waypoints(grid, door_m, inside_m)[0]
 
-        def point(to: Any, key: str) -> tuple[float, float]:
-            if to == "door":
-                return door_m[0], door_m[1] - inside_m
-            if to == "outside":
-                return door_m[0], door_m[1] + 1.5 * inside_m
-            if isinstance(to, int):
-                if to not in grid.cells:
-                    raise ConfigError(key, to, f"not a cell of the grid {grid.cells}")
-                return grid.center(to)
-            return float(to[0]), float(to[1])
 
-        wps = [{"x_m": point(self.start, "person.start")[0], "y_m": point(self.start, "")[1]}]
-        wps[0]["pause_s"] = 0.0
-        for i, leg in enumerate(self.walk):
-            x, y = point(leg.to, f"person.walk[{i}].to")
-            wps.append({"x_m": x, "y_m": y, "speed_mps": leg.speed_mps, "pause_s": leg.pause_s})
-        return wps
+def _waypoints(
+    walker: Walker, grid: CellGrid, door_m: tuple[float, float], inside_m: float, key: str
+) -> list[dict[str, float]]:
+    def point(to: Any, key: str) -> tuple[float, float]:
+        if to == "door":
+            return door_m[0], door_m[1] - inside_m
+        if to == "outside":
+            return door_m[0], door_m[1] + 1.5 * inside_m
+        if isinstance(to, int):
+            if to not in grid.cells:
+                raise ConfigError(key, to, f"not a cell of the grid {grid.cells}")
+            return grid.center(to)
+        return float(to[0]), float(to[1])
+
+    x0, y0 = point(walker.start, f"{key}.start")
+    wps = [{"x_m": x0, "y_m": y0, "pause_s": 0.0}]
+    for i, leg in enumerate(walker.walk):
+        x, y = point(leg.to, f"{key}.walk[{i}].to")
+        wps.append({"x_m": x, "y_m": y, "speed_mps": leg.speed_mps, "pause_s": leg.pause_s})
+    return wps
 
 
 def _where(value: Any, key: str) -> Any:
@@ -150,8 +193,10 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
         ConfigError: naming the key, the value and the rule.
     """
     known = {"name", "title", "thesis_table", "task", "seed", "steps", "robot_cell"}
-    known |= {"belief", "person", "faults"}
+    known |= {"belief", "person", "people", "faults"}
     d = _check_keys(data, known, "scenario")
+    if "person" in d and "people" in d:
+        raise ConfigError("people", d["people"], "give either person (one) or people (a list)")
     for key in ("name", "task"):
         if not isinstance(d.get(key), str) or not d[key]:
             raise ConfigError(key, d.get(key), "must be a non-empty string")
@@ -175,19 +220,13 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
     direction = str(belief.get("direction", "not moving")).lower()
     if direction not in DIRECTIONS:
         raise ConfigError("belief.direction", direction, f"must be one of {DIRECTIONS}")
-    p = _check_keys(d.get("person", {}), {"start", "walk"}, "person")
-    start = _where(p.get("start", "outside"), "person.start")
-    walk = []
-    legs = p.get("walk", [])
-    if not isinstance(legs, list):
-        raise ConfigError("person.walk", legs, "must be a list of legs")
-    for i, leg in enumerate(legs):
-        key = f"person.walk[{i}]"
-        leg = _check_keys(leg, {"to", "speed_mps", "pause_s"}, key)
-        speed = _number(leg, "speed_mps", 1.0, key, 0.1)
-        if speed > 1.4:
-            raise ConfigError(f"{key}.speed_mps", speed, "must be in [0.1, 1.4] m/s")
-        walk.append(Leg(_where(leg.get("to"), f"{key}.to"), speed, _number(leg, "pause_s", 0, key)))
+    if "people" in d:
+        raw_people = d["people"]
+        if not isinstance(raw_people, list) or not raw_people:
+            raise ConfigError("people", raw_people, "must be a non-empty list of walks")
+        walkers = [_walker(w, f"people[{i}]") for i, w in enumerate(raw_people)]
+    else:
+        walkers = [_walker(d.get("person", {}), "person")]
     faults = []
     raw_faults = d.get("faults", []) or []
     if not isinstance(raw_faults, list):
@@ -226,12 +265,31 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
         robot_cell=ints["robot_cell"],
         belief_person=person,
         belief_direction=direction,
-        start=start,
-        walk=tuple(walk),
+        start=walkers[0].start,
+        walk=walkers[0].walk,
         faults=tuple(faults),
         thesis_table=str(d.get("thesis_table", "")),
         source=source,
+        others=tuple(walkers[1:]),
     )
+
+
+def _walker(data: Any, prefix: str) -> Walker:
+    """One ``person:`` mapping (or one entry of ``people:``), keys named from ``prefix``."""
+    p = _check_keys(data, {"start", "walk"}, prefix)
+    start = _where(p.get("start", "outside"), f"{prefix}.start")
+    walk = []
+    legs = p.get("walk", [])
+    if not isinstance(legs, list):
+        raise ConfigError(f"{prefix}.walk", legs, "must be a list of legs")
+    for i, leg in enumerate(legs):
+        key = f"{prefix}.walk[{i}]"
+        leg = _check_keys(leg, {"to", "speed_mps", "pause_s"}, key)
+        speed = _number(leg, "speed_mps", 1.0, key, 0.1)
+        if speed > 1.4:
+            raise ConfigError(f"{key}.speed_mps", speed, "must be in [0.1, 1.4] m/s")
+        walk.append(Leg(_where(leg.get("to"), f"{key}.to"), speed, _number(leg, "pause_s", 0, key)))
+    return Walker(start, tuple(walk))
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -45,6 +45,7 @@ MODULES = {
     "planner": "stack.planning.node_planner",
     "recorder": "vigil.node_recorder",
     "table_player": "vigil.node_table_player",
+    "markers": "vigil.node_markers",
 }
 
 
@@ -101,6 +102,8 @@ def prepare(
         stack_cfg.update(_read_yaml(extra))
     if grid_section:
         stack_cfg["grid"] = grid_section
+    # the base's drive: the follower steers for it (and the twin's base is built so)
+    stack_cfg["follower"] = {**stack_cfg.get("follower", {}), "drive": dep.navigation.drive}
     # speech warns in the task's restricted cells (not the node's default)
     restricted = list(task_data.get("restricted_cells", []))
     if restricted:
@@ -117,6 +120,7 @@ def prepare(
         scene = dict(scene.get("twin", scene))
         if grid_section:
             scene["grid"] = grid_section
+        scene["robot"] = {**scene.get("robot", {}), "drive": dep.navigation.drive}
         faults = scenario.faults if scenario else ()
         if scenario is not None:
             scene.setdefault("robot", {})
@@ -131,10 +135,7 @@ def prepare(
             from twin.scene import layout_of
 
             door_m = layout_of(TwinConfig.from_dict(scene)).door_center_m
-            scene["person"] = {
-                **scene.get("person", {}),
-                "waypoints": scenario.person_waypoints(grid, door_m),
-            }
+            scene.update(_scene_people(scene, scenario, grid, door_m))
         twin_file = run_dir / "twin.yaml"
         twin_file.write_text(yaml.safe_dump({"twin": scene}, sort_keys=False))
         twin_cfg = TwinConfig.from_dict(scene)
@@ -231,6 +232,9 @@ def prepare(
     names += ["recorder"]
     if twin_mode and dep.lockstep:
         params["twin_bridge"]["participants"] = [n for n in names if n != "twin_bridge"]
+    # the viewer's markers (RViz, Foxglove): no lock-step participant, it only draws
+    params["markers"] = {"task_file": str(task)}
+    names.append("markers")
     return _write(run_dir, names, params, dep, max_steps)
 
 
@@ -285,6 +289,27 @@ def _write(
     if dep.mode == "twin":
         env.setdefault("MUJOCO_GL", "egl")
     return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
+
+
+def _scene_people(
+    scene: dict[str, Any], scenario: Scenario, grid: CellGrid, door_m: tuple[float, float]
+) -> dict[str, Any]:
+    """The twin scene's ``person`` (one walker) or ``people`` (several) for a scenario.
+
+    Every walker takes the scene file's person section (``person``, or the first of
+    ``people``) with its own waypoints; walkers after the first drop its clothes so
+    that the twin dresses them apart (``twin.config.walker_config``).
+    """
+    listed = scene.pop("people", None)
+    base = dict(scene.pop("person", None) or (listed[0] if listed else {}))
+    base.pop("waypoints", None)
+    walks = scenario.people_waypoints(grid, door_m)
+    if len(walks) == 1:
+        return {"person": {**base, "waypoints": walks[0]}}
+    plain = {k: v for k, v in base.items() if k not in ("shirt_rgb", "trousers_rgb")}
+    return {
+        "people": [{**(base if i == 0 else plain), "waypoints": w} for i, w in enumerate(walks)]
+    }
 
 
 def _calibrate_twin(twin_cfg, path: Path, say) -> None:

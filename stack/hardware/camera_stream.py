@@ -41,14 +41,16 @@ import cv2
 import numpy as np
 
 from stack.cells import ConfigError
-from stack.hardware._config import from_dict, positive
+from stack.config import Config
 
 
 @dataclass(frozen=True)
-class StreamConfig:
+class StreamConfig(Config):
     """Where the frames come from and how they are read (see the module docstring)."""
 
-    url: str
+    section = "camera_stream"  # errors name keys "camera_stream.<field>"
+
+    url: str = ""  # required: a URL, a device index ("0") or a file
     rate_hz: float = 10.0
     width_px: int = 0
     height_px: int = 0
@@ -56,24 +58,22 @@ class StreamConfig:
     frozen_after_frames: int = 20
     open_timeout_s: float = 5.0
 
-    def __post_init__(self) -> None:
-        p = "camera_stream"
-        if not isinstance(self.url, str) or not self.url.strip():
-            raise ConfigError(f"{p}.url", self.url, "must name a URL, a device index or a file")
-        for name in ("rate_hz", "reconnect_s", "open_timeout_s"):
-            positive(f"{p}.{name}", getattr(self, name))
-        for name in ("width_px", "height_px"):
-            if getattr(self, name) < 0:
-                raise ConfigError(f"{p}.{name}", getattr(self, name), "must be >= 0")
+    _rules = {
+        "url": (lambda u: bool(u.strip()), "must name a URL, a device index or a file"),
+        "rate_hz": (lambda v: v > 0, "must be > 0"),
+        "reconnect_s": (lambda v: v > 0, "must be > 0"),
+        "open_timeout_s": (lambda v: v > 0, "must be > 0"),
+        "width_px": (lambda v: v >= 0, "must be >= 0"),
+        "height_px": (lambda v: v >= 0, "must be >= 0"),
+        "frozen_after_frames": (lambda v: v == 0 or v >= 2, "must be 0 (off) or >= 2"),
+    }
+
+    def check(self) -> None:
         if (self.width_px == 0) != (self.height_px == 0):
             raise ConfigError(
-                f"{p}.width_px",
+                "width_px",
                 (self.width_px, self.height_px),
                 "width_px and height_px are both 0 (as delivered) or both > 0",
-            )
-        if self.frozen_after_frames != 0 and self.frozen_after_frames < 2:
-            raise ConfigError(
-                f"{p}.frozen_after_frames", self.frozen_after_frames, "must be 0 (off) or >= 2"
             )
 
     @property
@@ -81,17 +81,6 @@ class StreamConfig:
         """What VideoCapture opens: an int for a device index, else the URL or path."""
         u = self.url.strip()
         return int(u) if u.isdigit() else u
-
-    @classmethod
-    def from_dict(
-        cls, data: Mapping[str, Any] | None, prefix: str = "camera_stream"
-    ) -> StreamConfig:
-        """Validate a mapping (the ``camera_stream`` section of a YAML file).
-
-        Raises:
-            stack.cells.ConfigError: unknown or missing key, wrong type, value out of range.
-        """
-        return from_dict(cls, data, prefix)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
-from stack.hardware._config import coerce, read_section
+from stack.cells import ConfigError
+from stack.config import read_section
 from stack.hardware.camera_stream import (
     CameraCalibration,
     CameraStream,
@@ -54,12 +55,17 @@ class CameraStreamNode(Node):
         p = self.declare_parameter
         config_file = p("config_file", "").value
         section = read_section(config_file, "camera_stream")
-        values = {}
-        for f in dataclasses.fields(StreamConfig):
-            default = "" if f.default is dataclasses.MISSING else f.default
-            start = coerce(f"camera_stream.{f.name}", section.get(f.name, default), default)
-            values[f.name] = p(f.name, start).value
-        self.config = StreamConfig.from_dict(values)
+        # the file's values, checked, are the parameters' defaults (the url may be given
+        # as a parameter only); the parameters are checked again
+        url = section.get("url", "")
+        if not isinstance(url, str):
+            raise ConfigError("camera_stream.url", url, "must be a string")
+        start = StreamConfig.from_dict({**section, "url": url or "-"}, "camera_stream")
+        values = {
+            f.name: p(f.name, url if f.name == "url" else getattr(start, f.name)).value
+            for f in dataclasses.fields(StreamConfig)
+        }
+        self.config = StreamConfig.from_dict(values, "camera_stream")
         self.frame_id = p("frame_id", "axis_camera").value
         info_file = p("camera_info_file", "").value
         image_topic = p("image_topic", "/camera/image_raw").value

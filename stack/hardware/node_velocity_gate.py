@@ -47,7 +47,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 
 from stack.cells import ConfigError
-from stack.hardware._config import coerce, read_section
+from stack.config import read_section
 from stack.hardware.velocity_gate import CAPPED, OK, ZERO, GateConfig, VelocityGate
 from stack.ros_main import spin_node
 
@@ -69,11 +69,12 @@ class VelocityGateNode(Node):
         config_file = p("config_file", "").value
         section = read_section(config_file, "velocity_gate")
         read_only = ParameterDescriptor(read_only=True)
-        values = {}
-        for f in dataclasses.fields(GateConfig):
-            start = coerce(f"velocity_gate.{f.name}", section.get(f.name, f.default), f.default)
-            values[f.name] = p(f.name, start, read_only).value
-        self.config = GateConfig.from_dict(values)
+        start = GateConfig.from_dict(section, "velocity_gate")  # the file, checked
+        values = {
+            f.name: p(f.name, getattr(start, f.name), read_only).value
+            for f in dataclasses.fields(GateConfig)
+        }
+        self.config = GateConfig.from_dict(values, "velocity_gate")  # parameters, checked
         rate_hz = p("rate_hz", 20.0).value
         if not rate_hz > 0:
             raise ConfigError("rate_hz", rate_hz, "must be > 0")

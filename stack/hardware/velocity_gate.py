@@ -34,12 +34,10 @@ by a speed cap or the acceleration limit) and ``"ok"`` (forwarded as given).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from stack.cells import ConfigError
-from stack.hardware._config import from_dict, positive
+from stack.config import Config
 
 ZERO = (0.0, 0.0, 0.0)
 NOT_ARMED = "not armed"
@@ -65,8 +63,10 @@ PLATFORM = PlatformLimits()
 
 
 @dataclass(frozen=True)
-class GateConfig:
+class GateConfig(Config):
     """Caps and timeout of the gate. Body frame: x forward, y left, z up (REP 103)."""
+
+    section = "velocity_gate"  # errors name keys "velocity_gate.<field>"
 
     max_linear_mps: float = 0.3
     max_angular_radps: float = 0.6
@@ -75,7 +75,7 @@ class GateConfig:
     max_angular_accel_radps2: float = 1.5
     require_arming: bool = True
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         bounds = {
             "max_linear_mps": PLATFORM.max_linear_mps,
             "max_angular_radps": PLATFORM.max_angular_radps,
@@ -85,20 +85,10 @@ class GateConfig:
         }
         for name, bound in bounds.items():
             value = getattr(self, name)
-            positive(f"velocity_gate.{name}", value)
+            if not value > 0:
+                raise ConfigError(name, value, "must be > 0")
             if value > bound:
-                raise ConfigError(
-                    f"velocity_gate.{name}", value, f"exceeds the platform's limit {bound:g}"
-                )
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "velocity_gate") -> GateConfig:
-        """Validate a mapping (the ``velocity_gate`` section of a YAML file).
-
-        Raises:
-            stack.cells.ConfigError: unknown key, wrong type or a value out of range.
-        """
-        return from_dict(cls, data, prefix)
+                raise ConfigError(name, value, f"exceeds the platform's limit {bound:g}")
 
 
 @dataclass(frozen=True)

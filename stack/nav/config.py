@@ -8,12 +8,11 @@ is :class:`stack.cells.ConfigError` naming the key, the value and the rule.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from stack.cells import ConfigError
-from stack.config import Config, from_mapping, read_yaml
+from stack.config import Config, read_yaml
 
 T = TypeVar("T")
 
@@ -32,12 +31,20 @@ def _non_negative(obj: Any, *names: str) -> None:
             raise ConfigError(name, v, "must be a finite number >= 0")
 
 
+DRIVES = ("holonomic", "diff")
+
+
 @dataclass(frozen=True)
 class FollowerConfig(Config):
-    """Limits and gains of the holonomic path follower (mecanum base).
+    """Limits and gains of the path follower.
 
-    Body frame: x forward, y left, z up (REP 103).
+    ``drive`` picks the base: ``holonomic`` (the MBot's mecanum wheels: any planar
+    direction, heading held) or ``diff`` (differential drive: forward speed and yaw
+    rate only; the robot turns towards the carrot, in place when it points more than
+    ``turn_in_place_rad`` away). Body frame: x forward, y left, z up (REP 103).
     """
+
+    section = "follower"  # errors name keys "follower.<field>"
 
     max_vx_mps: float = 0.5  # forward/backward speed limit [m/s]
     max_vy_mps: float = 0.4  # lateral speed limit; a mecanum base moves sideways [m/s]
@@ -66,6 +73,15 @@ class FollowerConfig(Config):
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
     unknown_is_occupied: bool = True
+    drive: str = "holonomic"  # holonomic (mecanum) or diff (differential drive)
+    turn_gain_per_s: float = 2.5  # diff: yaw rate = gain * heading error [1/s]
+    turn_in_place_rad: float = 0.8  # diff: heading errors beyond this turn on the spot [rad]
+
+    _rules = {
+        "drive": (lambda v: v in DRIVES, f"must be one of {DRIVES}"),
+        "turn_in_place_rad": (lambda v: 0 < v <= math.pi / 2, "must be in (0, pi/2] rad"),
+        "turn_gain_per_s": (lambda v: v > 0, "must be > 0"),
+    }
 
     def check(self) -> None:
         """Check every value.
@@ -105,15 +121,6 @@ class FollowerConfig(Config):
     def inflation_radius_m(self) -> float:
         return self.robot_radius_m + self.inflation_margin_m
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "follower") -> FollowerConfig:
-        """Validate a mapping (e.g. the ``follower`` section of a YAML file).
-
-        Raises:
-            ConfigError: unknown key, wrong type or a value out of range.
-        """
-        return from_mapping(cls, data, prefix)
-
 
 SPEECH_POLICIES = ("queue", "replace")
 DEFAULT_WARNINGS = {
@@ -125,6 +132,8 @@ DEFAULT_WARNINGS = {
 @dataclass(frozen=True)
 class SpeechConfig(Config):
     """The warning and how it is spoken (thesis 4.4: eSpeak)."""
+
+    section = "speech"  # errors name keys "speech.<field>"
 
     voice: str = "en"  # espeak-ng voice: "en" (default) or "pt" (Portuguese)
     warning_text: str = ""  # empty: the built-in warning for the voice's language (en, pt)
@@ -186,15 +195,6 @@ class SpeechConfig(Config):
     def warning(self) -> str:
         """The text to say: ``warning_text``, or the built-in one for the language."""
         return self.warning_text.strip() or DEFAULT_WARNINGS[self.language]
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, prefix: str = "speech") -> SpeechConfig:
-        """Validate a mapping (e.g. the ``speech`` section of a YAML file).
-
-        Raises:
-            ConfigError: unknown key, wrong type or a value out of range.
-        """
-        return from_mapping(cls, data, prefix)
 
 
 def read_node_config(path: str, section: str, klass):

@@ -1,9 +1,12 @@
-"""Holonomic path following to a goal point, with replanning around people.
+"""Path following to a goal point, holonomic or differential drive, with replanning
+around people.
 
 The mecanum base moves in any planar direction without turning, so the follower steers
 a velocity vector straight at a carrot point ``lookahead_m`` ahead on the A* path and
 turns that map-frame velocity into body-frame (vx, vy); the yaw rate only holds the
-heading the robot had when the task began. The orientation is ignored at the goal
+heading the robot had when the task began. A differential-drive base
+(``drive: diff``) turns towards the carrot instead (on the spot beyond
+``turn_in_place_rad``) and drives forward only. The orientation is ignored at the goal
 (thesis 4.4): the task succeeds once the position is within ``goal_tolerance_m``.
 
 Long-running tasks report, they do not raise (nav2 ``TaskResult``): every call to
@@ -128,6 +131,8 @@ def cap_twist(cmd: Twist2D, config: FollowerConfig) -> Twist2D:
     vx, vy, wz = cmd.vx_mps, cmd.vy_mps, cmd.wz_radps
     if not (math.isfinite(vx) and math.isfinite(vy)):
         vx = vy = 0.0
+    if config.drive == "diff":
+        vy = 0.0  # a differential base cannot move sideways
     if not math.isfinite(wz):
         wz = 0.0
     scale = 1.0
@@ -502,6 +507,13 @@ class PathFollower:
             math.sqrt(2.0 * cfg.decel_mps2 * max(dist, 0.0)),
             cfg.approach_gain_per_s * dist,
         )
+        if cfg.drive == "diff":
+            # turn towards the carrot, on the spot when it lies far off the heading;
+            # forward speed falls with the heading error (cos), never backwards
+            err = _wrap(math.atan2(d[1], d[0]) - pose.yaw_rad)
+            wz = cfg.turn_gain_per_s * err
+            vx = speed * math.cos(err) if abs(err) < cfg.turn_in_place_rad else 0.0
+            return Twist2D(float(vx), 0.0, float(wz)), dist
         vw = d / norm * speed
         c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
         vx, vy = c * vw[0] + s * vw[1], -s * vw[0] + c * vw[1]

@@ -34,6 +34,8 @@ import numpy as np
 import yaml
 from scipy import ndimage
 
+from stack.config import read_text_capped
+
 FREE = 0
 OCCUPIED = 100
 UNKNOWN = -1
@@ -120,6 +122,11 @@ class OccupancyMap:
         h, w = self.shape
         return 0 <= row < h and 0 <= col < w
 
+    def value_at(self, x: float, y: float) -> int:
+        """Occupancy value at map point (x, y); UNKNOWN outside the map."""
+        row, col = self.world_to_cell(x, y)
+        return int(self.data[row, col]) if self.contains(row, col) else UNKNOWN
+
     def with_data(self, data: np.ndarray) -> OccupancyMap:
         """The same placement with other cell values (same shape)."""
         if np.shape(data) != self.shape:
@@ -191,9 +198,11 @@ def load_map_yaml(path: str | FsPath) -> OccupancyMap:
     """
     path = FsPath(path)
     try:
-        meta = yaml.safe_load(path.read_text())
+        meta = yaml.safe_load(read_text_capped(path))
     except OSError as exc:
         raise MapError(f"{path}: cannot read map YAML: {exc.strerror or exc}") from exc
+    except ValueError as exc:  # too long, not UTF-8
+        raise MapError(f"{path}: {exc}") from exc
     except yaml.YAMLError as exc:
         raise MapError(f"{path}: not valid YAML: {exc}") from exc
     meta_dict = _parse_meta(path, meta)
@@ -212,17 +221,27 @@ def load_map_yaml(path: str | FsPath) -> OccupancyMap:
     return OccupancyMap(data, meta_dict["resolution"], (origin[0], origin[1]))
 
 
-def save_map_yaml(occ_map: OccupancyMap, yaml_path: str | FsPath) -> FsPath:
+def save_map_yaml(
+    occ_map: OccupancyMap,
+    yaml_path: str | FsPath,
+    occupied_thresh: float = 0.65,
+    free_thresh: float = 0.196,
+) -> FsPath:
     """Write a map as map_server YAML + binary PGM (trinary, negate 0) beside it.
 
     Args:
         occ_map: the map.
-        yaml_path: where the YAML goes; the image takes the same stem with ``.pgm``.
+        yaml_path: where the YAML goes (its folder is created); the image takes the
+            same stem with ``.pgm``.
+        occupied_thresh, free_thresh: the thresholds recorded for readers (the
+            default free threshold is map_saver's: grey 205, p = 0.19607, reads back
+            as unknown).
 
     Returns:
         The YAML path.
     """
     yaml_path = FsPath(yaml_path)
+    yaml_path.parent.mkdir(parents=True, exist_ok=True)
     pgm = yaml_path.with_suffix(".pgm")
     img = np.full(occ_map.shape, 205, dtype=np.uint8)  # map_saver's grey for unknown
     img[occ_map.data == FREE] = 254
@@ -235,8 +254,8 @@ def save_map_yaml(occ_map: OccupancyMap, yaml_path: str | FsPath) -> FsPath:
         "resolution": occ_map.resolution_m,
         "origin": [occ_map.origin_m[0], occ_map.origin_m[1], 0.0],
         "negate": 0,
-        "occupied_thresh": 0.65,
-        "free_thresh": 0.196,  # map_saver's: grey 205 (p = 0.19607) reads back as unknown
+        "occupied_thresh": float(occupied_thresh),
+        "free_thresh": float(free_thresh),
         "mode": "trinary",
     }
     yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))

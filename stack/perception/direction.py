@@ -17,13 +17,11 @@ consecutive-frame rule.
 from __future__ import annotations
 
 import collections
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from stack.cells import Direction
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 
 
 @dataclass(frozen=True)
@@ -35,6 +33,8 @@ class DirectionConfig(Config):
         consecutive frames.
     """
 
+    section = "direction"  # errors name keys "direction.<field>"
+
     jitter_threshold_m: float = 0.1
     window_s: float = 0.5
 
@@ -42,11 +42,6 @@ class DirectionConfig(Config):
         require(self.jitter_threshold_m >= 0.0, "jitter_threshold_m", self.jitter_threshold_m,
                 "must be >= 0")  # fmt: skip
         require(self.window_s >= 0.0, "window_s", self.window_s, "must be >= 0")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "direction") -> DirectionConfig:
-        """Validate a mapping into a DirectionConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 def classify_displacement(dx_m: float, dy_m: float, threshold_m: float) -> Direction:

@@ -15,7 +15,6 @@ cost. ``downscale`` and ``roi_px`` in :class:`HogConfig` are the levers.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,7 +22,7 @@ import cv2
 import numpy as np
 
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.errors import BadFrameError
 
 HOG_WINDOW_PX = (64, 128)  # (width, height) of the default people detector's window
@@ -45,6 +44,8 @@ class HogConfig(Config):
             None searches the whole frame.
         threads: OpenCV worker threads (0 leaves OpenCV's default).
     """
+
+    section = "hog"  # errors name keys "hog.<field>"
 
     win_stride_px: tuple[int, int] = (8, 8)
     padding_px: tuple[int, int] = (8, 8)
@@ -71,11 +72,6 @@ class HogConfig(Config):
             require(x >= 0 and y >= 0 and w > 0 and h > 0, "roi_px", self.roi_px,
                     "needs x, y >= 0 and width, height > 0")  # fmt: skip
         require(self.threads >= 0, "threads", self.threads, "must be >= 0")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "hog") -> HogConfig:
-        """Validate a mapping (one YAML section) into a HogConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 @dataclass(frozen=True)
@@ -117,6 +113,8 @@ class FootConfig(Config):
             a larger move means the mask is wrong (shadow, second person) and is ignored.
     """
 
+    section = "foot"  # errors name keys "foot.<field>"
+
     bottom_shrink_frac: float = 0.16
     use_foreground: bool = True
     search_width_frac: float = 0.6
@@ -134,11 +132,6 @@ class FootConfig(Config):
         require(self.min_foreground_px >= 1, "min_foreground_px", self.min_foreground_px,
                 "must be >= 1")  # fmt: skip
         require(self.max_refine_frac > 0.0, "max_refine_frac", self.max_refine_frac, "must be > 0")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "foot") -> FootConfig:
-        """Validate a mapping into a FootConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 def validate_frame(image: Any, black_max_level: float = 3.0) -> np.ndarray:
@@ -251,6 +244,61 @@ class HogPeopleDetector:
             )
         boxes.sort(key=lambda b: -b.weight)
         return tuple(boxes)
+
+    def detect_people(
+        self,
+        image: np.ndarray,
+        roi_px: tuple[int, int, int, int] | None = None,
+        iou_threshold: float = 0.4,
+        containment_frac: float = 0.8,
+    ) -> tuple[PersonBox, ...]:
+        """Every person in a frame, one box each: :meth:`detect` then
+        :func:`non_max_suppression` (issue 16: several people at once)."""
+        return non_max_suppression(self.detect(image, roi_px), iou_threshold, containment_frac)
+
+
+def box_overlap(a: PersonBox, b: PersonBox) -> tuple[float, float]:
+    """(intersection over union, intersection over the smaller box) of two boxes."""
+    w = min(a.x + a.width, b.x + b.width) - max(a.x, b.x)
+    h = min(a.y + a.height, b.y + b.height) - max(a.y, b.y)
+    if w <= 0 or h <= 0:
+        return 0.0, 0.0
+    inter = float(w * h)
+    area_a, area_b = a.width * a.height, b.width * b.height
+    return inter / (area_a + area_b - inter), inter / min(area_a, area_b)
+
+
+def non_max_suppression(
+    boxes: tuple[PersonBox, ...] | list[PersonBox],
+    iou_threshold: float = 0.4,
+    containment_frac: float = 0.8,
+) -> tuple[PersonBox, ...]:
+    """All the people of a frame, one box each (greedy non-maximum suppression).
+
+    OpenCV's grouping (``group_threshold``) merges near-identical windows, but a person
+    still often gets two boxes: at two pyramid scales, or a full-body box and one
+    around the upper body. Boxes are taken strongest first; a box overlapping a kept
+    one by more than ``iou_threshold`` (intersection over union) or lying inside it by
+    ``containment_frac`` of the smaller box is the same person and dropped. Two
+    people side by side overlap little and are both kept; people passing each other
+    in the image overlap more and merge (the tracker coasts through that).
+
+    Args:
+        boxes: the frame's detections, any order.
+        iou_threshold: largest IoU of two kept boxes (0-1).
+        containment_frac: largest share of the smaller box inside a kept one (0-1].
+
+    Returns:
+        The kept boxes, strongest first.
+    """
+    kept: list[PersonBox] = []
+    for box in sorted(boxes, key=lambda b: -b.weight):
+        if all(
+            iou <= iou_threshold and inside <= containment_frac
+            for iou, inside in (box_overlap(box, k) for k in kept)
+        ):
+            kept.append(box)
+    return tuple(kept)
 
 
 def foot_point(

@@ -17,16 +17,14 @@ scans, so leg positions are transformed with the robot's pose before tracking.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
 
 from stack.config import Config
 from stack.geometry import Pose2D
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.errors import BadScanError
 
 
@@ -104,6 +102,8 @@ class LegConfig(Config):
         static obstacles are dropped.
     """
 
+    section = "legs"  # errors name keys "legs.<field>"
+
     expected_beams: int | None = None
     max_range_m: float = 6.0
     breakpoint_lambda_deg: float = 10.0
@@ -138,11 +138,6 @@ class LegConfig(Config):
                 self.obstacle_clearance_m, "must be >= 0")  # fmt: skip
         require(0 < self.obstacle_fraction <= 1, "obstacle_fraction", self.obstacle_fraction,
                 "must be in (0, 1]")  # fmt: skip
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "legs") -> LegConfig:
-        """Validate a mapping into a LegConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 class StaticMap:

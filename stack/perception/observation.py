@@ -49,7 +49,7 @@ from typing import Any
 
 from stack.cells import CellGrid, Direction
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
 from stack.perception.tracker import TrackEstimate, nearest_track
@@ -110,6 +110,10 @@ class Observation:
         source: what saw the person: "camera", "laser", "fused", or "none".
         hidden: (cell, fraction) for every cell the camera could not see, wholly or
             in part, at this step; all cells at 1.0 when the camera saw nothing.
+        blind: the camera could not look at all (no frame, stale, failed): with no
+            person from the laser the label is "Unseen", never "No person". A cell
+            wholly hidden behind the robot while the camera sees the rest is not
+            blindness: that is "No person" with the cell in ``hidden``.
     """
 
     stamp_s: float
@@ -121,6 +125,7 @@ class Observation:
     speed_mps: float | None = None
     source: str = "camera"
     hidden: tuple[tuple[int, float], ...] = ()
+    blind: bool = False
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -139,10 +144,8 @@ class Observation:
 
     @property
     def unseen(self) -> bool:
-        """No person seen and the camera could not look anywhere."""
-        return (
-            self.person_cell is None and bool(self.hidden) and all(f >= 1.0 for _, f in self.hidden)
-        )
+        """No person seen and the camera could not look at all."""
+        return self.person_cell is None and self.blind
 
     @property
     def velocity_label(self) -> str:
@@ -184,7 +187,10 @@ class Observation:
         robot_cell = None if robot == OUT_OF_MAP else _cell_label(robot, "robot")
         person_cell = None if person in (NO_PERSON, UNSEEN) else _cell_label(person, "person")
         if velocity == NOT_MOVING:
-            return cls(stamp_s, person_cell, Direction.NOT_MOVING, None, robot_cell)
+            return cls(
+                stamp_s, person_cell, Direction.NOT_MOVING, None, robot_cell,
+                blind=person == UNSEEN,
+            )  # fmt: skip
         parts = velocity.split(" ")
         directions = {d.label: d for d in Direction if d is not Direction.NOT_MOVING}
         speeds = {s.label: s for s in SpeedClass}
@@ -209,7 +215,7 @@ class Observation:
             obs.stamp_s, obs.person_cell, obs.direction, obs.speed, obs.robot_cell,
             None if pos is None else (float(pos[0]), float(pos[1])),
             None if speed is None else float(speed),
-            str(data.get("source", "camera")), hidden,
+            str(data.get("source", "camera")), hidden, obs.blind,
         )  # fmt: skip
 
 
@@ -237,6 +243,8 @@ class CombinerConfig(Config):
     last_seen_memory_s: how long the place the person was last seen is remembered [s].
     """
 
+    section = "observations"  # errors name keys "observations.<field>"
+
     speed_thresholds_mps: tuple[float, float] = (0.2, 0.7)
     association_gate_m: float = 1.0
     max_camera_age_s: float = 2.0
@@ -259,11 +267,6 @@ class CombinerConfig(Config):
                 "must be in [0, 1) m")  # fmt: skip
         require(0 < self.laser_only_min_hidden <= 1, "laser_only_min_hidden",
                 self.laser_only_min_hidden, "must be in (0, 1]")  # fmt: skip
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "observations") -> CombinerConfig:
-        """Validate a mapping into a CombinerConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 def direction_of_velocity(vx: float, vy: float, still_below_mps: float) -> Direction:
@@ -378,7 +381,7 @@ class ObservationCombiner:
             return laser
         return Observation(
             stamp_s, None, Direction.NOT_MOVING, None, robot_cell,
-            source="none", hidden=tuple(sorted(hidden.items())),
+            source="none", hidden=tuple(sorted(hidden.items())), blind=not camera_sees,
         )  # fmt: skip
 
     def _camera_person(

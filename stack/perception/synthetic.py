@@ -165,6 +165,59 @@ def render_person_frame(
     return cv2.GaussianBlur(img, (3, 3), 0)
 
 
+def render_people_frame(
+    camera: PinholeCamera,
+    people_xy_m: Sequence[tuple[float, float]],
+    rng: np.random.Generator,
+    person_height_m: float = 1.75,
+    background: np.ndarray | None = None,
+) -> np.ndarray:
+    """A frame with several people standing at map points (issue 16).
+
+    People are drawn farthest first, so a nearer person hides a farther one as in
+    a real image.
+
+    Args:
+        camera: the camera.
+        people_xy_m: where each person's feet are on the map [m].
+        rng: noise source.
+        person_height_m: everyone's height [m].
+        background: the empty frame to draw on (a fresh one when None).
+
+    Returns:
+        A BGR uint8 frame.
+    """
+    img = background_frame(camera, rng) if background is None else background.copy()
+    cam = np.asarray(camera.position_m[:2])
+    order = sorted(people_xy_m, key=lambda p: -float(np.hypot(*(np.asarray(p) - cam))))
+    for x, y in order:
+        foot, head = camera.project(np.array([[x, y, 0.0], [x, y, person_height_m]]))
+        if np.all(np.isfinite(foot)) and np.all(np.isfinite(head)):
+            draw_person(img, (foot[0], foot[1]), foot[1] - head[1])
+    return cv2.GaussianBlur(img, (3, 3), 0)
+
+
+def crossing_paths(
+    t_s: float,
+    center_m: tuple[float, float] = (1.5, 1.5),
+    half_length_m: float = 1.2,
+    speed_mps: float = 0.8,
+    lateral_m: float = 0.0,
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Two people crossing: one walks north, the other south, along x = centre.
+
+    At ``t_s = 0`` they are ``half_length_m`` either side of ``center_m``; they meet
+    there at ``half_length_m / speed_mps`` and walk on. ``lateral_m`` puts them that
+    far apart across the walk (0: straight through each other).
+
+    Returns:
+        ((x, y) of the north-walker, (x, y) of the south-walker) [m].
+    """
+    cx, cy = center_m
+    d = speed_mps * t_s - half_length_m
+    return (cx - lateral_m / 2.0, cy + d), (cx + lateral_m / 2.0, cy - d)
+
+
 def walking_legs(
     center_m: tuple[float, float],
     heading_rad: float,

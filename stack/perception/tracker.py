@@ -15,14 +15,14 @@ Association is greedy nearest-neighbour within a gate; a track is confirmed afte
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.errors import BadScanError
 
 
@@ -46,6 +46,8 @@ class TrackerConfig(Config):
     max_coast_s: a track without an update for longer is dropped [s].
     """
 
+    section = "tracker"  # errors name keys "tracker.<field>"
+
     accel_noise_mps2: float = 0.35
     measurement_sigma_m: float = 0.08
     single_leg_sigma_m: float = 0.3
@@ -65,11 +67,6 @@ class TrackerConfig(Config):
         require(self.gate_m > 0, "gate_m", self.gate_m, "must be > 0")
         require(self.min_hits >= 1, "min_hits", self.min_hits, "must be >= 1")
         require(self.max_coast_s > 0, "max_coast_s", self.max_coast_s, "must be > 0")
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "tracker") -> TrackerConfig:
-        """Validate a mapping into a TrackerConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 @dataclass(frozen=True)

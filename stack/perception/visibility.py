@@ -29,16 +29,14 @@ Pure: numpy and OpenCV only.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
 
 from stack.cells import CellGrid
 from stack.config import Config
-from stack.perception._config import from_mapping, require
+from stack.perception._config import require
 from stack.perception.homography import FloorHomography
 from stack.perception.legs import Pose2D
 
@@ -66,6 +64,8 @@ class VisibilityConfig(Config):
     raster_scale: the image is rasterised at this fraction of its size.
     robot_boxes: the robot's body as boxes (x0, x1, y0, y1, z0, z1) in its base frame [m].
     """
+
+    section = "visibility"  # errors name keys "visibility.<field>"
 
     person_height_m: float = 1.7
     person_half_width_m: float = 0.25
@@ -95,11 +95,6 @@ class VisibilityConfig(Config):
                 len(b) == 6 and b[0] < b[1] and b[2] < b[3] and b[4] < b[5],
                 "robot_boxes", b, "each box is (x0, x1, y0, y1, z0, z1) with x0 < x1 etc.",
             )  # fmt: skip
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, key: str = "visibility") -> VisibilityConfig:
-        """Validate a mapping into a VisibilityConfig; raises ConfigError."""
-        return from_mapping(cls, data, key)
 
 
 @dataclass(frozen=True)

@@ -310,7 +310,7 @@ class MixedSearch:
         self.trials = 0
         self.history: list[SearchStats] = []
         self._last_report = -math.inf
-        self.roots = []
+        self.roots: list[_Node] = []
         for b in roots:
             x, by = m.split(b)
             node = self._node(x, by)

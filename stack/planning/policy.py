@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import json
 import os
+import tokenize
 import xml.etree.ElementTree as ET
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -14,6 +17,21 @@ import numpy as np
 
 class PolicyFileError(ValueError):
     """A policy file that cannot be read or does not fit the model."""
+
+
+# what numpy's reader of a truncated or mutated .npz raises: zip-level errors, zlib's,
+# the .npy header parser's (tokenize, ast) and a zip feature it does not implement
+CORRUPT_ARCHIVE_ERRORS = (
+    OSError,
+    KeyError,
+    ValueError,
+    EOFError,
+    zipfile.BadZipFile,
+    zlib.error,
+    NotImplementedError,
+    SyntaxError,
+    tokenize.TokenError,
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,8 +132,10 @@ class AlphaPolicy:
                 meta = json.loads(str(data["meta"])) if "meta" in data else {}
         except FileNotFoundError:
             raise
-        except (OSError, KeyError, ValueError, EOFError) as exc:
-            raise PolicyFileError(f"{path}: not a policy file ({exc})") from None
+        except CORRUPT_ARCHIVE_ERRORS as exc:
+            raise PolicyFileError(
+                f"{path}: not a policy file ({type(exc).__name__}: {exc})"
+            ) from None
         if alphas.ndim != 2 or actions.shape != (alphas.shape[0],) or alphas.shape[0] == 0:
             raise PolicyFileError(f"{path}: alphas {alphas.shape} and actions {actions.shape}")
         if n_states is not None and alphas.shape[1] != n_states:

@@ -10,14 +10,14 @@ A task file is YAML with these sections (see ``config/task-r1.yaml`` and
 - ``person``: a person's direction and position transition models (section 3.2.1);
 - ``observation``: the person's position and velocity observation models (section 3.2.4).
 
-Every value is checked at load time; a bad one raises :class:`stack.cells.ConfigError`
+Every section is a :class:`stack.config.Config` dataclass, checked whether read from a
+file or built in code; a bad value raises :class:`stack.cells.ConfigError`
 naming the key, the value and the rule it breaks.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,13 +26,13 @@ from typing import Any
 import yaml
 
 from stack.cells import CellGrid, ConfigError
-from stack.config import read_text_capped
+from stack.config import Config, from_mapping, read_text_capped
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
 
 @dataclass(frozen=True)
-class Rewards:
+class Rewards(Config):
     """Table 4.1 plus the move cost of section 4.2."""
 
     move: float = -0.2  # every North/South/East/West action
@@ -44,14 +44,14 @@ class Rewards:
 
 
 @dataclass(frozen=True)
-class RobotModel:
+class RobotModel(Config):
     """The robot's position transition (section 3.2.1, appendix A figures A.5-A.6)."""
 
     move_success: float = 0.95  # reaches the neighbouring cell (or leaves the map at an edge)
 
 
 @dataclass(frozen=True)
-class DirectionModel:
+class DirectionModel(Config):
     """P(D' | D): a person's movement direction from one decision step to the next.
 
     For a moving person: keep the direction, turn to each perpendicular one, turn
@@ -66,7 +66,7 @@ class DirectionModel:
 
 
 @dataclass(frozen=True)
-class PositionModel:
+class PositionModel(Config):
     """P(P' | P, D): a person's cell from one decision step to the next.
 
     Weights (normalised per row) for where a person in a cell ends up, by the
@@ -89,7 +89,7 @@ class PositionModel:
 
 
 @dataclass(frozen=True)
-class PositionObservationModel:
+class PositionObservationModel(Config):
     """P(O_P | P'): the camera's cell for a person (section 3.2.4)."""
 
     correct: float = 0.8  # the true cell
@@ -99,7 +99,7 @@ class PositionObservationModel:
 
 
 @dataclass(frozen=True)
-class VelocityObservationModel:
+class VelocityObservationModel(Config):
     """P(O_V | P', D'): direction and speed class observed for a person (section 3.2.4).
 
     The observed direction is the true one, a perpendicular one, the opposite one,
@@ -119,7 +119,7 @@ class VelocityObservationModel:
 
 
 @dataclass(frozen=True)
-class Initial:
+class Initial(Config):
     """The initial state, known with certainty as in every experiment of chapter 5."""
 
     robot: int = 7  # robot cell
@@ -128,7 +128,7 @@ class Initial:
 
 
 @dataclass(frozen=True)
-class Task:
+class Task(Config):
     """Everything needed to build the POMDP of a task."""
 
     name: str = "task"
@@ -145,7 +145,7 @@ class Task:
     obs_velocity: VelocityObservationModel = field(default_factory=VelocityObservationModel)
     initial: Initial = field(default_factory=Initial)
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         cells = set(self.grid.cells)
         if not self.restricted_cells:
             raise ConfigError(
@@ -185,7 +185,7 @@ class Task:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Task:
+    def from_dict(cls, data: Mapping[str, Any] | None, key: str | None = None) -> Task:
         """Build and validate a task from a parsed YAML mapping.
 
         Raises:
@@ -193,39 +193,10 @@ class Task:
         """
         if not isinstance(data, Mapping):
             raise ConfigError("task", data, "must be a mapping")
-        known = {f.name for f in dataclasses.fields(cls)}
-        _reject_unknown("", data, known | {"observations"})
-        kwargs: dict[str, Any] = {}
-        if "name" in data:
-            kwargs["name"] = str(data["name"])
-        if "grid" in data:
-            kwargs["grid"] = CellGrid.from_mapping(data["grid"])
-        if "restricted_cells" in data:
-            v = data["restricted_cells"]
-            if not isinstance(v, list) or not all(_is_int(c) for c in v):
-                raise ConfigError("restricted_cells", v, "must be a list of cell numbers")
-            kwargs["restricted_cells"] = tuple(v)
-        for key in ("rest_cell", "people"):
-            if key in data:
-                if not _is_int(data[key]):
-                    raise ConfigError(key, data[key], "must be an integer")
-                kwargs[key] = data[key]
-        if "discount" in data:
-            kwargs["discount"] = _number("discount", data["discount"])
-        if "initial" in data:
-            kwargs["initial"] = _initial(data["initial"])
-        sections = {
-            "rewards": Rewards,
-            "robot": RobotModel,
-            "direction": DirectionModel,
-            "position": PositionModel,
-            "obs_position": PositionObservationModel,
-            "obs_velocity": VelocityObservationModel,
-        }
-        for key, klass in sections.items():
-            if key in data:
-                kwargs[key] = _section(key, data[key], klass)
-        return cls(**kwargs)
+        data = {k: v for k, v in data.items() if k != "observations"}  # older files
+        if isinstance(data.get("initial"), Mapping):
+            data["initial"] = _initial_labels(data["initial"])
+        return from_mapping(cls, data, "")
 
     def to_dict(self) -> dict[str, Any]:
         """The task as plain data, in the layout of a task file."""
@@ -277,68 +248,17 @@ def load_task(path: str | Path) -> Task:
 # -- validation helpers -----------------------------------------------------------
 
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _number(key: str, v: Any) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        raise ConfigError(key, v, "must be a number")
-    if not math.isfinite(v):  # YAML reads .nan and .inf as floats
-        raise ConfigError(key, v, "must be a finite number")
-    return float(v)
-
-
-def _reject_unknown(prefix: str, data: Mapping[str, Any], known: set[str]) -> None:
-    for k in data:
-        if k not in known:
-            raise ConfigError(
-                f"{prefix}{k}", data[k], f"unknown key (known: {', '.join(sorted(known))})"
-            )
-
-
-def _section(key: str, data: Any, klass: type) -> Any:
-    if not isinstance(data, Mapping):
-        raise ConfigError(key, data, "must be a mapping")
-    fields = {f.name: f for f in dataclasses.fields(klass)}
-    _reject_unknown(f"{key}.", data, set(fields))
-    kwargs: dict[str, Any] = {}
-    for name, value in data.items():
-        default = getattr(klass(), name)
-        if isinstance(default, tuple):
-            if not isinstance(value, list | tuple) or len(value) != len(default):
-                raise ConfigError(
-                    f"{key}.{name}", value, f"must be a list of {len(default)} numbers"
-                )
-            kwargs[name] = tuple(_number(f"{key}.{name}", v) for v in value)
-        else:
-            kwargs[name] = _number(f"{key}.{name}", value)
-    return klass(**kwargs)
-
-
-def _initial(data: Any) -> Initial:
-    if not isinstance(data, Mapping):
-        raise ConfigError("initial", data, "must be a mapping")
-    _reject_unknown("initial.", data, {"robot", "person", "direction"})
-    kwargs: dict[str, Any] = {}
-    if "robot" in data:
-        if not _is_int(data["robot"]):
-            raise ConfigError("initial.robot", data["robot"], "must be a cell number")
-        kwargs["robot"] = data["robot"]
-    if "person" in data:
-        v = data["person"]
-        if v is None or (isinstance(v, str) and v.lower() in ("none", "no person")):
-            kwargs["person"] = None
-        elif _is_int(v):
-            kwargs["person"] = v
-        else:
-            raise ConfigError("initial.person", v, "must be a cell number or 'none'")
-    if "direction" in data:
-        v = data["direction"]
-        if not isinstance(v, str) or v.lower().replace("_", " ") not in DIRECTION_NAMES:
-            raise ConfigError("initial.direction", v, f"must be one of {DIRECTION_NAMES}")
-        kwargs["direction"] = v.lower().replace("_", " ")
-    return Initial(**kwargs)
+def _initial_labels(data: Mapping[str, Any]) -> dict[str, Any]:
+    """The initial state's labels in the file's spelling -> the dataclass's values:
+    person "none" / "no person" -> None, direction "Not_Moving" -> "not moving"."""
+    out = dict(data)
+    v = out.get("person")
+    if isinstance(v, str) and v.lower() in ("none", "no person"):
+        out["person"] = None
+    d = out.get("direction")
+    if isinstance(d, str):
+        out["direction"] = d.lower().replace("_", " ")
+    return out
 
 
 def _prob(key: str, v: float, *, positive: bool = False) -> None:

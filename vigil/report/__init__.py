@@ -105,7 +105,7 @@ def summarise(
         )
         for r in rows
     ]
-    metrics = guard_metrics(tl, restricted, [u.t for u in utterances], step_obs)
+    metrics = guard_metrics(tl, restricted, [u.t for u in utterances], step_obs, grid=task.grid)
     metrics["speech_source"] = records.speech_source
 
     left_trace = [

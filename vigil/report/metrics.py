@@ -15,6 +15,13 @@ In short:
   cell at an instant when the person is still in it;
 - a warning is **timely** when it starts while the person is in a restricted cell or
   within ``WARNING_AFTER_S`` after they left one; otherwise **late**;
+- **reachable**: whether an ideal guard could have been there: one that knows where
+  the person is going from the instant they enter the room and drives at
+  ``REACH_SPEED_MPS`` in a straight line from its cell's centre at that instant to the
+  nearest point of the visit's cell, arriving before the person leaves. Visits no robot
+  of that speed could guard (a person heading straight for the far cell and leaving
+  within seconds) are counted apart, so that ``guarded`` / ``reachable`` measures the
+  planner, not the base;
 - a **false trip**: the robot arrives in a restricted cell while nobody was in the
   room during the ``QUIET_S`` before and after;
 - per decision step, with the truth at the step's stamp: a **miss** is "No person"
@@ -36,6 +43,7 @@ from typing import Any
 from stack.cells import CellGrid
 
 MIN_VISIT_S = 1.0  # shorter stays in a restricted cell are not visits
+REACH_SPEED_MPS = 0.5  # the ideal guard's speed: the MBot's (and the twin's) top speed
 WARNING_AFTER_S = 3.0  # a warning this long after the person left is still timely
 QUIET_S = 10.0  # a trip is false when the room was empty this long before and after
 NO_PERSON = "No person"
@@ -168,6 +176,7 @@ class Visit:
     abandoned: bool
     abandoned_t: float | None
     robot_late_arrival_t: float | None
+    reachable: bool | None = None  # None: no grid given, or the robot's cell unknown
 
     def as_dict(self) -> dict[str, Any]:
         return {k: _round(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
@@ -190,16 +199,56 @@ def restricted_runs(tl: Timeline, restricted: Iterable[int]) -> list[tuple[int, 
     return out
 
 
+def reach_time_s(grid: CellGrid, from_cell: int, to_cell: int, speed_mps: float) -> float:
+    """Straight-line time from ``from_cell``'s centre to the nearest point of ``to_cell``."""
+    x, y = grid.center(from_cell)
+    x0, y0, x1, y1 = grid.bounds(to_cell)
+    dx = max(x0 - x, 0.0, x - x1)
+    dy = max(y0 - y, 0.0, y - y1)
+    return float((dx * dx + dy * dy) ** 0.5 / speed_mps)
+
+
+def _reachable(
+    tl: Timeline,
+    i0: int,
+    cell: int,
+    left: float | None,
+    grid: CellGrid,
+    speed_mps: float,
+    since: int = 0,
+) -> bool | None:
+    """Could an ideal guard reach ``cell`` before the person left (see the module)?
+    The race starts when the person entered the room, or left the previous restricted
+    cell (index ``since``), whichever is later."""
+    s = i0
+    while s > since and tl.present[s - 1]:
+        s -= 1  # back to the instant the person entered the room
+    known = [k for k in range(s, -1, -1) if tl.robot_known[k] and tl.robot[k] is not None]
+    if not known:
+        return None
+    if left is None:
+        return True  # still there at the end: the guard had until then and beyond
+    return tl.t[s] + reach_time_s(grid, tl.robot[known[0]], cell, speed_mps) < left  # type: ignore[arg-type]
+
+
 def find_visits(
-    tl: Timeline, restricted: Iterable[int], min_visit_s: float = MIN_VISIT_S
+    tl: Timeline,
+    restricted: Iterable[int],
+    min_visit_s: float = MIN_VISIT_S,
+    grid: CellGrid | None = None,
+    reach_speed_mps: float = REACH_SPEED_MPS,
 ) -> list[Visit]:
-    """Every visit (at least ``min_visit_s`` in one restricted cell), in time order."""
+    """Every visit (at least ``min_visit_s`` in one restricted cell), in time order;
+    with ``grid``, whether an ideal guard could have reached it (``reachable``)."""
     visits = []
     n = len(tl)
+    since = 0  # the instant after the previous restricted run
     for cell, i0, i1 in restricted_runs(tl, restricted):
         enter = tl.t[i0]
         left = tl.t[i1 + 1] if i1 + 1 < n else None
         duration = (left if left is not None else tl.t[i1]) - enter
+        start = since
+        since = i1 + 1
         if duration < min_visit_s:
             continue
         inside = range(i0, i1 + 1)
@@ -231,6 +280,9 @@ def find_visits(
                 abandoned=abandoned_t is not None,
                 abandoned_t=abandoned_t,
                 robot_late_arrival_t=late,
+                reachable=None
+                if grid is None
+                else _reachable(tl, i0, cell, left, grid, reach_speed_mps, start),
             )
         )
     return visits
@@ -370,9 +422,12 @@ def guard_metrics(
     warning_starts: Sequence[float],
     steps: Sequence[tuple[float, str | None, str | None]],
     min_visit_s: float = MIN_VISIT_S,
+    grid: CellGrid | None = None,
 ) -> dict[str, Any]:
-    """Every metric of the run (JSON-ready): visits, warnings, false trips, steps."""
-    visits = find_visits(tl, restricted, min_visit_s)
+    """Every metric of the run (JSON-ready): visits, warnings, false trips, steps
+    (with ``grid``: the visits an ideal guard could reach, and how many of those were
+    guarded)."""
+    visits = find_visits(tl, restricted, min_visit_s, grid)
     warnings = classify_warnings(tl, restricted, warning_starts)
     trips = false_trips(tl, restricted)
     counts = step_counts(tl, steps)
@@ -382,6 +437,8 @@ def guard_metrics(
         "visits": [v.as_dict() for v in visits],
         "n_visits": len(visits),
         "guarded": sum(v.guarded for v in visits),
+        "reachable": sum(bool(v.reachable) for v in visits),
+        "guarded_reachable": sum(v.guarded and bool(v.reachable) for v in visits),
         "abandoned": sum(v.abandoned for v in visits),
         "max_delay_s": _round(max(delays)) if delays else None,
         "every_visit_guarded": all(v.guarded for v in visits),
@@ -407,6 +464,8 @@ def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "scenarios": len(metrics),
         "n_visits": total("n_visits") if metrics else 0,
         "guarded": total("guarded") if metrics else 0,
+        "reachable": sum(int(m.get("reachable", 0)) for m in metrics),
+        "guarded_reachable": sum(int(m.get("guarded_reachable", 0)) for m in metrics),
         "abandoned": total("abandoned") if metrics else 0,
         "max_delay_s": max(delays) if delays else None,
         "timely_warnings": total("timely_warnings") if metrics else 0,

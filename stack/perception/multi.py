@@ -1,0 +1,478 @@
+"""Several people at once (issue 16): multi-target tracking, camera-laser association
+and the person slots the planner's observation is ordered by.
+
+Pure (numpy, scipy), no rclpy. The pieces:
+
+- :class:`MultiTracker`: tracks every person in the map frame over frames or scans.
+  Each track is a constant-velocity Kalman filter (:class:`ConstantVelocityKalman`,
+  the laser tracker's); every update predicts all tracks, then assigns detections to
+  tracks as a whole (global nearest neighbour: the Hungarian method,
+  ``scipy.optimize.linear_sum_assignment``) on the Mahalanobis distance of each
+  detection from each track's predicted position, gated at ``gate_sigma``. As in
+  leg_tracker (Leigh et al., ICRA 2015) an unmatched track coasts on its prediction
+  and is dropped when unseen for ``max_coast_s`` or when its position uncertainty
+  grows past ``max_position_sigma_m``; an unmatched detection starts a tentative
+  track, confirmed after ``min_hits``. What keeps identities through a crossing is the
+  prediction: two people walking through each other keep their velocities, so after
+  the meeting each detection is nearest the prediction of the track that came from
+  its side, and while they overlap (one merged detection) the other track coasts.
+  Unlike leg_tracker's per-detection gate, the cost of a pair also carries the
+  log-determinant of the innovation covariance (the negative log-likelihood), so a
+  long-coasted, vague track does not steal a detection from a fresh one; and a
+  detection that two confirmed, nearly coincident tracks could both take while only
+  one gets it (two people overlapping in the image, one box) updates neither
+  (``MultiTrackerConfig.merge_m``), so both coast through the merge on their own
+  velocities.
+- :func:`associate`: camera tracks to laser tracks, Hungarian on the Euclidean
+  distance within a gate (the speed class of each camera person comes from its
+  laser track, thesis 4.5, per person).
+- :class:`PersonSlots`: which track is "person 1", "person 2", ... for the planner.
+- :class:`PeoplePerception`: the three together, per frame, giving one
+  :class:`SlotPerson` per slot; :func:`model_persons` turns them into the per-person
+  observation ``FactoredModel.observation_index`` takes.
+
+Person slots. The n-person model is symmetric between people: every person has the
+same transition and observation tables and the reward asks only whether *some*
+person makes a restricted cell worth guarding, so permuting the people permutes the
+belief's factors and changes no value. The order of the slots therefore carries no
+meaning and needs only to be *consistent over time*: the factored belief keeps one
+factor per slot, and a person must keep feeding the same factor. The rules:
+
+1. a track keeps its slot for as long as it lives (through misses and crossings);
+2. a slot whose track ended is free; it remembers where its person was last seen;
+3. newly confirmed tracks fill free slots by a Hungarian assignment on the distance
+   from the slot's last seen position (a slot never used, or whose person left,
+   costs ``fresh_cost_m``): a person lost for a moment and found again near where
+   they vanished gets their old slot, so their belief factor continues;
+4. with more confirmed tracks than slots, the tracks already holding slots keep
+   them; the others wait (oldest first) for a slot to free;
+5. ties put the i-th waiting track in the i-th free slot, so the result is
+   deterministic.
+
+A free slot is observed as "No person" (or as hidden, when the camera could not
+look); because of the symmetry it does not matter which free slot a new person
+takes when none remembers a nearby person.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from stack.cells import CellGrid, Direction
+from stack.config import Config
+from stack.perception._config import require
+from stack.perception.direction import DirectionConfig, DirectionEstimator
+from stack.perception.errors import BadScanError
+from stack.perception.observation import speed_class
+from stack.perception.tracker import ConstantVelocityKalman, TrackerConfig, TrackEstimate
+from stack.vocabulary import NOT_MOVING
+
+_FAR = 1e6  # cost of a forbidden pair (outside the gate)
+
+
+@dataclass(frozen=True)
+class MultiTrackerConfig(Config):
+    """Attributes:
+    filter: the constant-velocity filter's noises (``TrackerConfig``: accel_noise_mps2,
+        measurement_sigma_m, single_leg_sigma_m, initial_speed_sigma_mps); its
+        ``min_hits`` and ``max_coast_s`` are this tracker's too.
+    gate_sigma: a detection farther than this many standard deviations (Mahalanobis
+        distance in the innovation covariance) from a track's prediction is not its.
+        3.0: a 99 % gate for a 2-D Gaussian is 3.03.
+    max_position_sigma_m: a track whose position standard deviation grows past this
+        while coasting is dropped [m].
+    merge_m: two confirmed tracks predicted closer than this, with a detection in both
+        gates that only one of them gets, are people passing so close that the
+        detector sees one of them (non-maximum suppression kept one box): the
+        detection is ambiguous and neither track takes it, both coast on their
+        velocities until they separate [m]. 0 turns the rule off. Without it the
+        track that got the detections followed whichever person was in front, lost
+        its velocity and swapped identities after long merges (bench/bench_people.py).
+    """
+
+    section = "multi_tracker"
+
+    filter: TrackerConfig = TrackerConfig(measurement_sigma_m=0.15, min_hits=2, max_coast_s=1.5)
+    gate_sigma: float = 3.0
+    max_position_sigma_m: float = 1.0
+    merge_m: float = 0.6
+
+    def __post_init__(self) -> None:
+        require(self.merge_m >= 0, "merge_m", self.merge_m, "must be >= 0")
+        require(self.gate_sigma > 0, "gate_sigma", self.gate_sigma, "must be > 0")
+        require(self.max_position_sigma_m > 0, "max_position_sigma_m",
+                self.max_position_sigma_m, "must be > 0")  # fmt: skip
+
+
+class _Track:
+    def __init__(self, track_id: int, z: tuple[float, float], stamp_s: float, cfg: TrackerConfig):
+        self.id = track_id
+        self.kf = ConstantVelocityKalman(z, cfg)
+        self.hits = 1
+        self.first_s = stamp_s
+        self.last_update_s = stamp_s
+
+
+def gnn_assign(
+    means: np.ndarray, covariances: np.ndarray, detections: np.ndarray, gate_sigma: float
+) -> list[tuple[int, int]]:
+    """Global nearest-neighbour assignment of detections to predicted tracks.
+
+    Args:
+        means: (T, 2) predicted track positions [m].
+        covariances: (T, 2, 2) innovation covariances (position covariance + noise).
+        detections: (D, 2) detected positions [m].
+        gate_sigma: largest Mahalanobis distance of a pair.
+
+    Returns:
+        (track index, detection index) pairs, each index at most once, all in the gate;
+        the pairs minimise the summed negative log-likelihood (Mahalanobis^2 + log det).
+    """
+    if len(means) == 0 or len(detections) == 0:
+        return []
+    cost = np.full((len(means), len(detections)), _FAR)
+    for t in range(len(means)):
+        inv = np.linalg.inv(covariances[t])
+        logdet = math.log(max(np.linalg.det(covariances[t]), 1e-12))
+        d = detections - means[t]
+        m2 = np.einsum("ij,jk,ik->i", d, inv, d)
+        ok = m2 <= gate_sigma**2
+        cost[t, ok] = m2[ok] + logdet
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FAR]
+
+
+class MultiTracker:
+    """Every person over time, with identities kept by prediction and joint assignment.
+
+    Args:
+        config: filter, gate and lifetime parameters.
+    """
+
+    def __init__(self, config: MultiTrackerConfig = MultiTrackerConfig()):
+        self.config = config
+        self._tracks: list[_Track] = []
+        self._next_id = 1
+        self._stamp_s = -math.inf
+
+    @property
+    def stamp_s(self) -> float:
+        return self._stamp_s
+
+    def update(self, stamp_s: float, detections: Iterable) -> tuple[TrackEstimate, ...]:
+        """Predict every track to ``stamp_s`` and correct them with the frame's people.
+
+        Args:
+            stamp_s: the frame's (or scan's) time [s]; must increase.
+            detections: map positions (x, y) [m], or the scan's ``PersonCandidate``s
+                (a lone leg counts with ``filter.single_leg_sigma_m``).
+
+        Returns:
+            All live tracks, oldest first.
+
+        Raises:
+            BadScanError: a stamp not later than the previous one.
+        """
+        if stamp_s <= self._stamp_s:
+            raise BadScanError(f"stamp {stamp_s} is not after the previous {self._stamp_s}")
+        cfg = self.config.filter
+        dt = stamp_s - self._stamp_s if math.isfinite(self._stamp_s) else 0.0
+        self._stamp_s = stamp_s
+        for t in self._tracks:
+            t.kf.predict(dt)
+        zs, sigmas = [], []
+        for p in detections:
+            legs = getattr(p, "legs", None)
+            x, y = getattr(p, "position_m", p)
+            zs.append((float(x), float(y)))
+            single = legs is not None and len(legs) == 1
+            sigmas.append(cfg.single_leg_sigma_m if single else cfg.measurement_sigma_m)
+        z = np.array(zs, dtype=float).reshape(-1, 2)
+        means = np.array([t.kf.x[:2] for t in self._tracks]).reshape(-1, 2)
+        # innovation covariance with the nominal measurement noise (one gate per track)
+        r = np.eye(2) * cfg.measurement_sigma_m**2
+        covs = np.array([t.kf.P[:2, :2] + r for t in self._tracks]).reshape(-1, 2, 2)
+        used = set()
+        pairs = gnn_assign(means, covs, z, self.config.gate_sigma)
+        ambiguous = self._ambiguous(pairs, means, covs, z)
+        for ti, di in pairs:
+            used.add(di)
+            if di in ambiguous:
+                continue
+            track = self._tracks[ti]
+            track.kf.update(zs[di], sigmas[di])
+            track.hits += 1
+            track.last_update_s = stamp_s
+        for di, zz in enumerate(zs):
+            if di not in used:
+                self._tracks.append(_Track(self._next_id, zz, stamp_s, cfg))
+                self._next_id += 1
+        limit = self.config.max_position_sigma_m**2
+        self._tracks = [
+            t
+            for t in self._tracks
+            if stamp_s - t.last_update_s <= cfg.max_coast_s
+            and max(t.kf.P[0, 0], t.kf.P[1, 1]) <= limit
+        ]
+        return self.tracks()
+
+    def _ambiguous(
+        self, pairs: list[tuple[int, int]], means: np.ndarray, covs: np.ndarray, z: np.ndarray
+    ) -> set[int]:
+        """Detections that ``merge_m`` makes ambiguous (see :class:`MultiTrackerConfig`)."""
+        cfg = self.config
+        if cfg.merge_m <= 0 or not pairs:
+            return set()
+        matched = {ti for ti, _ in pairs}
+        confirmed = [t.hits >= cfg.filter.min_hits for t in self._tracks]
+        out = set()
+        for ti, di in pairs:
+            if not confirmed[ti]:
+                continue
+            for other in range(len(self._tracks)):
+                if other in matched or not confirmed[other]:
+                    continue
+                if float(np.linalg.norm(means[other] - means[ti])) > cfg.merge_m:
+                    continue
+                d = z[di] - means[other]
+                if float(d @ np.linalg.inv(covs[other]) @ d) <= cfg.gate_sigma**2:
+                    out.add(di)
+        return out
+
+    def tracks(self) -> tuple[TrackEstimate, ...]:
+        """Snapshots of the live tracks (at the latest update's time)."""
+        return tuple(
+            TrackEstimate(
+                track_id=t.id,
+                position_m=(float(t.kf.x[0]), float(t.kf.x[1])),
+                velocity_mps=(float(t.kf.x[2]), float(t.kf.x[3])),
+                speed_mps=t.kf.speed_mps,
+                hits=t.hits,
+                last_update_s=t.last_update_s,
+                confirmed=t.hits >= self.config.filter.min_hits,
+            )
+            for t in self._tracks
+        )
+
+
+def associate(
+    camera: Sequence[TrackEstimate],
+    laser: Sequence[TrackEstimate],
+    gate_m: float,
+    confirmed_only: bool = True,
+) -> dict[int, TrackEstimate]:
+    """Laser tracks to camera tracks: one each, nearest overall, within ``gate_m``.
+
+    Args:
+        camera: the camera's people (tracks in the map frame).
+        laser: the laser's people.
+        gate_m: farther pairs are different people (or furniture) [m].
+        confirmed_only: ignore unconfirmed laser tracks.
+
+    Returns:
+        camera track id -> its laser track (camera tracks without one are absent).
+    """
+    legs = [t for t in laser if t.confirmed or not confirmed_only]
+    if not camera or not legs:
+        return {}
+    a = np.array([c.position_m for c in camera])
+    b = np.array([t.position_m for t in legs])
+    dist = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    cost = np.where(dist <= gate_m, dist, _FAR)
+    rows, cols = linear_sum_assignment(cost)
+    return {
+        camera[r].track_id: legs[c] for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FAR
+    }
+
+
+@dataclass(frozen=True)
+class SlotConfig(Config):
+    """Attributes:
+    slots: the number of people the planner's model has (the task's ``people``).
+    fresh_cost_m: the cost of putting a new person in a slot that remembers nobody
+        (never used, or its person left the map) [m]: a slot whose person vanished
+        nearer than this to the new one is preferred.
+    """
+
+    section = "slots"
+
+    slots: int = 2
+    fresh_cost_m: float = 1.5
+
+    def __post_init__(self) -> None:
+        require(self.slots >= 1, "slots", self.slots, "must be >= 1")
+        require(self.fresh_cost_m > 0, "fresh_cost_m", self.fresh_cost_m, "must be > 0")
+
+
+class PersonSlots:
+    """Which track is person 1, 2, ... (the rules in the module docstring).
+
+    Args:
+        config: the number of slots and the cost of a fresh slot.
+        grid: when given, a slot whose person was last seen outside the region
+            (left the map) remembers nobody.
+    """
+
+    def __init__(self, config: SlotConfig = SlotConfig(), grid: CellGrid | None = None):
+        self.config = config
+        self.grid = grid
+        self._track: list[int | None] = [None] * config.slots
+        self._last: list[tuple[float, float] | None] = [None] * config.slots
+
+    @property
+    def track_ids(self) -> tuple[int | None, ...]:
+        """The track id in each slot (None: free)."""
+        return tuple(self._track)
+
+    def assign(self, tracks: Sequence[TrackEstimate]) -> tuple[TrackEstimate | None, ...]:
+        """Update the slots with the live tracks.
+
+        Args:
+            tracks: the tracks after this frame (only confirmed ones take slots).
+
+        Returns:
+            The track in each slot, slot 0 first (None: nobody).
+        """
+        live = {t.track_id: t for t in tracks if t.confirmed}
+        for k, tid in enumerate(self._track):
+            if tid is not None and tid not in live:
+                self._track[k] = None  # rule 2: the slot is free, _last remembers
+        held = {tid for tid in self._track if tid is not None}
+        free = [k for k, tid in enumerate(self._track) if tid is None]
+        # rule 4: the oldest waiting tracks first (lowest id = created first)
+        waiting = sorted(
+            (t for tid, t in live.items() if tid not in held), key=lambda t: t.track_id
+        )
+        if free and waiting:
+            cost = np.empty((len(waiting), len(free)))
+            for i, t in enumerate(waiting):
+                for j, k in enumerate(free):
+                    last = self._last[k]
+                    near = math.dist(last, t.position_m) if last is not None else math.inf
+                    # rule 4: older waiting tracks cost less (1 mm per place in line);
+                    # rule 5: ties put the i-th waiting track in the i-th free slot
+                    cost[i, j] = min(near, self.config.fresh_cost_m) + 1e-3 * i + 1e-6 * abs(i - j)
+            rows, cols = linear_sum_assignment(cost)
+            for i, j in zip(rows, cols, strict=True):
+                self._track[free[j]] = waiting[i].track_id
+        out: list[TrackEstimate | None] = []
+        for k, tid in enumerate(self._track):
+            holder = live.get(tid) if tid is not None else None
+            if holder is not None:
+                inside = self.grid is None or self.grid.cell_at(*holder.position_m) is not None
+                self._last[k] = holder.position_m if inside else None
+            out.append(holder)
+        return tuple(out)
+
+
+@dataclass(frozen=True)
+class SlotPerson:
+    """What the perception reports for one person slot.
+
+    Attributes:
+        slot: 0-based slot index (person ``slot + 1`` of the model).
+        track_id: the camera track in the slot; None: nobody.
+        position_m: its map position [m].
+        cell: the cell there; None outside the region (or nobody): "No person".
+        direction: from the track's positions (thesis rule, per person).
+        speed_mps: the associated laser track's speed (eq. 4.8); None without one.
+        laser_track_id: that laser track's id; None without one.
+    """
+
+    slot: int
+    track_id: int | None = None
+    position_m: tuple[float, float] | None = None
+    cell: int | None = None
+    direction: Direction = Direction.NOT_MOVING
+    speed_mps: float | None = None
+    laser_track_id: int | None = None
+
+    @property
+    def velocity_label(self) -> str:
+        """The model's velocity label, by the thesis's rules (4.5) for this person:
+        "Not moving" outside the region or when the camera sees no movement; else the
+        direction and the laser's speed class ("0-0.2" without a laser track)."""
+        if self.cell is None or self.direction is Direction.NOT_MOVING:
+            return NOT_MOVING
+        return f"{self.direction.label} {speed_class(self.speed_mps or 0.0).label}"
+
+
+def model_persons(people: Sequence[SlotPerson]) -> list[tuple[int | None, str]]:
+    """The slots as ``FactoredModel.observation_index`` takes them: [(cell or None,
+    velocity label)], slot 0 first (None: "No person")."""
+    return [(p.cell, p.velocity_label) for p in sorted(people, key=lambda p: p.slot)]
+
+
+class PeoplePerception:
+    """Camera detections and laser tracks in, one :class:`SlotPerson` per slot out.
+
+    Args:
+        grid: the cell geometry.
+        slots: slot parameters (``slots`` = the task's ``people``).
+        tracker: the camera tracks' parameters.
+        direction: the per-person direction rule (None: ``DirectionConfig()``).
+        leg_gate_m: a laser track within this of a camera person is that person's [m].
+    """
+
+    def __init__(
+        self,
+        grid: CellGrid,
+        slots: SlotConfig = SlotConfig(),
+        tracker: MultiTrackerConfig = MultiTrackerConfig(),
+        direction: DirectionConfig | None = None,
+        leg_gate_m: float = 1.0,
+    ):
+        self.grid = grid
+        self.tracker = MultiTracker(tracker)
+        self.slots = PersonSlots(slots, grid)
+        self._direction_config = direction if direction is not None else DirectionConfig()
+        self._directions: dict[int, DirectionEstimator] = {}
+        self.leg_gate_m = leg_gate_m
+
+    def update(
+        self,
+        stamp_s: float,
+        positions_m: Iterable[tuple[float, float]],
+        laser_tracks: Sequence[TrackEstimate] = (),
+    ) -> tuple[SlotPerson, ...]:
+        """One frame: the camera's people (map positions), the laser's tracks.
+
+        Returns:
+            One report per slot, slot 0 first.
+        """
+        tracks = self.tracker.update(stamp_s, positions_m)
+        live = {t.track_id for t in tracks}
+        for tid in list(self._directions):
+            if tid not in live:
+                del self._directions[tid]
+        fresh = {t.track_id for t in tracks if t.last_update_s == stamp_s}
+        for t in tracks:
+            est = self._directions.setdefault(
+                t.track_id, DirectionEstimator(self._direction_config)
+            )
+            if t.track_id in fresh:
+                est.update(stamp_s, t.position_m)
+        legs = associate(tracks, laser_tracks, self.leg_gate_m)
+        out = []
+        for k, slot in enumerate(self.slots.assign(tracks)):
+            if slot is None:
+                out.append(SlotPerson(k))
+                continue
+            leg = legs.get(slot.track_id)
+            out.append(
+                SlotPerson(
+                    slot=k,
+                    track_id=slot.track_id,
+                    position_m=slot.position_m,
+                    cell=self.grid.cell_at(*slot.position_m),
+                    direction=self._directions[slot.track_id].direction,
+                    speed_mps=None if leg is None else leg.speed_mps,
+                    laser_track_id=None if leg is None else leg.track_id,
+                )
+            )
+        return tuple(out)
