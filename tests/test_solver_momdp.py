@@ -105,3 +105,25 @@ def test_task_r1_factored_bounds_improve_on_qmdp():
     assert mixed_from_task(build_model(task)).split(pomdp.b0)[0] == sol.model.robot_index(
         task.initial.robot
     )
+
+
+def test_time_limit_is_checked_inside_trials(monkeypatch):
+    """With a clock that moves 10 ms per reading, the search stops within a few
+    readings of the limit (the time goes to the clock, not to the search)."""
+    import stack.planning.momdp as momdp_module
+
+    m = _mixed(6, X=4, Y=6, A=3, Z=4, discount=0.99)
+    b0 = _b0(m)
+    seeds = (blind_lower_bound(_flat(m, b0)), np.arange(m.A))
+    now = [0.0]
+
+    def clock():
+        now[0] += 0.01
+        return now[0]
+
+    monkeypatch.setattr(momdp_module.time, "perf_counter", clock)
+    cfg = SearchConfig(time_limit_s=3.0, target_gap=0.0, progress_every_s=0.0)
+    r = MixedSearch(m, cfg, seeds, [b0], start=0.0).run()
+    assert r.stopped == "time"
+    assert r.seconds <= 3.0 + 0.2
+    assert r.lower_bound <= r.upper_bound

@@ -535,8 +535,11 @@ class MixedSearch:
             node = self._child(kids, int(i), int(j))
             path.append(node)
             t += 1
+        late = False
         for n in reversed(path):
-            if self._late() and n is not root:
+            # past the deadline only the root is backed up (the clock is read until then)
+            late = late or self._late()
+            if late and n is not root:
                 continue
             self._backup(n)
         self.trials += 1
