@@ -42,6 +42,7 @@ SPEECH_DONE = "/speech/done"
 SPEECH_SPEAKING = "/speech/speaking"
 SPEECH_WARNING = "/speech/warning"
 PLANNER_BELIEF = "/planner/belief"
+MARKERS = "/vigil/markers"  # visualization_msgs/MarkerArray (vigil/node_markers.py)
 PLANNER_STEP = "/planner/step"
 PLANNER_DONE = "/planner/done"
 

@@ -27,6 +27,7 @@ def test_tables_are_complete():
     assert sum(len(t.quotes) for t in TABLES.values()) == 32
 
 
+@pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_replay_agrees_with_the_thesis(replay):
     results, _ = replay
     agree = sum(r.agreement for r in results)
@@ -40,6 +41,7 @@ def test_replay_agrees_with_the_thesis(replay):
     assert with_ties >= agree
 
 
+@pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_quoted_beliefs_are_close_to_the_thesis(replay):
     results, _ = replay
     errors = np.array([q.ours - q.quote.thesis for r in results for q in r.quotes])
@@ -47,6 +49,7 @@ def test_quoted_beliefs_are_close_to_the_thesis(replay):
     assert np.abs(errors).max() < 0.25
 
 
+@pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_the_first_quoted_beliefs(replay):
     """After step 1 of table 5.1: P(East) = 0.75, P(at 9) = 0.22, P(at 11) = 0.73."""
     results, _ = replay
@@ -56,6 +59,7 @@ def test_the_first_quoted_beliefs(replay):
     assert q[("position", (11,))] == pytest.approx(0.73, abs=0.05)
 
 
+@pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_solved_bounds_are_consistent(replay):
     _, solved = replay
     for _model, _pomdp, result in solved.values():
@@ -64,6 +68,7 @@ def test_solved_bounds_are_consistent(replay):
         assert values[-1] >= values[0]
 
 
+@pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_cli_replay_json(capsys):
     code = main(["replay", "--table", "5.2", "--json", "--quiet", "--iterations", "60"])
     assert code == 0

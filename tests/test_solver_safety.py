@@ -104,7 +104,19 @@ def test_degenerate_solve_is_an_error(monkeypatch):
 
     monkeypatch.setattr(solve_module, "solve", no_progress)
     with pytest.raises(DegenerateSolveError, match="initial lower bound"):
-        solve_task_model(load_task(REPO / "config" / "task-r1.yaml"))
+        solve_task_model(
+            load_task(REPO / "config" / "task-r1.yaml"), SolverConfig(algorithm="perseus")
+        )
+
+
+def test_degenerate_factored_solve_is_an_error(monkeypatch):
+    """The task's default solver (the mixed-observability search) is checked the same way."""
+    from stack.planning.momdp import MixedSearch
+    from stack.planning.solve import TASK_CONFIG
+
+    monkeypatch.setattr(MixedSearch, "_backup", lambda self, node: None)
+    with pytest.raises(DegenerateSolveError, match="initial lower bound"):
+        solve_task_model(load_task(REPO / "config" / "task-r1.yaml"), TASK_CONFIG)
 
 
 def test_bad_solver_arguments_exit_2(capsys):

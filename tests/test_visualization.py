@@ -61,3 +61,28 @@ def test_the_scene_starts_with_deleteall_and_keeps_ids_stable():
     (robot,) = [m for m in a if m.ns == "robot_cell"]
     assert min(p[0] for p in robot.points) == pytest.approx(GRID.bounds(7)[0])
     assert len(people_markers([(0.0, 0.0)] * 20)) == 8
+
+
+def test_the_foxglove_layout_names_panels_and_topics_that_exist():
+    import json
+    from pathlib import Path
+
+    from stack import topics
+
+    layout = json.loads(
+        (Path(__file__).resolve().parents[1] / "config" / "foxglove-layout.json").read_text()
+    )
+    known = {v for k, v in vars(topics).items() if k.isupper() and isinstance(v, str)}
+
+    def panels(node):
+        if isinstance(node, str):
+            return [node]
+        return panels(node["first"]) + panels(node["second"])
+
+    used = panels(layout["layout"])
+    assert sorted(used) == sorted(layout["configById"])
+    cfg = layout["configById"]
+    named = set(cfg["3D!vigil"]["topics"])
+    named |= {cfg["Image!camera"]["imageMode"]["imageTopic"]}
+    named |= {c["topicPath"] for k, c in cfg.items() if k.startswith("RawMessages")}
+    assert named <= known, named - known

@@ -226,6 +226,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.planner is not None:  # the n-person task's online planner or a baseline (issue 16)
+        from stack.planning.evaluate_people import evaluate_planners
+
+        out = evaluate_planners(
+            args.model, args.planner, args.episodes, args.seed, args.json, horizon=args.horizon
+        )
+        print(out)
+        return 0
+    if args.policy is None:
+        raise ValueError("give --policy (a solved policy) or --planner (online, greedy, single)")
     pomdp = read_model(args.model)
     policy = AlphaPolicy.load(args.policy, n_states=pomdp.n_states, model_hash=pomdp.fingerprint())
     ev = evaluate(pomdp, policy, episodes=args.episodes, horizon=args.horizon, seed=args.seed)
@@ -431,7 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = _command(sub, "evaluate", "mean discounted return of a policy, by simulation")
     p.add_argument("model", help="a task file (.yaml), a .pomdp or a .pomdpx file")
-    p.add_argument("--policy", required=True, help="ours (.npz) or SARSOP's (.policy XML)")
+    p.add_argument("--policy", help="ours (.npz) or SARSOP's (.policy XML)")
+    p.add_argument(
+        "--planner",
+        choices=("online", "greedy", "single"),
+        help="instead of --policy: a task file's n-person planner (issue 16)",
+    )
     p.add_argument("--episodes", type=int, default=100, help="simulated episodes")
     p.add_argument(
         "--horizon",

@@ -58,6 +58,7 @@ NODES = (
     "speech",
     "planner",
     "recorder",
+    "markers",
 )
 
 

@@ -45,6 +45,7 @@ MODULES = {
     "planner": "stack.planning.node_planner",
     "recorder": "vigil.node_recorder",
     "table_player": "vigil.node_table_player",
+    "markers": "vigil.node_markers",
 }
 
 
@@ -231,6 +232,9 @@ def prepare(
     names += ["recorder"]
     if twin_mode and dep.lockstep:
         params["twin_bridge"]["participants"] = [n for n in names if n != "twin_bridge"]
+    # the viewer's markers (RViz, Foxglove): no lock-step participant, it only draws
+    params["markers"] = {"task_file": str(task)}
+    names.append("markers")
     return _write(run_dir, names, params, dep, max_steps)
 
 
