@@ -73,6 +73,7 @@ from stack.planning.stepper import DecisionSteps, StepTiming
 from stack.planning.task import load_task
 from twin.config import load_twin_config
 from twin.env import GuardEnvironment, Outage, make_environment
+from twin.twin import truth_record
 from vigil.deployment import Deployment, load_deployment
 from vigil.scenario import Scenario, load_scenario
 from vigil.system import System, prepare
@@ -365,16 +366,7 @@ class InProcessSystem:
         self._drain()
 
     def _truth_record(self) -> dict:
-        gt = self.env.twin.ground_truth()
-        r, p = gt.robot, gt.person
-        return {  # as twin.bridge_node.truth_record
-            "t": round(gt.time_s, 6),
-            "robot": [round(r.x_m, 4), round(r.y_m, 4), round(r.yaw_rad, 4)],
-            "robot_cell": gt.robot_cell,
-            "person": None if p is None else [round(p.pose.x_m, 4), round(p.pose.y_m, 4)],
-            "person_cell": None if p is None else p.cell,
-            "person_velocity": None if p is None else [round(float(v), 4) for v in p.velocity_mps],
-        }
+        return truth_record(self.env.twin.ground_truth())
 
     def _scan(self, ranges: np.ndarray, now: float) -> Scan:
         if not self._scan_geometry:
