@@ -58,7 +58,7 @@ from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
 from stack.nav.speech import Speaker, SpeechError, WarningGate
 from stack.perception._config import load_config_file
-from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus
+from stack.perception.camera import CameraConfig, CameraPeopleTracker
 from stack.perception.errors import BadScanError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs
@@ -399,16 +399,7 @@ class InProcessSystem:
         silent_s = self.now_s - self._last_frame_s
         if silent_s <= FRAME_TIMEOUT_S:
             return
-        out = {
-            **self.camera.state.to_dict(),
-            "status": PersonStatus.UNKNOWN.value,
-            "position_m": None,
-            "cell": None,
-            "direction": "Not moving",
-            "boxes": [],
-            "warning": f"no camera frame for {silent_s:.1f} s",
-        }
-        self.publish("/perception/person", json.dumps(out))
+        self.publish("/perception/person", json.dumps(self.camera.state.silent_dict(silent_s)))
 
     # -- legs -----------------------------------------------------------------------------
     def legs_on_odom(self, msg: tuple[float, Pose2D]) -> None:
