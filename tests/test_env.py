@@ -162,3 +162,26 @@ def test_bad_input_is_named(model):
         Outage("lidar", 2.0, 1.0)
     with pytest.raises(ConfigError, match="decision_step_s"):
         GuardTask(model, decision_step_s=0.0)
+
+
+def test_an_episode_of_two_walkers_lasts_until_the_last_one_has_stopped(model):
+    first = short_walk()  # stops for good at 1.25 s
+    later = {"waypoints": [{"x_m": 1.5, "y_m": 1.9}, {"x_m": 1.5, "y_m": 0.4, "speed_mps": 0.5}]}
+    cfg = TwinConfig.from_dict(
+        {
+            "grid": GRID,
+            "camera": {"width_px": 64, "height_px": 40},
+            "lidar": {"beams": 90},
+            "robot": {"start_cell": 7},
+            "people": [first, later],
+        }
+    )
+    env = make_environment(cfg, model, seed=4, tail_s=0.5)
+    try:
+        assert env.twin.end_time_s == pytest.approx(3.0)  # 1.5 m at 0.5 m/s
+        ts = env.reset()
+        while not ts.last():
+            ts = env.step(np.zeros(3))
+        assert env.twin.time_s == pytest.approx(3.5, abs=0.05)  # not 1.25 + 0.5
+    finally:
+        env.close()

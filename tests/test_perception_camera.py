@@ -299,3 +299,16 @@ def test_tracking_window_follows_the_person_and_falls_back_to_a_full_search(cali
     )
     assert jumped.cell == 2 and jumped.missed_frames == 0
     assert calls[2] is not None and calls[3] is None
+
+
+def test_a_silent_camera_record_says_unknown_and_why_and_keeps_nothing_of_the_last_person():
+    from stack.perception.camera import CameraPersonState, PersonStatus
+
+    seen = CameraPersonState(
+        stamp_s=3.0, status=PersonStatus.PERSON, position_m=(2.0, 0.5), cell=9,
+        direction=Direction.EAST,
+    )  # fmt: skip
+    out = seen.silent_dict(2.5)
+    assert out["status"] == PersonStatus.UNKNOWN.value and out["stamp_s"] == 3.0
+    assert out["position_m"] is None and out["cell"] is None and out["boxes"] == []
+    assert out["direction"] == "Not moving" and out["warning"] == "no camera frame for 2.5 s"

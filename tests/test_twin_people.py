@@ -243,3 +243,13 @@ def test_twin_crossing_keeps_both_people_in_their_slots():
                     slot_of[p.slot] = i
     assert switches == 0
     assert sorted(slot_of.values()) == [0, 1] and judged > 30
+
+
+def test_the_truth_record_lists_every_walker_and_keeps_one_person_records_unchanged():
+    from twin.twin import Twin, truth_record
+
+    two = truth_record(Twin(two_walkers(), seed=0).ground_truth())
+    assert len(two["people"]) == 2 and two["person"] == two["people"][0]["position"]
+    one = truth_record(Twin(TwinConfig(), seed=0).ground_truth())
+    assert "people" not in one  # the one-person trace keeps its layout
+    assert set(one) == {"t", "robot", "robot_cell", "person", "person_cell", "person_velocity"}

@@ -49,7 +49,7 @@ from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
 from twin.sensors import CameraInfo
 from twin.sensors import LaserScan as Scan
-from twin.twin import GroundTruth, Odometry, Twin, VelocityCommand
+from twin.twin import GroundTruth, Odometry, Twin, VelocityCommand, truth_record
 
 EXIT_STALLED = 3  # the bridge's exit code when the lock-step stalled for good
 
@@ -136,19 +136,6 @@ def pose_msg(x: float, y: float, yaw: float, t_s: float) -> PoseStamped:
     o = msg.pose.orientation
     o.x, o.y, o.z, o.w = q
     return msg
-
-
-def truth_record(gt: GroundTruth) -> dict:
-    """The ``/twin/truth`` JSON record of a ground-truth snapshot."""
-    r, p = gt.robot, gt.person
-    return {
-        "t": round(gt.time_s, 6),
-        "robot": [round(r.x_m, 4), round(r.y_m, 4), round(r.yaw_rad, 4)],
-        "robot_cell": gt.robot_cell,
-        "person": None if p is None else [round(p.pose.x_m, 4), round(p.pose.y_m, 4)],
-        "person_cell": None if p is None else p.cell,
-        "person_velocity": None if p is None else [round(float(v), 4) for v in p.velocity_mps],
-    }
 
 
 def parse_outages(text: str) -> list[tuple[str, float, float]]:

@@ -17,7 +17,7 @@ as it is: the model and data are shared with dm_control, not rebuilt) in a
   the true state (robot cell, person cell and direction) and the action's class (Do
   nothing when the command is zero, else a move), spread over a decision step's length
   so that one decision step of ``decision_step_s`` earns the table's value;
-- **episode**: the person's script (``twin.person``) from its start until the person
+- **episode**: the people's scripts (``twin.people``) from the start until the last
   has stopped for good, plus ``tail_s``.
 
 Same twin config and seed, same episode: :meth:`GuardTask.initialize_episode` reseeds
@@ -214,7 +214,7 @@ class GuardTask(control.Task):
 
     def get_termination(self, physics: TwinPhysics) -> float | None:
         twin = physics.twin
-        end = twin.person.end_time_s if twin.person is not None else 0.0
+        end = twin.end_time_s  # the last walker's end (0 without people)
         return 1.0 if twin.time_s >= end + self.tail_s - 1e-9 else None
 
     def action_spec(self, physics: TwinPhysics) -> specs.BoundedArray:

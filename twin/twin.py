@@ -123,6 +123,31 @@ class GroundTruth:
     people: tuple[PersonTruth, ...] = ()
 
 
+def truth_record(gt: GroundTruth) -> dict:
+    """The ground truth as the run's trace records it (``/twin/truth`` JSON): the robot,
+    the first person (the one-person fields every report reads) and, with several
+    walkers, ``people``: each walker's position, cell and velocity."""
+    r, p = gt.robot, gt.person
+    out = {
+        "t": round(gt.time_s, 6),
+        "robot": [round(r.x_m, 4), round(r.y_m, 4), round(r.yaw_rad, 4)],
+        "robot_cell": gt.robot_cell,
+        "person": None if p is None else [round(p.pose.x_m, 4), round(p.pose.y_m, 4)],
+        "person_cell": None if p is None else p.cell,
+        "person_velocity": None if p is None else [round(float(v), 4) for v in p.velocity_mps],
+    }
+    if len(gt.people) > 1:
+        out["people"] = [
+            {
+                "position": [round(q.pose.x_m, 4), round(q.pose.y_m, 4)],
+                "cell": q.cell,
+                "velocity": [round(float(v), 4) for v in q.velocity_mps],
+            }
+            for q in gt.people
+        ]
+    return out
+
+
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 

@@ -58,7 +58,7 @@ from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
 from stack.nav.speech import Speaker, SpeechError, WarningGate
 from stack.perception._config import load_config_file
-from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus
+from stack.perception.camera import CameraConfig, CameraPeopleTracker
 from stack.perception.errors import BadScanError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs
@@ -73,6 +73,7 @@ from stack.planning.stepper import DecisionSteps, StepTiming
 from stack.planning.task import load_task
 from twin.config import load_twin_config
 from twin.env import GuardEnvironment, Outage, make_environment
+from twin.twin import truth_record
 from vigil.deployment import Deployment, load_deployment
 from vigil.scenario import Scenario, load_scenario
 from vigil.system import System, prepare
@@ -365,16 +366,7 @@ class InProcessSystem:
         self._drain()
 
     def _truth_record(self) -> dict:
-        gt = self.env.twin.ground_truth()
-        r, p = gt.robot, gt.person
-        return {  # as twin.bridge_node.truth_record
-            "t": round(gt.time_s, 6),
-            "robot": [round(r.x_m, 4), round(r.y_m, 4), round(r.yaw_rad, 4)],
-            "robot_cell": gt.robot_cell,
-            "person": None if p is None else [round(p.pose.x_m, 4), round(p.pose.y_m, 4)],
-            "person_cell": None if p is None else p.cell,
-            "person_velocity": None if p is None else [round(float(v), 4) for v in p.velocity_mps],
-        }
+        return truth_record(self.env.twin.ground_truth())
 
     def _scan(self, ranges: np.ndarray, now: float) -> Scan:
         if not self._scan_geometry:
@@ -407,16 +399,7 @@ class InProcessSystem:
         silent_s = self.now_s - self._last_frame_s
         if silent_s <= FRAME_TIMEOUT_S:
             return
-        out = {
-            **self.camera.state.to_dict(),
-            "status": PersonStatus.UNKNOWN.value,
-            "position_m": None,
-            "cell": None,
-            "direction": "Not moving",
-            "boxes": [],
-            "warning": f"no camera frame for {silent_s:.1f} s",
-        }
-        self.publish("/perception/person", json.dumps(out))
+        self.publish("/perception/person", json.dumps(self.camera.state.silent_dict(silent_s)))
 
     # -- legs -----------------------------------------------------------------------------
     def legs_on_odom(self, msg: tuple[float, Pose2D]) -> None:

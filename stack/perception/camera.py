@@ -232,6 +232,19 @@ class CameraPersonState:
             "warning": self.warning,
         }
 
+    def silent_dict(self, silent_s: float) -> dict[str, Any]:
+        """The record a camera that sent no frame for ``silent_s`` publishes (the frame
+        watchdog): status unknown, no position, cell or boxes, and why."""
+        return {
+            **self.to_dict(),
+            "status": PersonStatus.UNKNOWN.value,
+            "position_m": None,
+            "cell": None,
+            "direction": Direction.NOT_MOVING.label,
+            "boxes": [],
+            "warning": f"no camera frame for {silent_s:.1f} s",
+        }
+
 
 class CameraPeopleTracker:
     """Frames in, :class:`CameraPersonState` out, applying the two-missed-frames rule.

@@ -69,7 +69,12 @@ from stack.perception._config import require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadScanError
 from stack.perception.observation import speed_class
-from stack.perception.tracker import ConstantVelocityKalman, TrackerConfig, TrackEstimate
+from stack.perception.tracker import (
+    ConstantVelocityKalman,
+    TrackerConfig,
+    TrackEstimate,
+    measurements,
+)
 from stack.vocabulary import NOT_MOVING
 
 _FAR = 1e6  # cost of a forbidden pair (outside the gate)
@@ -185,13 +190,7 @@ class MultiTracker:
         self._stamp_s = stamp_s
         for t in self._tracks:
             t.kf.predict(dt)
-        zs, sigmas = [], []
-        for p in detections:
-            legs = getattr(p, "legs", None)
-            x, y = getattr(p, "position_m", p)
-            zs.append((float(x), float(y)))
-            single = legs is not None and len(legs) == 1
-            sigmas.append(cfg.single_leg_sigma_m if single else cfg.measurement_sigma_m)
+        zs, sigmas = measurements(detections, cfg.single_leg_sigma_m, cfg.measurement_sigma_m)
         z = np.array(zs, dtype=float).reshape(-1, 2)
         means = np.array([t.kf.x[:2] for t in self._tracks]).reshape(-1, 2)
         # innovation covariance with the nominal measurement noise (one gate per track)

@@ -114,16 +114,7 @@ class CameraPeopleNode(Node):
         self.get_logger().warning(
             f"no camera frame for {silent_s:.1f} s", throttle_duration_sec=10.0
         )
-        state = self.tracker.state
-        out = {
-            **state.to_dict(),
-            "status": PersonStatus.UNKNOWN.value,
-            "position_m": None,
-            "cell": None,
-            "direction": "Not moving",
-            "boxes": [],
-            "warning": f"no camera frame for {silent_s:.1f} s",
-        }
+        out = self.tracker.state.silent_dict(silent_s)
         self.pub_state.publish(String(data=json.dumps(out)))
         self.pub_cell.publish(String(data=NO_PERSON))
         self.pub_direction.publish(String(data="Not moving"))

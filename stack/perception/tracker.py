@@ -152,6 +152,22 @@ class _Track:
         self.last_update_s = stamp_s
 
 
+def measurements(
+    detections: Iterable[Any], single_leg_sigma_m: float, default_sigma_m: float | None = None
+) -> tuple[list[tuple[float, float]], list[float | None]]:
+    """Positions and measurement sigmas of detections: a leg-pair detection (or a bare
+    (x, y)) gets ``default_sigma_m``, a one-leg detection ``single_leg_sigma_m``."""
+    meas: list[tuple[float, float]] = []
+    sigmas: list[float | None] = []
+    for p in detections:
+        legs = getattr(p, "legs", None)
+        x, y = getattr(p, "position_m", p)
+        meas.append((float(x), float(y)))
+        single = legs is not None and len(legs) == 1
+        sigmas.append(single_leg_sigma_m if single else default_sigma_m)
+    return meas, sigmas
+
+
 class LegTracker:
     """Tracks the laser's people over successive scans.
 
@@ -193,13 +209,7 @@ class LegTracker:
         self._stamp_s = stamp_s
         for t in self._tracks:
             t.kf.predict(dt)
-        meas, sigmas = [], []
-        for p in positions_m:
-            legs = getattr(p, "legs", None)
-            x, y = getattr(p, "position_m", p)
-            meas.append((float(x), float(y)))
-            single = legs is not None and len(legs) == 1
-            sigmas.append(self.config.single_leg_sigma_m if single else None)
+        meas, sigmas = measurements(positions_m, self.config.single_leg_sigma_m)
         pairs = []
         for ti, t in enumerate(self._tracks):
             for mi, z in enumerate(meas):
