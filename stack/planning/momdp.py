@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stack.planning.policy import AlphaPolicy
-from stack.planning.sarsop import SearchConfig, SearchResult, SearchStats
+from stack.planning.sarsop import SearchConfig, SearchResult, SearchStats, StoppingRules
 from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12
@@ -249,7 +249,7 @@ class _Cell:
         return out
 
 
-class MixedSearch:
+class MixedSearch(StoppingRules):
     """HSVI2/SARSOP-style search over (observed cell, person belief) pairs.
 
     Args:
@@ -482,24 +482,8 @@ class MixedSearch:
     def n_alphas(self) -> int:
         return sum(c.G.shape[1] for c in self.cells)
 
-    def _late(self) -> bool:
-        reserve = self.n_alphas * self.m.X * self.m.Y * self.config.write_s_per_value
-        return time.perf_counter() >= self.deadline - reserve
-
-    def _met(self, r: _Node) -> bool:
-        gap = r.ub - r.lb
-        return gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
-            abs(r.lb), abs(r.ub)
-        )
-
-    def _done(self) -> str:
-        if all(self._met(r) for r in self.roots):
-            return "gap"
-        if self._late():
-            return "time"
-        if self.config.max_trials is not None and self.trials >= self.config.max_trials:
-            return "trials"
-        return ""
+    def _values_to_write(self) -> int:
+        return self.n_alphas * self.m.X * self.m.Y
 
     def _trial(self) -> None:
         g = self.g

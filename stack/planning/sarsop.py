@@ -278,7 +278,43 @@ class _UpperPoints:
         return np.minimum(best, (ratio * excess[:, None]).min(axis=0))
 
 
-class BeliefTreeSearch:
+class StoppingRules:
+    """When a belief-tree search stops (shared by the flat and the mixed search): the
+    roots' gaps met (absolute or relative), the deadline less the time writing the
+    vectors will take, or the trial budget. A search has ``config`` (SearchConfig),
+    ``roots`` (nodes with ``lb``/``ub``), ``deadline``, ``trials`` and says how many
+    values its policy holds (:meth:`_values_to_write`)."""
+
+    config: SearchConfig
+    roots: list
+    deadline: float
+    trials: int
+
+    def _values_to_write(self) -> int:
+        raise NotImplementedError
+
+    def _late(self) -> bool:
+        """Past the deadline, less the time writing the vectors will take."""
+        reserve = self._values_to_write() * self.config.write_s_per_value
+        return time.perf_counter() >= self.deadline - reserve
+
+    def _met(self, r) -> bool:
+        gap = r.ub - r.lb
+        return gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
+            abs(r.lb), abs(r.ub)
+        )
+
+    def _done(self) -> str:
+        if all(self._met(r) for r in self.roots):
+            return "gap"
+        if self._late():
+            return "time"
+        if self.config.max_trials is not None and self.trials >= self.config.max_trials:
+            return "trials"
+        return ""
+
+
+class BeliefTreeSearch(StoppingRules):
     """The solver for one model. See the module docstring.
 
     Args:
@@ -547,25 +583,8 @@ class BeliefTreeSearch:
         self._pruned_at = self.K
 
     # -- the search -----------------------------------------------------------------
-    def _late(self) -> bool:
-        """Past the deadline, less the time writing the vectors will take."""
-        reserve = self.K * self.S * self.config.write_s_per_value
-        return time.perf_counter() >= self.deadline - reserve
-
-    def _met(self, r: _Node) -> bool:
-        gap = r.ub - r.lb
-        return gap <= self.config.target_gap or gap <= self.config.relative_gap * max(
-            abs(r.lb), abs(r.ub)
-        )
-
-    def _done(self) -> str:
-        if all(self._met(r) for r in self.roots):
-            return "gap"
-        if self._late():
-            return "time"
-        if self.config.max_trials is not None and self.trials >= self.config.max_trials:
-            return "trials"
-        return ""
+    def _values_to_write(self) -> int:
+        return self.K * self.S
 
     def _trial(self) -> None:
         g = self.gamma
