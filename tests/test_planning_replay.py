@@ -7,13 +7,12 @@ import numpy as np
 import pytest
 
 from stack.planning.replay import TABLES
-from vigil.cli import REPLAY_ITERATIONS, main, run_replay
+from vigil.cli import build_parser, main, run_replay
 
 
-def _args():
-    return argparse.Namespace(
-        beliefs=300, iterations=REPLAY_ITERATIONS, time_limit=None, fib_time=0.0, seed=0, quiet=True
-    )
+def _args() -> argparse.Namespace:
+    """The replay command's own defaults: the task solver (TASK_CONFIG)."""
+    return build_parser().parse_args(["replay", "--quiet"])
 
 
 @pytest.fixture(scope="module")

@@ -24,6 +24,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -31,7 +32,11 @@ TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r
 
 
 def _solver_args(
-    p: argparse.ArgumentParser, iterations: int = 50, algorithm: str = "sarsop"
+    p: argparse.ArgumentParser,
+    iterations: int = 50,
+    algorithm: str = "sarsop",
+    trials: int | None = None,
+    relative_gap: float = 0.0,
 ) -> None:
     p.add_argument(
         "--solver",
@@ -49,9 +54,12 @@ def _solver_args(
     )
     p.add_argument("--target-gap", type=float, default=1e-3, help="sarsop: stop at this gap")
     p.add_argument(
-        "--relative-gap", type=float, default=0.0, help="sarsop: stop at this gap / |V(b0)|"
+        "--relative-gap",
+        type=float,
+        default=relative_gap,
+        help="sarsop: stop at this gap / |V(b0)|",
     )
-    p.add_argument("--trials", type=int, default=None, help="sarsop: stop after this many")
+    p.add_argument("--trials", type=int, default=trials, help="sarsop: stop after this many")
     p.add_argument(
         "--perseus-share",
         type=float,
@@ -123,7 +131,11 @@ def _start(args: argparse.Namespace) -> float:
 
 
 def solve_task(
-    task_path: Path, args: argparse.Namespace, progress=None, require_progress: bool = False
+    task_path: Path,
+    args: argparse.Namespace,
+    progress=None,
+    require_progress: bool = False,
+    start: float | None = None,
 ):
     """Load and solve a task file; returns (model, pomdp, result).
 
@@ -134,7 +146,11 @@ def solve_task(
     from stack.planning.task import load_task
 
     sol = solve_task_model(
-        load_task(task_path), _solver_config(args), progress, _start(args), require_progress
+        load_task(task_path),
+        _solver_config(args),
+        progress,
+        _start(args) if start is None else start,
+        require_progress,
     )
     sol.result.policy.meta["task"] = str(task_path)
     return sol.model, sol.pomdp, sol.result
@@ -258,9 +274,12 @@ def run_replay(tables: list[str], args: argparse.Namespace, policies: dict | Non
         table = TABLES[name]
         if table.task not in solved:
             print(f"solving task {table.task} ...", file=sys.stderr, flush=True)
+            # --time-limit holds for each task's solve (the first counts from the
+            # command's start, the later ones from their own)
             model, pomdp, result = solve_task(
-                TASKS[table.task], args, _progress(args), require_progress=True
-            )
+                TASKS[table.task], args, _progress(args), require_progress=True,
+                start=None if not solved else time.perf_counter(),
+            )  # fmt: skip
             solved[table.task] = (model, pomdp, result)
         model, pomdp, result = solved[table.task]
         results.append(replay_table(model, pomdp, table, policy_chooser(result.policy, pomdp)))
@@ -410,6 +429,14 @@ def _command(sub, name: str, what: str, **kwargs) -> argparse.ArgumentParser:
     )
 
 
+def _task_solver_args(p: argparse.ArgumentParser) -> None:
+    """The solver options of the commands that solve the case-study tasks, defaulting
+    to the task solver (:data:`stack.planning.solve.TASK_CONFIG`)."""
+    from stack.planning.solve import TASK_CONFIG as T
+
+    _solver_args(p, T.iterations, T.algorithm, T.trials, T.relative_gap)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="vigil",
@@ -422,7 +449,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("task", help="task file, e.g. config/task-r1.yaml")
     p.add_argument("-o", "--output", required=True, help="policy file (.npz, or .policy XML)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
+    _task_solver_args(p)
     p.set_defaults(func=cmd_solve)
 
     p = _command(sub, "export-pomdp", "write a task model as a Cassandra .pomdp file")
@@ -463,7 +490,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--table", choices=["5.1", "5.2", "5.3", "5.4", "all"], default="all", help="which table"
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
+    _task_solver_args(p)
     p.set_defaults(func=cmd_replay)
 
     p = _command(sub, "twin", "the digital twin")
@@ -553,12 +580,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", default="runs/main", help="report folder")
     p.add_argument("--episodes", type=int, default=50, help="simulated episodes per task")
-    _solver_args(p, iterations=REPLAY_ITERATIONS, algorithm="perseus")
+    _task_solver_args(p)
     p.set_defaults(func=cmd_main)
     return ap
-
-
-REPLAY_ITERATIONS = 200
 
 
 def cmd_run(args: argparse.Namespace) -> int:
