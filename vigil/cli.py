@@ -531,8 +531,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="recompute the reports of the run folders in --out; run nothing",
     )
     p.add_argument("--docs", default=None, help="update a marked section of this Markdown file")
-    p.add_argument("--label", default="guard", help="the section's marker label (default: guard)")
-    p.add_argument("--heading", default="", help="heading for a new section (default: none)")
+    p.add_argument("--label", default="guard", help="the section's marker label")
+    p.add_argument("--heading", default="", help="heading for a new section (empty: none)")
     p.set_defaults(func=cmd_experiments)
 
     p = _command(
