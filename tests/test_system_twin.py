@@ -181,7 +181,7 @@ def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
     )
     lines, up = [], set()
     deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and len(up) < 8:
+    while time.monotonic() < deadline and len(up) < 9:
         line = proc.stdout.readline()
         if not line:
             break
@@ -197,6 +197,7 @@ def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
         "speech",
         "planner",
         "recorder",
+        "markers",
     }, "".join(lines)
     steps = tmp_path / "o" / "steps.jsonl"
     end = time.monotonic() + 120
