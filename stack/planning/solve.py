@@ -149,7 +149,7 @@ def solve(
 
 
 def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveResult:
-    from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+    from stack.planning.sarsop import BeliefTreeSearch
 
     starts = list(starts) if starts is not None else [pomdp.b0]
     t0 = time.perf_counter() if start is None else start
@@ -176,13 +176,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         seed_alphas = extra
     search = BeliefTreeSearch(
         pomdp,
-        SearchConfig(
-            time_limit_s=config.time_limit_s,
-            target_gap=config.target_gap,
-            relative_gap=config.relative_gap,
-            max_trials=config.trials,
-            write_s_per_value=config.write_s_per_value,
-        ),
+        _search_config(config),
         seed_alphas=seed_alphas,
         start=t0,
         progress=progress,
@@ -196,23 +190,29 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
     return result
 
 
+def _search_config(config: SolverConfig):
+    """The belief-tree searches' settings from the solver's (flat and mixed alike)."""
+    from stack.planning.sarsop import SearchConfig
+
+    return SearchConfig(
+        time_limit_s=config.time_limit_s,
+        target_gap=config.target_gap,
+        relative_gap=config.relative_gap,
+        max_trials=config.trials,
+        write_s_per_value=config.write_s_per_value,
+    )
+
+
 def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     """The belief-tree search on the task's mixed-observability form."""
     from stack.planning.momdp import MixedSearch, mixed_from_task
-    from stack.planning.sarsop import SearchConfig
 
     t0 = time.perf_counter() if start is None else start
     alphas = np.vstack([blind_lower_bound(pomdp), seeds[0]])
     actions = np.concatenate([np.arange(pomdp.n_actions), seeds[1]])
     search = MixedSearch(
         mixed_from_task(model),
-        SearchConfig(
-            time_limit_s=config.time_limit_s,
-            target_gap=config.target_gap,
-            relative_gap=config.relative_gap,
-            max_trials=config.trials,
-            write_s_per_value=config.write_s_per_value,
-        ),
+        _search_config(config),
         (alphas, actions),
         task_starts(model, pomdp),
         start=t0,
