@@ -42,6 +42,7 @@ from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
@@ -221,22 +222,22 @@ class TwinBridge(Node):
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
             reliability=ReliabilityPolicy.RELIABLE,
         )
-        self.pub_image = self.create_publisher(Image, "/camera/image_raw", 2)
-        self.pub_info = self.create_publisher(CameraInfoMsg, "/camera/camera_info", 2)
-        self.pub_scan = self.create_publisher(LaserScan, "/scan", 5)
-        self.pub_odom = self.create_publisher(OdometryMsg, "/odom", 10)
-        self.pub_map = self.create_publisher(OccupancyGrid, "/map", latched)
-        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_image = self.create_publisher(Image, topic.CAMERA_IMAGE, 2)
+        self.pub_info = self.create_publisher(CameraInfoMsg, topic.CAMERA_INFO, 2)
+        self.pub_scan = self.create_publisher(LaserScan, topic.SCAN, 5)
+        self.pub_odom = self.create_publisher(OdometryMsg, topic.ODOM, 10)
+        self.pub_map = self.create_publisher(OccupancyGrid, topic.MAP, latched)
+        self.pub_clock = self.create_publisher(Clock, topic.CLOCK, 10)
         self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
-        self.pub_truth = self.create_publisher(String, "/twin/truth", 10)
-        self.pub_robot = self.create_publisher(PoseStamped, "/twin/robot_pose", 10)
-        self.pub_person = self.create_publisher(PoseStamped, "/twin/person_pose", 10)
-        self.pub_person_vel = self.create_publisher(TwistStamped, "/twin/person_velocity", 10)
-        self.pub_person_cell = self.create_publisher(Int32, "/twin/person_cell", 10)
-        self.pub_robot_cell = self.create_publisher(Int32, "/twin/robot_cell", 10)
-        self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, 10)
+        self.pub_truth = self.create_publisher(String, topic.TWIN_TRUTH, 10)
+        self.pub_robot = self.create_publisher(PoseStamped, topic.TWIN_ROBOT_POSE, 10)
+        self.pub_person = self.create_publisher(PoseStamped, topic.TWIN_PERSON_POSE, 10)
+        self.pub_person_vel = self.create_publisher(TwistStamped, topic.TWIN_PERSON_VELOCITY, 10)
+        self.pub_person_cell = self.create_publisher(Int32, topic.TWIN_PERSON_CELL, 10)
+        self.pub_robot_cell = self.create_publisher(Int32, topic.TWIN_ROBOT_CELL, 10)
+        self.create_subscription(Twist, topic.CMD_VEL, self._on_cmd_vel, 10)
         if self.lockstep:
-            self.ledger.subscribe("/cmd_vel")
+            self.ledger.subscribe(topic.CMD_VEL)
             self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
         self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
         realtime = self.get_parameter("realtime").value
@@ -255,7 +256,7 @@ class TwinBridge(Node):
         self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
         self._cmd_time_s = self.twin.time_s
         if self.lockstep:
-            self.ledger.received("/cmd_vel")
+            self.ledger.received(topic.CMD_VEL)
 
     def _on_ack(self, msg: String) -> None:
         try:

@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+import stack.topics as topic
+
 REPO = Path(__file__).resolve().parents[1]
 TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r2.yaml"}
 
@@ -566,7 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = _command(sec, "keystore", "write a keystore: CA, enclaves, governance, permissions")
     q.add_argument("path", help="a new or empty folder")
     q.add_argument("--domain", type=int, required=True, help="the deployment's ros.domain_id")
-    q.add_argument("--base-topic", default="/cmd_vel", help="the base driver's velocity topic")
+    q.add_argument("--base-topic", default=topic.CMD_VEL, help="the base driver's velocity topic")
     q.set_defaults(func=cmd_security_keystore)
     q = _command(sec, "check", "can the installed DDS enforce a keystore?")
     q.set_defaults(func=cmd_security_check)

@@ -29,6 +29,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.perception.errors import BadFrameError
 from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
 from stack.ros_lockstep import Participant
@@ -75,13 +76,13 @@ class RecorderNode(Node):
         self.speech: list[str] = []
         self.last_t = 0.0  # the last trace record's time
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
-        ls.subscription(Image, "/camera/image_raw", self.on_image, 5)
-        ls.subscription(String, "/perception/person", self.on_person, 10)
-        ls.subscription(String, "/perception/legs", self.on_legs, 10)
-        ls.subscription(String, "/twin/truth", self.on_truth, 10)
-        ls.subscription(Odometry, "/odom", self.on_odom, 10)
-        ls.subscription(String, "/speech/warning", self.on_warning, 10)
-        ls.subscription(String, "/speech/done", self.on_speech_done, 10)
+        ls.subscription(Image, topic.CAMERA_IMAGE, self.on_image, 5)
+        ls.subscription(String, topic.PERSON, self.on_person, 10)
+        ls.subscription(String, topic.LEGS, self.on_legs, 10)
+        ls.subscription(String, topic.TWIN_TRUTH, self.on_truth, 10)
+        ls.subscription(Odometry, topic.ODOM, self.on_odom, 10)
+        ls.subscription(String, topic.SPEECH_WARNING, self.on_warning, 10)
+        ls.subscription(String, topic.SPEECH_DONE, self.on_speech_done, 10)
         self.get_logger().info(f"recording into {out_dir}")
 
     def on_image(self, msg: Image) -> None:

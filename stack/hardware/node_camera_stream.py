@@ -31,6 +31,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import read_section
 from stack.hardware.camera_stream import (
@@ -68,9 +69,9 @@ class CameraStreamNode(Node):
         self.config = StreamConfig.from_dict(values, "camera_stream")
         self.frame_id = p("frame_id", "axis_camera").value
         info_file = p("camera_info_file", "").value
-        image_topic = p("image_topic", "/camera/image_raw").value
-        info_topic = p("info_topic", "/camera/camera_info").value
-        status_topic = p("status_topic", "/camera/status").value
+        image_topic = p("image_topic", topic.CAMERA_IMAGE).value
+        info_topic = p("info_topic", topic.CAMERA_INFO).value
+        status_topic = p("status_topic", topic.CAMERA_STATUS).value
 
         self.calibration: CameraCalibration | None = (
             load_calibration(info_file) if info_file else None

@@ -46,6 +46,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import read_section
 from stack.hardware.velocity_gate import CAPPED, OK, ZERO, GateConfig, VelocityGate
@@ -81,10 +82,10 @@ class VelocityGateNode(Node):
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
-                ("input", "/nav/cmd_vel"),
-                ("output", "/cmd_vel"),
-                ("arm", "/arm"),
-                ("state", "/safety/state"),
+                ("input", topic.NAV_CMD_VEL),
+                ("output", topic.CMD_VEL),
+                ("arm", topic.ARM),
+                ("state", topic.SAFETY_STATE),
             )
         }
         if topics["input"] == topics["output"]:

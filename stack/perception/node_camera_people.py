@@ -33,6 +33,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus
@@ -54,7 +55,7 @@ class CameraPeopleNode(Node):
         p = self.declare_parameter
         config_file = p("config_file", "").value
         calibration_file = p("calibration_file", "").value
-        image_topic = p("image_topic", "/camera/image_raw").value
+        image_topic = p("image_topic", topic.CAMERA_IMAGE).value
         self.map_frame = p("map_frame", "map").value
         self.frame_timeout_s = float(p("frame_timeout_s", 2.0).value)
         if not self.frame_timeout_s > 0:
@@ -71,10 +72,10 @@ class CameraPeopleNode(Node):
             self.get_logger().error("no calibration_file: person positions will be 'unknown'")
         self.tracker = CameraPeopleTracker(config, grid, homography)
         ls = self.lockstep
-        self.pub_state = ls.publisher(String, "/perception/person", 10)
-        self.pub_position = ls.publisher(PointStamped, "/perception/person_position", 10)
-        self.pub_cell = ls.publisher(String, "/perception/person_cell", 10)
-        self.pub_direction = ls.publisher(String, "/perception/person_direction", 10)
+        self.pub_state = ls.publisher(String, topic.PERSON, 10)
+        self.pub_position = ls.publisher(PointStamped, topic.PERSON_POSITION, 10)
+        self.pub_cell = ls.publisher(String, topic.PERSON_CELL, 10)
+        self.pub_direction = ls.publisher(String, topic.PERSON_DIRECTION, 10)
         self.stamps = StampGuard(
             float(p("max_future_stamp_s", 1.0).value), float(p("max_past_stamp_s", 0.0).value)
         )

@@ -34,6 +34,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.perception._config import load_config_file
 from stack.perception.errors import BadScanError
 from stack.perception.legs import LegConfig, Pose2D, detect_legs
@@ -58,9 +59,9 @@ class LegsNode(Node):
         super().__init__("legs", **kwargs)
         p = self.declare_parameter
         config_file = p("config_file", "").value
-        scan_topic = p("scan_topic", "/scan").value
-        odom_topic = p("odom_topic", "/odom").value
-        map_topic = p("map_topic", "/map").value
+        scan_topic = p("scan_topic", topic.SCAN).value
+        odom_topic = p("odom_topic", topic.ODOM).value
+        map_topic = p("map_topic", topic.MAP).value
         self.map_frame = p("map_frame", "map").value
         self.laser_mount = Pose2D(
             float(p("laser_x_m", 0.0).value),
@@ -82,8 +83,8 @@ class LegsNode(Node):
             float(p("max_future_stamp_s", 1.0).value), float(p("max_past_stamp_s", 0.0).value)
         )
         ls = self.lockstep = Participant(self, p("lockstep", False).value)
-        self.pub_legs = ls.publisher(String, "/perception/legs", 10)
-        self.pub_people = ls.publisher(PoseArray, "/perception/leg_people", 10)
+        self.pub_legs = ls.publisher(String, topic.LEGS, 10)
+        self.pub_people = ls.publisher(PoseArray, topic.LEG_PEOPLE, 10)
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
