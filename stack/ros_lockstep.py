@@ -11,7 +11,7 @@ callback reads the same time whatever the machine's speed. Timers (:meth:`timer`
 :meth:`on_clock`) run on the coordinator's ``/lockstep/tick``, which follows only
 once every participant has processed the ``/clock``::
 
-    self.lockstep = Participant(self, enabled=p("lockstep", False).value)
+    self.lockstep = Participant(self, enabled=declare(self, lockstep=False).lockstep)
     self.pub = self.lockstep.publisher(String, "/out", 10)
     self.lockstep.subscription(String, "/in", self.on_in, 10)
     ... self.lockstep.now_s() ...

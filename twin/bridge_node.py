@@ -46,6 +46,7 @@ import stack.topics as topic
 from stack.cells import ConfigError
 from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
 from twin.sensors import CameraInfo
@@ -176,31 +177,36 @@ class TwinBridge(Node):
 
     def __init__(self, twin: Twin | None = None, **kwargs):
         super().__init__("twin_bridge", **kwargs)
-        p = self.declare_parameter
-        p("config", "")
-        p("task", "")
-        p("seed", 0)
-        p("realtime", False)
-        p("cmd_timeout_s", 0.5)
-        p("odom_rate_hz", 25.0)
-        self.lockstep = bool(p("lockstep", False).value)
-        participants = list(p("participants", [""]).value)
-        self.stall_warn_s = float(p("stall_warn_s", 5.0).value)
-        self.stall_timeout_s = float(p("stall_timeout_s", 30.0).value)
+        v = declare(
+            self,
+            config="",
+            task="",
+            seed=0,
+            realtime=False,
+            cmd_timeout_s=0.5,
+            odom_rate_hz=25.0,
+            lockstep=False,
+            participants=[""],
+            stall_warn_s=5.0,
+            stall_timeout_s=30.0,
+            sensor_outages="[]",
+        )
+        self.lockstep = v.lockstep
+        participants = list(v.participants)
+        self.stall_warn_s = v.stall_warn_s
+        self.stall_timeout_s = v.stall_timeout_s
         # no tick for this long (forgiving included): the run ends with EXIT_STALLED
-        self.stall_abort_s = float(p("stall_abort_s", 3 * self.stall_timeout_s).value)
-        self.outages = parse_outages(p("sensor_outages", "[]").value)
+        self.stall_abort_s = declare(self, stall_abort_s=3 * self.stall_timeout_s).stall_abort_s
+        self.outages = parse_outages(v.sensor_outages)
         if twin is None:
-            path = self.get_parameter("config").value
-            task = self.get_parameter("task").value or None
-            cfg = load_twin_config(path, task) if path else TwinConfig()
-            twin = Twin(cfg, seed=int(self.get_parameter("seed").value))
+            cfg = load_twin_config(v.config, v.task or None) if v.config else TwinConfig()
+            twin = Twin(cfg, seed=v.seed)
         self.twin = twin
-        self.cmd_timeout_s = float(self.get_parameter("cmd_timeout_s").value)
+        self.cmd_timeout_s = v.cmd_timeout_s
         cfg = twin.config
         self._cmd = VelocityCommand()
         self._cmd_time_s = -math.inf
-        odom_hz = float(self.get_parameter("odom_rate_hz").value)
+        odom_hz = v.odom_rate_hz
         self._periods = {
             "odom": cfg.control_period_s if odom_hz <= 0 else 1.0 / odom_hz,
             "scan": 1.0 / cfg.lidar.rate_hz,
@@ -240,7 +246,7 @@ class TwinBridge(Node):
             self.ledger.subscribe(topic.CMD_VEL)
             self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
         self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
-        realtime = self.get_parameter("realtime").value
+        realtime = v.realtime
         period = cfg.control_period_s if realtime and not self.lockstep else 0.001
         self.timer = self.create_timer(period, self._lockstep_poll if self.lockstep else self._tick)
 

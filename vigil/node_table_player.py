@@ -20,12 +20,13 @@ import stack.topics as topic
 from stack.cells import ConfigError
 from stack.planning.replay import TABLES
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 
 
 class TablePlayerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("table_player", **kwargs)
-        name = self.declare_parameter("table", "5.1").value
+        name = declare(self, table="5.1").table
         if name not in TABLES:
             raise ConfigError("table", name, f"must be one of {sorted(TABLES)}")
         self.rows = TABLES[name].steps

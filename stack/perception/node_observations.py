@@ -45,6 +45,7 @@ from stack.perception.observation import NOT_MOVING, CombinerConfig, Observation
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
 
 
 class ObservationsNode(Node):
@@ -52,23 +53,21 @@ class ObservationsNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("observations", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        calibration_file = p("calibration_file", "").value
-        period_s = float(p("decision_period_s", 1.0).value)
-        topics = {
-            name: p(f"{name}_topic", default).value
-            for name, default in (
-                ("person", topic.PERSON),
-                ("legs", topic.LEGS),
-                ("odom", topic.ODOM),
-                ("request", topic.OBSERVATIONS_REQUEST),
-                ("observations", topic.OBSERVATIONS),
-            )
-        }
+        v = declare(
+            self, config_file="", calibration_file="", decision_period_s=1.0, lockstep=False
+        )
+        calibration_file, period_s = v.calibration_file, v.decision_period_s
+        topics = declare_topics(
+            self,
+            person=topic.PERSON,
+            legs=topic.LEGS,
+            odom=topic.ODOM,
+            request=topic.OBSERVATIONS_REQUEST,
+            observations=topic.OBSERVATIONS,
+        )
         if period_s < 0:
             raise ConfigError("decision_period_s", period_s, "must be >= 0")
-        grid, sections = load_config_file(config_file)
+        grid, sections = load_config_file(v.config_file)
         visibility = None
         if calibration_file:
             try:
@@ -88,7 +87,7 @@ class ObservationsNode(Node):
         self.camera = None
         self.tracks = ()
         self.pose: Pose2D | None = None
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls = self.lockstep = Participant(self, v.lockstep)
         base = topics["observations"]
         self.pubs = {
             name: ls.publisher(String, base if name == "" else f"{base}/{name}", 10)
