@@ -347,6 +347,12 @@ class TfBuffer:
         return True
 
 
+def map_to_odom(map_pose: Pose2D, odom_pose: Pose2D) -> Transform:
+    """T_map_odom that puts the robot at ``map_pose`` when odometry says ``odom_pose``
+    (what a localisation such as AMCL publishes: map -> odom absorbs the drift)."""
+    return Transform.from_pose2d(map_pose).compose(Transform.from_pose2d(odom_pose).inverse())
+
+
 class PendingLookup:
     """A lookup that may wait for its transforms up to ``timeout_s`` (of the node's clock).
 

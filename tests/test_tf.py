@@ -167,3 +167,14 @@ def test_pending_lookup_waits_then_times_out_then_succeeds():
     assert tf is not None and math.isclose(tf.to_pose2d().x_m, 1.0 + math.cos(0.5))
     with pytest.raises(ValueError, match="timeout_s"):
         PendingLookup(buf, MAP, BASE_LINK, timeout_s=-1)
+
+
+def test_map_to_odom_puts_the_robot_at_its_map_pose_whatever_the_drift():
+    from stack.tf import map_to_odom
+
+    truth, odom = Pose2D(4.0, -1.0, 2.0), Pose2D(3.1, -0.2, 1.7)  # odometry has drifted
+    buf = TfBuffer()
+    buf.set_transform(StampedTransform(MAP, ODOM, 5.0, map_to_odom(truth, odom)))
+    buf.set_transform(StampedTransform(ODOM, BASE_LINK, 5.0, Transform.from_pose2d(odom)))
+    got = buf.lookup(MAP, BASE_LINK).to_pose2d()
+    assert close((got.x_m, got.y_m, got.yaw_rad), (truth.x_m, truth.y_m, truth.yaw_rad))

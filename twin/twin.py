@@ -467,6 +467,11 @@ class Twin:
         rot = self.data.cam_xmat[self._camera].reshape(3, 3) @ OPTICAL_FROM_MUJOCO_CAMERA
         return CameraPose(pos, rot)
 
+    def lidar_mount_m(self) -> tuple[float, float, float]:
+        """The lidar's position on the robot (base_link -> laser) [m]."""
+        x, y, z = self.model.site_pos[self._lidar_site]
+        return float(x), float(y), float(z)
+
     # -- map ----------------------------------------------------------------
     def occupancy_map(self) -> OccupancyMap:
         """The room's occupancy grid, made from the static geometry (config.map)."""

@@ -52,6 +52,7 @@ class Grant:
 NODES = (
     "camera_stream",
     "camera_people",
+    "localisation",
     "legs",
     "observations",
     "navigation",
