@@ -16,13 +16,24 @@ twin steps on.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
 from stack import topics as topic
-from stack.tf import StampedTransform, TfBuffer, Transform
+from stack.geometry import Pose2D
+from stack.tf import (
+    BASE_LINK,
+    MAP,
+    PendingLookup,
+    StampedTransform,
+    TfBuffer,
+    TfTimeout,
+    Transform,
+)
 
 TF_QOS = QoSProfile(
     depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE
@@ -88,11 +99,18 @@ class TfListener:
     """Fills a :class:`~stack.tf.TfBuffer` from ``/tf`` and ``/tf_static``.
 
     A malformed transform is skipped with a warning naming it; the node keeps running.
+    ``on_update`` (optional) is called after each message has been added.
     """
 
-    def __init__(self, participant, buffer: TfBuffer | None = None):
+    def __init__(
+        self,
+        participant,
+        buffer: TfBuffer | None = None,
+        on_update: Callable[[], None] | None = None,
+    ):
         self.buffer = buffer if buffer is not None else TfBuffer()
         self._node = participant.node
+        self._on_update = on_update
         participant.subscription(TFMessage, topic.TF, self._on_tf, TF_QOS)
         participant.subscription(
             TFMessage, topic.TF_STATIC, self._on_static, TF_STATIC_LISTENER_QOS
@@ -107,9 +125,52 @@ class TfListener:
                     f"transform {m.header.frame_id!r} -> {m.child_frame_id!r} skipped: {err}",
                     throttle_duration_sec=5.0,
                 )
+        if self._on_update is not None:
+            self._on_update()
 
     def _on_tf(self, msg: TFMessage) -> None:
         self._add(msg, static=False)
 
     def _on_static(self, msg: TFMessage) -> None:
         self._add(msg, static=True)
+
+
+class MapPose:
+    """The robot's pose in the map through TF (``map <- base_link``), for consumer nodes.
+
+    Each time ``/tf`` or ``/tf_static`` brings a newer time at which the whole chain is
+    known, ``on_pose(stamp_s, pose)`` is called with the pose at that time. While the
+    chain is incomplete nothing is called; after ``timeout_s`` (of the participant's
+    clock) without it, a warning names the missing link, and the wait starts again.
+    """
+
+    def __init__(
+        self,
+        participant,
+        on_pose: Callable[[float, Pose2D], None],
+        timeout_s: float = 1.0,
+        map_frame: str = MAP,
+        base_frame: str = BASE_LINK,
+    ):
+        self._participant = participant
+        self._on_pose = on_pose
+        self.listener = TfListener(participant, on_update=self._update)
+        self.buffer = self.listener.buffer
+        self._frames = (map_frame, base_frame)
+        self._lookup = PendingLookup(self.buffer, map_frame, base_frame, timeout_s)
+        self._last_s: float | None = None
+
+    def _update(self) -> None:
+        try:
+            tf = self._lookup.poll(self._participant.now_s())
+        except TfTimeout as err:
+            self._participant.node.get_logger().warning(str(err), throttle_duration_sec=5.0)
+            return
+        if tf is None:
+            return
+        t = self.buffer.latest_common_time(*self._frames)
+        stamp_s = self._participant.now_s() if t is None else t
+        if stamp_s == self._last_s:
+            return  # a message that did not move the chain's latest time (a static one)
+        self._last_s = stamp_s
+        self._on_pose(stamp_s, tf.to_pose2d())

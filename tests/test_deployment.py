@@ -232,6 +232,9 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
     assert p["velocity_gate"]["output_topic"] == "/cmd_vel"
     assert p["velocity_gate"]["armed"] is False
     assert p["navigation"]["pose_source"] == "amcl"
+    # no node takes /odom for the map pose on a robot: the map pose comes through TF
+    assert p["legs"]["pose_source"] == p["observations"]["pose_source"] == "tf"
+    assert p["localisation"]["publish_map_odom"] is False  # the robot's localisation does
     assert not any(v.get("lockstep") for v in p.values())
     assert "192.168.1.10" in Path(system.env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()
     stack_cfg = yaml.safe_load((tmp_path / "run" / "stack.yaml").read_text())
@@ -267,3 +270,10 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path):
     assert len(twin["person"]["waypoints"]) == len(scenario.walk) + 1
     assert (tmp_path / "run" / "calibration.yaml").exists()  # from the twin's floor points
     assert p["planner"]["max_steps"] == scenario.steps
+
+
+def test_hardware_refuses_odometry_as_the_map_pose(tmp_path):
+    data = yaml.safe_load((CONFIG / "hardware.yaml").read_text())
+    data["navigation"] = {**data.get("navigation", {}), "pose_source": "odom"}
+    with pytest.raises(ConfigError, match="navigation.pose_source.*amcl or tf"):
+        parse_deployment(data, tmp_path / "hardware.yaml")

@@ -108,3 +108,76 @@ def test_twin_tree_has_the_rep105_frames_and_gives_the_true_poses(ros, tmp_path)
     finally:
         for n in (bridge, loc, probe):
             n.destroy_node()
+
+
+def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
+    """With ``pose_source: tf`` (the hardware default) legs, observations and navigation
+    put the robot where map -> odom -> base_link says, while /odom (offset from the map,
+    as on a robot whose odometry drifted) would put it in another cell."""
+    import json
+
+    from nav_msgs.msg import Odometry
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Empty, String
+    from tf2_msgs.msg import TFMessage
+
+    from stack.nav.node_navigation import NavigationNode
+    from stack.perception._config import load_config_file
+    from stack.perception.node_legs import LegsNode
+    from stack.perception.node_observations import ObservationsNode
+    from stack.ros_tf import TF_QOS, tf_message
+
+    grid, _ = load_config_file("")
+    cell_map, cell_odom = grid.cells[0], grid.cells[-1]
+    in_map, in_odom = Pose2D(*grid.center(cell_map), 0.3), Pose2D(*grid.center(cell_odom), 0.3)
+    map_odom = tf.map_to_odom(in_map, in_odom)
+    tf_params = [Parameter("pose_source", value="tf")]
+    legs = LegsNode(parameter_overrides=tf_params)
+    obs = ObservationsNode(
+        parameter_overrides=[*tf_params, Parameter("decision_period_s", value=0.0)]
+    )
+    nav = NavigationNode(parameter_overrides=tf_params)
+    probe = rclpy.create_node("tf_source")
+    pub_tf = probe.create_publisher(TFMessage, "/tf", TF_QOS)
+    pub_odom = probe.create_publisher(Odometry, "/odom", 10)
+    pub_request = probe.create_publisher(Empty, "/observations/request", 10)
+    labels: list[str] = []
+    probe.create_subscription(
+        String, "/observations", lambda m: labels.append(json.loads(m.data)["robot"]), 10
+    )
+    nodes = (legs, obs, nav, probe)
+    for n in nodes:
+        ros.add_node(n)
+    try:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and not (
+            legs.pose and nav.core.pose and labels and labels[-1] == str(cell_map)
+        ):
+            stamp = probe.get_clock().now().to_msg()
+            now = stamp.sec + stamp.nanosec * 1e-9
+            odom = Odometry()
+            odom.header.stamp = stamp
+            odom.header.frame_id, odom.child_frame_id = "odom", "base_link"
+            odom.pose.pose.position.x, odom.pose.pose.position.y = in_odom.x_m, in_odom.y_m
+            odom.pose.pose.orientation.w = 1.0
+            pub_odom.publish(odom)
+            pub_tf.publish(
+                tf_message(
+                    [
+                        tf.StampedTransform(tf.MAP, tf.ODOM, now, map_odom),
+                        tf.StampedTransform(
+                            tf.ODOM, tf.BASE_LINK, now, tf.Transform.from_pose2d(in_odom)
+                        ),
+                    ]
+                )
+            )
+            pub_request.publish(Empty())
+            for _ in range(5):
+                ros.spin_once(timeout_sec=0.02)
+        for pose in (legs.pose, nav.core.pose):
+            assert pose is not None
+            assert math.hypot(pose.x_m - in_map.x_m, pose.y_m - in_map.y_m) < 1e-6
+        assert labels and labels[-1] == str(cell_map) != str(cell_odom)
+    finally:
+        for n in nodes:
+            n.destroy_node()

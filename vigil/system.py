@@ -186,12 +186,15 @@ def prepare(
         "scan_topic": dep.topics.scan,
         "odom_topic": dep.topics.odom,
         "laser_x_m": LIDAR_X_M if twin_mode else 0.0,
+        # on a robot the map pose comes through TF (map -> odom from its localisation)
+        "pose_source": "odom" if twin_mode else "tf",
     }
     params["observations"] = {
         **common,
         "config_file": cfg,
         "calibration_file": str(calibration),  # the cells the robot hides from the camera
         "odom_topic": dep.topics.odom,
+        "pose_source": "odom" if twin_mode else "tf",
         "decision_period_s": 0.25,  # continuous: speech and the planner's events read it
     }
     params["navigation"] = {

@@ -3,7 +3,9 @@
 Subscribes (names are parameters):
     ``/perception/person`` std_msgs/String: the camera people node's JSON.
     ``/perception/legs`` std_msgs/String: the legs node's JSON (tracks with speeds).
-    ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame.
+    ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame; with
+        ``pose_source: tf`` instead ``/tf`` and ``/tf_static`` (``map <- base_link``:
+        on a robot, where odometry drifts from the map).
     ``/observations/request`` std_msgs/Empty: publish an observation now (the planner
         asks when the robot has finished its action).
 
@@ -21,7 +23,8 @@ Freshness is judged on this node's clock at reception, so publishers' stamps nee
 not share its clock. Parameters: ``config_file`` (optional ``grid``, ``observations``
 and ``visibility`` sections), ``calibration_file`` (the camera's; with it the cells the
 robot hides from the camera are known, see :mod:`stack.perception.visibility`),
-``lockstep`` (see :mod:`stack.ros_lockstep`), ``decision_period_s`` (0: only on
+``lockstep`` (see :mod:`stack.ros_lockstep`), ``pose_source`` (odom | tf),
+``tf_timeout_s`` (1.0), ``decision_period_s`` (0: only on
 request), topic names. A message that cannot be used is logged and skipped; the node
 never dies of one.
 """
@@ -45,6 +48,7 @@ from stack.perception.observation import NOT_MOVING, CombinerConfig, Observation
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_tf import MapPose
 
 
 class ObservationsNode(Node):
@@ -56,6 +60,10 @@ class ObservationsNode(Node):
         config_file = p("config_file", "").value
         calibration_file = p("calibration_file", "").value
         period_s = float(p("decision_period_s", 1.0).value)
+        pose_source = p("pose_source", "odom").value
+        tf_timeout_s = float(p("tf_timeout_s", 1.0).value)
+        if pose_source not in ("odom", "tf"):
+            raise ConfigError("pose_source", pose_source, "must be odom or tf")
         topics = {
             name: p(f"{name}_topic", default).value
             for name, default in (
@@ -96,7 +104,10 @@ class ObservationsNode(Node):
         }
         ls.subscription(String, topics["person"], self.on_person, 10)
         ls.subscription(String, topics["legs"], self.on_legs, 10)
-        ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
+        if pose_source == "tf":
+            self.map_pose = MapPose(ls, self.on_map_pose, tf_timeout_s)
+        else:
+            ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
         ls.subscription(Empty, topics["request"], lambda _msg: self.publish_now(), 10)
         if period_s > 0:
             ls.timer(period_s, self.publish_now)
@@ -121,6 +132,10 @@ class ObservationsNode(Node):
             self.pose = pose_from_msg(msg.pose.pose)
         except ValueError as err:
             self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
+
+    def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
+        """The map pose through TF (``pose_source: tf``)."""
+        self.pose = pose
 
     def publish_now(self) -> None:
         pose, self.pose = self.pose, None  # a pose is used once; none new: same cell
