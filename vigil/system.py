@@ -174,6 +174,11 @@ def prepare(
     params["camera_people"] = {**common, "config_file": cfg, "calibration_file": str(calibration)}
     # TF: the camera's static frames; in the twin also map -> odom (on a robot its own
     # localisation, e.g. AMCL, publishes map -> odom)
+    # the robot's map pose for legs and observations: through TF on a robot (map -> odom
+    # from its localisation) and in the twin when navigation takes it so; else /odom (the
+    # twin's odom frame is the map frame at the start)
+    tf_pose = not twin_mode or dep.navigation.pose_source == "tf"
+    map_pose_source = "tf" if tf_pose else "odom"
     params["localisation"] = {
         **common,
         "calibration_file": str(calibration) if calibration else "",
@@ -186,15 +191,14 @@ def prepare(
         "scan_topic": dep.topics.scan,
         "odom_topic": dep.topics.odom,
         "laser_x_m": LIDAR_X_M if twin_mode else 0.0,
-        # on a robot the map pose comes through TF (map -> odom from its localisation)
-        "pose_source": "odom" if twin_mode else "tf",
+        "pose_source": map_pose_source,
     }
     params["observations"] = {
         **common,
         "config_file": cfg,
         "calibration_file": str(calibration),  # the cells the robot hides from the camera
         "odom_topic": dep.topics.odom,
-        "pose_source": "odom" if twin_mode else "tf",
+        "pose_source": map_pose_source,
         "decision_period_s": 0.25,  # continuous: speech and the planner's events read it
     }
     params["navigation"] = {
