@@ -181,3 +181,41 @@ def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
     finally:
         for n in nodes:
             n.destroy_node()
+
+
+def test_listener_skips_bad_transforms_and_keeps_the_good(ros):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    node = rclpy.create_node("tf_bad_input")
+    try:
+        updates: list[int] = []
+        listener = TfListener(Participant(node, enabled=False), on_update=lambda: updates.append(1))
+
+        def ts(parent, child, q=(0.0, 0.0, 0.0, 1.0), x=0.0, sec=1):
+            m = TransformStamped()
+            m.header.frame_id, m.child_frame_id = parent, child
+            m.header.stamp.sec = sec
+            m.transform.translation.x = x
+            r = m.transform.rotation
+            r.x, r.y, r.z, r.w = q
+            return m
+
+        bad = [
+            ts("odom", "base_link", q=(0.0, 0.0, 0.0, 0.0)),  # not a rotation
+            ts("odom", "base_link", x=math.nan),
+            ts("", "base_link"),
+            ts("odom", "odom"),
+            ts("map", "odom", x=2.0),
+            ts("odom", "base_link", x=1.0),
+            ts("base_link", "odom"),  # would close a loop
+        ]
+        listener._on_tf(TFMessage(transforms=bad))
+        listener._on_static(TFMessage(transforms=[ts("/base_link", "laser", x=0.2)]))
+        buf = listener.buffer
+        assert updates == [1, 1]
+        assert buf.parent_of("odom") == "map"  # the loop was refused
+        assert buf.parent_of("laser") == "base_link"  # a leading slash is dropped
+        assert math.isclose(buf.lookup("map", "laser").translation[0], 3.2)
+    finally:
+        node.destroy_node()
