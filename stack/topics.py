@@ -21,6 +21,8 @@ ARM = "/arm"
 SAFETY_STATE = "/safety/state"
 STOP = "/stop"
 GOAL_POSE = "/goal_pose"
+TF = "/tf"  # tf2_msgs/TFMessage: odom -> base_link (bridge), map -> odom (localisation)
+TF_STATIC = "/tf_static"  # base_link -> laser (bridge), map -> camera_link -> optical
 
 # perception
 PERSON = "/perception/person"

@@ -2,9 +2,11 @@
 
 Publishes ``/camera/image_raw`` (sensor_msgs/Image, rgb8), ``/camera/camera_info``,
 ``/scan`` (sensor_msgs/LaserScan), ``/odom`` (nav_msgs/Odometry), ``/map``
-(nav_msgs/OccupancyGrid, transient local), ``/clock`` (simulated time) and ground truth
-under ``/twin/...``; subscribes to ``/cmd_vel`` (geometry_msgs/Twist) and stops the base
-when commands are older than ``cmd_timeout_s`` of simulated time.
+(nav_msgs/OccupancyGrid, transient local), ``/clock`` (simulated time), TF (``/tf``:
+``odom -> base_link`` with each odometry message; ``/tf_static``: ``base_link -> laser``
+from the lidar's mount) and ground truth under ``/twin/...``; subscribes to ``/cmd_vel``
+(geometry_msgs/Twist) and stops the base when commands are older than ``cmd_timeout_s``
+of simulated time.
 
 Time, three modes:
     lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
@@ -41,12 +43,15 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
+from tf2_msgs.msg import TFMessage
 
 import stack.topics as topic
+from stack import tf
 from stack.cells import ConfigError
 from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
 from stack.ros_params import declare
+from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
 from twin.sensors import CameraInfo
@@ -241,11 +246,18 @@ class TwinBridge(Node):
         self.pub_person_vel = self.create_publisher(TwistStamped, topic.TWIN_PERSON_VELOCITY, 10)
         self.pub_person_cell = self.create_publisher(Int32, topic.TWIN_PERSON_CELL, 10)
         self.pub_robot_cell = self.create_publisher(Int32, topic.TWIN_ROBOT_CELL, 10)
+        self.pub_tf = self.create_publisher(TFMessage, topic.TF, TF_QOS)
+        self.pub_tf_static = self.create_publisher(TFMessage, topic.TF_STATIC, TF_STATIC_QOS)
         self.create_subscription(Twist, topic.CMD_VEL, self._on_cmd_vel, 10)
         if self.lockstep:
             self.ledger.subscribe(topic.CMD_VEL)
             self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
         self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
+        laser = tf.Transform(twin.lidar_mount_m())
+        self._publish(
+            self.pub_tf_static,
+            tf_message([tf.StampedTransform(tf.BASE_LINK, tf.LASER, twin.time_s, laser)]),
+        )
         realtime = v.realtime
         period = cfg.control_period_s if realtime and not self.lockstep else 0.001
         self.timer = self.create_timer(period, self._lockstep_poll if self.lockstep else self._tick)
@@ -289,6 +301,9 @@ class TwinBridge(Node):
             self.pub_scan,
             self.pub_image,
             self.pub_truth,
+            self.pub_tf,
+            self.pub_tf_static,
+            self.pub_robot,
         )
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
@@ -379,7 +394,11 @@ class TwinBridge(Node):
         tw = self.twin
         t = tw.time_s
         if self._due("odom", t):
-            self._publish(self.pub_odom, odometry_msg(tw.odometry()))
+            odom = tw.odometry()
+            self._publish(self.pub_odom, odometry_msg(odom))
+            base = tf.Transform.from_pose2d(odom.pose)
+            st = tf.StampedTransform(tf.ODOM, tf.BASE_LINK, odom.time_s, base)
+            self._publish(self.pub_tf, tf_message([st]))
             self._publish_truth(tw.ground_truth())
         if self._due("scan", t) and not self._out("lidar", t):
             self._publish(self.pub_scan, scan_msg(tw.scan()))
@@ -393,7 +412,8 @@ class TwinBridge(Node):
     def _publish_truth(self, gt: GroundTruth) -> None:
         t = gt.time_s
         self._publish(self.pub_truth, String(data=json.dumps(truth_record(gt))))
-        self.pub_robot.publish(pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
+        # counted: the localisation stand-in (a participant) reads it
+        self._publish(self.pub_robot, pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
         self.pub_robot_cell.publish(Int32(data=gt.robot_cell or -1))
         if gt.person is not None:
             p = gt.person

@@ -16,6 +16,7 @@ Sections (all optional except ``mode`` and ``task``)::
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
     navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0,
                  drive: holonomic}        # or diff: the follower (and the twin's base)
+                 # pose_source: odom (twin) | amcl | tf (hardware default; odom refused)
     speech: {voice: en}
     planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
     nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
@@ -102,8 +103,8 @@ class NavigationSection(Config):
     drive: str = "holonomic"  # the base: holonomic (mecanum) or diff (differential drive)
 
     def __post_init__(self) -> None:
-        if self.pose_source not in ("odom", "amcl"):
-            raise ConfigError("pose_source", self.pose_source, "must be odom or amcl")
+        if self.pose_source not in ("odom", "amcl", "tf"):
+            raise ConfigError("pose_source", self.pose_source, "must be odom, amcl or tf")
         if self.drive not in ("holonomic", "diff"):
             raise ConfigError("drive", self.drive, "must be holonomic or diff")
 
@@ -219,7 +220,16 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
     hardware = data.get("hardware") or {}
     if not isinstance(hardware, Mapping):
         raise ConfigError("hardware", hardware, "must be a mapping")
+    if mode == "hardware" and isinstance(data.get("navigation") or {}, Mapping):
+        # a robot's map pose: through TF unless the file names another source
+        data = {**data, "navigation": {"pose_source": "tf", **(data.get("navigation") or {})}}
     sections = {name: cls.from_dict(data.get(name), name) for name, cls in _SECTIONS.items()}
+    if mode == "hardware" and sections["navigation"].pose_source == "odom":
+        raise ConfigError(
+            "navigation.pose_source",
+            "odom",
+            "on a robot odometry drifts from the map: use amcl or tf (REP-105 map -> odom)",
+        )
     dep = Deployment(
         mode=mode,
         task=Path(task),

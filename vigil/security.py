@@ -53,6 +53,7 @@ class Grant:
 NODES = (
     "camera_stream",
     "camera_people",
+    "localisation",
     "legs",
     "observations",
     "navigation",

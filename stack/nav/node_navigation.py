@@ -5,7 +5,9 @@ Subscribes (names are parameters):
     ``/nav/action_id`` std_msgs/Int32: the same as :class:`stack.cells.Direction` numbers.
     ``/goal_pose`` geometry_msgs/PoseStamped: a goal in the map frame (orientation ignored).
     pose: ``/odom`` nav_msgs/Odometry (twin) or ``/amcl_pose``
-        geometry_msgs/PoseWithCovarianceStamped (robot), chosen by ``pose_source``.
+        geometry_msgs/PoseWithCovarianceStamped (robot), or ``/tf`` and ``/tf_static``
+        (``map <- base_link``, any localisation that fills REP-105), chosen by
+        ``pose_source``.
     ``/map`` nav_msgs/OccupancyGrid (transient local), unless ``map_yaml`` is given.
     ``/perception/leg_people`` geometry_msgs/PoseArray: people's positions in the map
         frame (the leg detector's tracks).
@@ -20,7 +22,8 @@ Publishes:
         nothing (succeeded at once) and refused actions.
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``follower`` sections),
-``pose_source`` (odom | amcl), ``pose_topic`` (empty: the source's default),
+``pose_source`` (odom | amcl | tf), ``tf_timeout_s`` (1.0), ``pose_topic`` (empty: the
+source's default),
 ``map_yaml``, ``control_rate_hz``, ``progress_rate_hz``, ``free_map_margin_m`` (the free
 map used when there is no map), ``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`:
 the control loop then runs on simulated clock ticks).
@@ -46,8 +49,9 @@ from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, loa
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_params import declare, declare_topics
+from stack.ros_tf import MapPose
 
-POSE_SOURCES = {"odom": topic.ODOM, "amcl": topic.AMCL_POSE}
+POSE_SOURCES = {"odom": topic.ODOM, "amcl": topic.AMCL_POSE, "tf": topic.TF}
 
 
 def twist_to_msg(cmd: Twist2D) -> Twist:
@@ -87,6 +91,7 @@ class NavigationNode(Node):
             self,
             config_file="",
             pose_source="odom",
+            tf_timeout_s=1.0,
             pose_topic="",
             map_yaml="",
             control_rate_hz=20.0,
@@ -136,9 +141,12 @@ class NavigationNode(Node):
         ls.subscription(PoseStamped, topics["goal"], self.on_goal, 10)
         ls.subscription(PoseArray, topics["people"], self.on_people, 10)
         ls.subscription(Bool, topics["stop"], self.on_stop, 10)
-        pose_topic = pose_topic or POSE_SOURCES[source]
-        pose_type = Odometry if source == "odom" else PoseWithCovarianceStamped
-        ls.subscription(pose_type, pose_topic, self.on_pose, 10)
+        if source == "tf":
+            self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s, self.map_frame)
+        else:
+            pose_topic = pose_topic or POSE_SOURCES[source]
+            pose_type = Odometry if source == "odom" else PoseWithCovarianceStamped
+            ls.subscription(pose_type, pose_topic, self.on_pose, 10)
         if not map_yaml:
             latched = QoSProfile(
                 depth=1,
@@ -168,6 +176,10 @@ class NavigationNode(Node):
         pose = msg.pose.pose
         yaw = yaw_from_quaternion(pose.orientation)
         self.emit(self.core.set_pose(Pose2D(pose.position.x, pose.position.y, yaw), self.now_s()))
+
+    def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
+        """The map pose through TF (``pose_source: tf``)."""
+        self.emit(self.core.set_pose(pose, self.now_s()))
 
     def on_people(self, msg: PoseArray) -> None:
         self.core.set_people([(p.position.x, p.position.y) for p in msg.poses])
