@@ -48,7 +48,17 @@ from tf2_msgs.msg import TFMessage
 import stack.topics as topic
 from stack import tf
 from stack.cells import ConfigError
-from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
+from stack.lockstep import (
+    ABORT,
+    ACK_TOPIC,
+    CLOCK,
+    RUN_ID_ENV,
+    SENSORS,
+    TICK,
+    TICK_TOPIC,
+    Coordinator,
+    Ledger,
+)
 from stack.ros_main import spin_node
 from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
@@ -220,13 +230,9 @@ class TwinBridge(Node):
         self._next = dict.fromkeys(self._periods, 0.0)
         self.run_id = os.environ.get(RUN_ID_ENV, "")
         self.ledger = Ledger(tuple(n for n in participants if n), run_id=self.run_id)
-        self._foreign_seen = 0
-        self._phase = "start"  # lock-step: start -> clock -> tick -> sensors -> step -> clock
-        self._checked_version = -1  # the ledger's version when last checked
-        self._waiting_for = ""  # what that check found pending
-        self._wait_since = self._wall_s()
-        self._progress_s = self._wall_s()  # the last tick (or the start) [wall s]
-        self._last_warn = self._wall_s()
+        self.coordinator = Coordinator(
+            self.ledger, self.stall_warn_s, self.stall_timeout_s, self.stall_abort_s, self._wall_s()
+        )
 
         latched = QoSProfile(
             depth=1,
@@ -277,20 +283,22 @@ class TwinBridge(Node):
             self.ledger.received(topic.CMD_VEL)
 
     def _on_ack(self, msg: String) -> None:
-        try:
-            ours = self.ledger.update(Ack.from_json(msg.data), self._wall_s())
-        except ValueError as err:
-            self.get_logger().warning(f"lock-step ack ignored: {err}", throttle_duration_sec=5.0)
-            ours = True
-        if not ours and len(self.ledger.foreign) > self._foreign_seen:
-            self._foreign_seen = len(self.ledger.foreign)
-            self.get_logger().warning(
-                f"lock-step: ignoring another run's participants ({', '.join(self.ledger.foreign)}"
-                f"); this run is {self.run_id or '(no run id)'}"
-            )
-        for event in self.ledger.events:
-            self.get_logger().warning(f"lock-step: {event}")
-        self.ledger.events.clear()
+        self.coordinator.ack(msg.data, self._wall_s())
+        self._log_coordinator()
+
+    def _log_coordinator(self) -> None:
+        logger = self.get_logger()
+        # one call site per severity: rclpy refuses a call site that changes severity
+        for level, line in self.coordinator.log:
+            if level == "throttled":
+                logger.warning(line, throttle_duration_sec=5.0)
+            elif level == "error":
+                logger.error(line)
+            elif level == "warning":
+                logger.warning(line)
+            else:
+                logger.info(line)
+        self.coordinator.log.clear()
 
     # -- lock-step ----------------------------------------------------------------------
     def _own_matched(self) -> dict[str, int]:
@@ -308,68 +316,22 @@ class TwinBridge(Node):
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
     def _lockstep_poll(self) -> None:
-        now = self._wall_s()
-        if self._phase == "start":
-            waiting = self.ledger.missing() + self.ledger.unmatched(self._own_matched())
-            waiting += self.ledger.pending()
-            if waiting:
-                self._warn_if_slow(now, "waiting for " + ", ".join(waiting), forgive=False)
-                return
-            self.get_logger().info(
-                f"lock-step: {len(self.ledger.members)} participants up "
-                f"({', '.join(sorted(self.ledger.members))}); starting"
-            )
-            self._begin_tick(now)
-            return
-        if self.ledger.version != self._checked_version:  # new counts: check them
-            self._checked_version = self.ledger.version
-            pending = self.ledger.pending()
-            self._waiting_for = "waiting: " + ", ".join(pending) if pending else ""
-        if self._waiting_for:
-            self._warn_if_slow(now, self._waiting_for, forgive=True)
-            return
-        self._wait_since = now
-        if self._phase == "clock":  # everyone has the new time: now the timers
+        """Do what the coordinator (:class:`stack.lockstep.Coordinator`) says is next."""
+        first = self.coordinator.phase == "start"
+        action = self.coordinator.poll(self._wall_s(), self._own_matched, self.twin.time_s)
+        self._log_coordinator()
+        if action == CLOCK:  # step the physics to the next sensor time, publish the clock
+            if not first:
+                t_next = min(self._next.values())
+                while self.twin.time_s + 1e-9 < t_next:
+                    self._step_physics()
+            self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s)))
+        elif action == TICK:  # everyone has the new time: now the timers
             self._publish(self.pub_tick, Clock(clock=stamp_of(self.twin.time_s)))
-            self._phase = "tick"
-        elif self._phase == "tick":
+        elif action == SENSORS:
             self._publish_sensors()
-            self._phase = "sensors"
-        else:  # sensors processed and everything they caused: step to the next tick
-            self._begin_tick(now)
-
-    def _begin_tick(self, now: float) -> None:
-        """Step the physics to the next sensor time and publish the clock."""
-        tw = self.twin
-        first = self._phase == "start"
-        if not first:
-            t_next = min(self._next.values())
-            while tw.time_s + 1e-9 < t_next:
-                self._step_physics()
-        self._publish(self.pub_clock, Clock(clock=stamp_of(tw.time_s)))
-        self._phase = "clock"
-        self._wait_since = now
-        self._progress_s = now
-
-    def _warn_if_slow(self, now: float, what: str, forgive: bool) -> None:
-        stalled = now - self._progress_s
-        if stalled > self.stall_abort_s:
-            t = self.twin.time_s
-            self.get_logger().error(
-                f"lock-step stalled: no progress for {stalled:.0f} s at t={t:.2f}: {what}; "
-                "ending the run"
-            )
+        elif action == ABORT:
             raise SystemExit(EXIT_STALLED)
-        waited = now - self._wait_since
-        if waited > self.stall_warn_s and now - self._last_warn > self.stall_warn_s:
-            self._last_warn = now
-            t = self.twin.time_s
-            self.get_logger().warning(f"lock-step: {waited:.0f} s at t={t:.2f}: {what}")
-        if forgive and waited > self.stall_timeout_s:
-            names = self.ledger.stalled_members()
-            for line in self.ledger.forgive(names, now, self.stall_timeout_s):
-                self.get_logger().error(f"lock-step: {line}")
-            self._wait_since = now
 
     # -- stepping -------------------------------------------------------------------------
     def _step_physics(self) -> None:

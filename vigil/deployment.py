@@ -83,6 +83,7 @@ class TwinSection(Config):
     stall_timeout_s: float = 30.0
 
     _rules = {
+        "seed": (lambda v: v >= 0, "must be >= 0"),
         "odom_rate_hz": (lambda v: v > 0, "must be > 0"),
         "stall_timeout_s": (lambda v: v > 0, "must be > 0"),
     }
@@ -102,6 +103,8 @@ class NavigationSection(Config):
     control_rate_hz: float = 20.0
     drive: str = "holonomic"  # the base: holonomic (mecanum) or diff (differential drive)
 
+    _rules = {"control_rate_hz": (lambda v: v > 0, "must be > 0")}
+
     def __post_init__(self) -> None:
         if self.pose_source not in ("odom", "amcl", "tf"):
             raise ConfigError("pose_source", self.pose_source, "must be odom, amcl or tf")
@@ -120,6 +123,8 @@ class PlannerSection(Config):
     start_delay_s: float = 1.0
     nav_timeout_s: float = 60.0
     obs_timeout_s: float = 5.0
+
+    _rules = {"start_delay_s": (lambda v: v >= 0, "must be >= 0")}
 
     def __post_init__(self) -> None:
         if self.max_steps < 0:
