@@ -41,8 +41,10 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
-ACK_TOPIC = "/lockstep/ack"
-TICK_TOPIC = "/lockstep/tick"  # after /clock has reached everyone: run the timers
+from stack import topics
+
+ACK_TOPIC = topics.LOCKSTEP_ACK
+TICK_TOPIC = topics.LOCKSTEP_TICK  # after /clock has reached everyone: run the timers
 RUN_ID_ENV = "VIGIL_RUN_ID"  # every node of a run has the run's id in this variable
 MAX_FOREIGN = 64  # names of other runs' participants remembered (a hostile peer is bounded)
 CATCH_UP_S = 5.0

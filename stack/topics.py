@@ -56,3 +56,4 @@ TWIN_PERSON_POSE = "/twin/person_pose"
 TWIN_PERSON_CELL = "/twin/person_cell"
 TWIN_PERSON_VELOCITY = "/twin/person_velocity"
 LOCKSTEP_ACK = "/lockstep/ack"
+LOCKSTEP_TICK = "/lockstep/tick"  # after /clock has reached everyone: run the timers

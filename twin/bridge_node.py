@@ -45,11 +45,12 @@ from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
 from tf2_msgs.msg import TFMessage
 
+import stack.topics as topic
 from stack import tf
-from stack import topics as topic
 from stack.cells import ConfigError
 from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
@@ -181,31 +182,36 @@ class TwinBridge(Node):
 
     def __init__(self, twin: Twin | None = None, **kwargs):
         super().__init__("twin_bridge", **kwargs)
-        p = self.declare_parameter
-        p("config", "")
-        p("task", "")
-        p("seed", 0)
-        p("realtime", False)
-        p("cmd_timeout_s", 0.5)
-        p("odom_rate_hz", 25.0)
-        self.lockstep = bool(p("lockstep", False).value)
-        participants = list(p("participants", [""]).value)
-        self.stall_warn_s = float(p("stall_warn_s", 5.0).value)
-        self.stall_timeout_s = float(p("stall_timeout_s", 30.0).value)
+        v = declare(
+            self,
+            config="",
+            task="",
+            seed=0,
+            realtime=False,
+            cmd_timeout_s=0.5,
+            odom_rate_hz=25.0,
+            lockstep=False,
+            participants=[""],
+            stall_warn_s=5.0,
+            stall_timeout_s=30.0,
+            sensor_outages="[]",
+        )
+        self.lockstep = v.lockstep
+        participants = list(v.participants)
+        self.stall_warn_s = v.stall_warn_s
+        self.stall_timeout_s = v.stall_timeout_s
         # no tick for this long (forgiving included): the run ends with EXIT_STALLED
-        self.stall_abort_s = float(p("stall_abort_s", 3 * self.stall_timeout_s).value)
-        self.outages = parse_outages(p("sensor_outages", "[]").value)
+        self.stall_abort_s = declare(self, stall_abort_s=3 * self.stall_timeout_s).stall_abort_s
+        self.outages = parse_outages(v.sensor_outages)
         if twin is None:
-            path = self.get_parameter("config").value
-            task = self.get_parameter("task").value or None
-            cfg = load_twin_config(path, task) if path else TwinConfig()
-            twin = Twin(cfg, seed=int(self.get_parameter("seed").value))
+            cfg = load_twin_config(v.config, v.task or None) if v.config else TwinConfig()
+            twin = Twin(cfg, seed=v.seed)
         self.twin = twin
-        self.cmd_timeout_s = float(self.get_parameter("cmd_timeout_s").value)
+        self.cmd_timeout_s = v.cmd_timeout_s
         cfg = twin.config
         self._cmd = VelocityCommand()
         self._cmd_time_s = -math.inf
-        odom_hz = float(self.get_parameter("odom_rate_hz").value)
+        odom_hz = v.odom_rate_hz
         self._periods = {
             "odom": cfg.control_period_s if odom_hz <= 0 else 1.0 / odom_hz,
             "scan": 1.0 / cfg.lidar.rate_hz,
@@ -227,24 +233,24 @@ class TwinBridge(Node):
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
             reliability=ReliabilityPolicy.RELIABLE,
         )
-        self.pub_image = self.create_publisher(Image, "/camera/image_raw", 2)
-        self.pub_info = self.create_publisher(CameraInfoMsg, "/camera/camera_info", 2)
-        self.pub_scan = self.create_publisher(LaserScan, "/scan", 5)
-        self.pub_odom = self.create_publisher(OdometryMsg, "/odom", 10)
-        self.pub_map = self.create_publisher(OccupancyGrid, "/map", latched)
-        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_image = self.create_publisher(Image, topic.CAMERA_IMAGE, 2)
+        self.pub_info = self.create_publisher(CameraInfoMsg, topic.CAMERA_INFO, 2)
+        self.pub_scan = self.create_publisher(LaserScan, topic.SCAN, 5)
+        self.pub_odom = self.create_publisher(OdometryMsg, topic.ODOM, 10)
+        self.pub_map = self.create_publisher(OccupancyGrid, topic.MAP, latched)
+        self.pub_clock = self.create_publisher(Clock, topic.CLOCK, 10)
         self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
-        self.pub_truth = self.create_publisher(String, "/twin/truth", 10)
-        self.pub_robot = self.create_publisher(PoseStamped, "/twin/robot_pose", 10)
-        self.pub_person = self.create_publisher(PoseStamped, "/twin/person_pose", 10)
-        self.pub_person_vel = self.create_publisher(TwistStamped, "/twin/person_velocity", 10)
-        self.pub_person_cell = self.create_publisher(Int32, "/twin/person_cell", 10)
-        self.pub_robot_cell = self.create_publisher(Int32, "/twin/robot_cell", 10)
+        self.pub_truth = self.create_publisher(String, topic.TWIN_TRUTH, 10)
+        self.pub_robot = self.create_publisher(PoseStamped, topic.TWIN_ROBOT_POSE, 10)
+        self.pub_person = self.create_publisher(PoseStamped, topic.TWIN_PERSON_POSE, 10)
+        self.pub_person_vel = self.create_publisher(TwistStamped, topic.TWIN_PERSON_VELOCITY, 10)
+        self.pub_person_cell = self.create_publisher(Int32, topic.TWIN_PERSON_CELL, 10)
+        self.pub_robot_cell = self.create_publisher(Int32, topic.TWIN_ROBOT_CELL, 10)
         self.pub_tf = self.create_publisher(TFMessage, topic.TF, TF_QOS)
         self.pub_tf_static = self.create_publisher(TFMessage, topic.TF_STATIC, TF_STATIC_QOS)
-        self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, 10)
+        self.create_subscription(Twist, topic.CMD_VEL, self._on_cmd_vel, 10)
         if self.lockstep:
-            self.ledger.subscribe("/cmd_vel")
+            self.ledger.subscribe(topic.CMD_VEL)
             self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
         self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
         laser = tf.Transform(twin.lidar_mount_m())
@@ -252,7 +258,7 @@ class TwinBridge(Node):
             self.pub_tf_static,
             tf_message([tf.StampedTransform(tf.BASE_LINK, tf.LASER, twin.time_s, laser)]),
         )
-        realtime = self.get_parameter("realtime").value
+        realtime = v.realtime
         period = cfg.control_period_s if realtime and not self.lockstep else 0.001
         self.timer = self.create_timer(period, self._lockstep_poll if self.lockstep else self._tick)
 
@@ -268,7 +274,7 @@ class TwinBridge(Node):
         self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
         self._cmd_time_s = self.twin.time_s
         if self.lockstep:
-            self.ledger.received("/cmd_vel")
+            self.ledger.received(topic.CMD_VEL)
 
     def _on_ack(self, msg: String) -> None:
         try:

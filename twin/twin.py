@@ -11,6 +11,10 @@ Several people (issue 16): every walker of ``config.walkers`` has its own script
 its own mocap bodies (``twin.scene.person_prefix``); the lidar and the camera see them
 all, and ``ground_truth().people`` reports each in the config's order. ``person`` and
 ``ground_truth().person`` remain the first walker, so one-person code is unchanged.
+
+The module runs past 500 lines because it is the twin's one public API: the scene's
+build, the step, every sensor read and the ground truth share the MuJoCo model and the
+one random generator, and splitting them would pass both around.
 """
 
 from __future__ import annotations

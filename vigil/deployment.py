@@ -31,11 +31,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import Config, read_yaml
 
 MODES = ("twin", "hardware")
-NAV_CMD_VEL = "/nav/cmd_vel"  # hardware mode: navigation -> gate; only the gate drives the base
+NAV_CMD_VEL = topic.NAV_CMD_VEL  # hardware mode: navigation -> gate; only the gate drives the base
 TWIN_ONLY = ("twin", "lockstep")
 
 
@@ -142,9 +143,9 @@ class NodesSection(Config):
 
 @dataclass(frozen=True)
 class TopicsSection(Config):
-    scan: str = "/scan"
-    odom: str = "/odom"
-    cmd_vel: str = "/cmd_vel"
+    scan: str = topic.SCAN
+    odom: str = topic.ODOM
+    cmd_vel: str = topic.CMD_VEL
 
 
 @dataclass(frozen=True)
@@ -275,7 +276,7 @@ def _check_hardware(dep: Deployment) -> None:
         raise ConfigError(
             "ros.interfaces", [], "hardware mode off localhost must list the addresses DDS may use"
         )
-    if dep.topics.cmd_vel in (NAV_CMD_VEL, "/arm", "/safety/state"):
+    if dep.topics.cmd_vel in (NAV_CMD_VEL, topic.ARM, topic.SAFETY_STATE):
         raise ConfigError(
             "topics.cmd_vel",
             dep.topics.cmd_vel,

@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
 from vigil.dds import dds_env, write_profile
@@ -166,7 +167,7 @@ def prepare(
         params["velocity_gate"] = {
             "config_file": str(hw_file),
             "armed": bool(dep.hardware.get("armed", False)),
-            "input_topic": "/nav/cmd_vel",
+            "input_topic": topic.NAV_CMD_VEL,
             "output_topic": dep.topics.cmd_vel,
         }
 
@@ -207,7 +208,7 @@ def prepare(
         "pose_source": dep.navigation.pose_source,
         "pose_topic": dep.navigation.pose_topic,
         "control_rate_hz": dep.navigation.control_rate_hz,
-        "cmd_vel_topic": "/cmd_vel" if twin_mode else "/nav/cmd_vel",
+        "cmd_vel_topic": topic.CMD_VEL if twin_mode else topic.NAV_CMD_VEL,
     }
     params["speech"] = {
         **common,

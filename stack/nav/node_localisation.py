@@ -34,6 +34,7 @@ from stack.perception.errors import CalibrationError
 from stack.perception.homography import Calibration, load_calibration
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
 from stack.ros_tf import tf_message, tf_publishers
 
 
@@ -50,13 +51,12 @@ class LocalisationNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("localisation", **kwargs)
-        p = self.declare_parameter
-        lockstep = bool(p("lockstep", False).value)
-        self.publish_map_odom = bool(p("publish_map_odom", True).value)
-        calibration_file = p("calibration_file", "").value
-        pose_topic = p("pose_topic", topic.TWIN_ROBOT_POSE).value
-        odom_topic = p("odom_topic", topic.ODOM).value
-        info_topic = p("camera_info_topic", topic.CAMERA_INFO).value
+        v = declare(self, lockstep=False, publish_map_odom=True, calibration_file="")
+        topics = declare_topics(
+            self, pose=topic.TWIN_ROBOT_POSE, odom=topic.ODOM, camera_info=topic.CAMERA_INFO
+        )
+        lockstep, calibration_file = v.lockstep, v.calibration_file
+        self.publish_map_odom = v.publish_map_odom
         self.calibration: Calibration | None = None
         if calibration_file:
             try:
@@ -70,10 +70,10 @@ class LocalisationNode(Node):
         self._published_s: float | None = None
         self.camera_published = False
         if self.publish_map_odom:
-            self.ls.subscription(Odometry, odom_topic, self.on_odom, 10)
-            self.ls.subscription(PoseStamped, pose_topic, self.on_pose, 10)
+            self.ls.subscription(Odometry, topics["odom"], self.on_odom, 10)
+            self.ls.subscription(PoseStamped, topics["pose"], self.on_pose, 10)
         if self.calibration is not None:
-            self.ls.subscription(CameraInfo, info_topic, self.on_camera_info, 2)
+            self.ls.subscription(CameraInfo, topics["camera_info"], self.on_camera_info, 2)
 
     def on_odom(self, msg: Odometry) -> None:
         self._odom = (_stamp_s(msg.header), _pose(msg.pose.pose))

@@ -48,6 +48,7 @@ from stack.perception.observation import NOT_MOVING, CombinerConfig, Observation
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
 from stack.ros_tf import MapPose
 
 
@@ -56,27 +57,29 @@ class ObservationsNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("observations", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        calibration_file = p("calibration_file", "").value
-        period_s = float(p("decision_period_s", 1.0).value)
-        pose_source = p("pose_source", "odom").value
-        tf_timeout_s = float(p("tf_timeout_s", 1.0).value)
-        if pose_source not in ("odom", "tf"):
-            raise ConfigError("pose_source", pose_source, "must be odom or tf")
-        topics = {
-            name: p(f"{name}_topic", default).value
-            for name, default in (
-                ("person", topic.PERSON),
-                ("legs", topic.LEGS),
-                ("odom", topic.ODOM),
-                ("request", topic.OBSERVATIONS_REQUEST),
-                ("observations", topic.OBSERVATIONS),
-            )
-        }
+        v = declare(
+            self,
+            config_file="",
+            calibration_file="",
+            decision_period_s=1.0,
+            pose_source="odom",
+            tf_timeout_s=1.0,
+            lockstep=False,
+        )
+        calibration_file, period_s = v.calibration_file, v.decision_period_s
+        if v.pose_source not in ("odom", "tf"):
+            raise ConfigError("pose_source", v.pose_source, "must be odom or tf")
+        topics = declare_topics(
+            self,
+            person=topic.PERSON,
+            legs=topic.LEGS,
+            odom=topic.ODOM,
+            request=topic.OBSERVATIONS_REQUEST,
+            observations=topic.OBSERVATIONS,
+        )
         if period_s < 0:
             raise ConfigError("decision_period_s", period_s, "must be >= 0")
-        grid, sections = load_config_file(config_file)
+        grid, sections = load_config_file(v.config_file)
         visibility = None
         if calibration_file:
             try:
@@ -96,7 +99,7 @@ class ObservationsNode(Node):
         self.camera = None
         self.tracks = ()
         self.pose: Pose2D | None = None
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls = self.lockstep = Participant(self, v.lockstep)
         base = topics["observations"]
         self.pubs = {
             name: ls.publisher(String, base if name == "" else f"{base}/{name}", 10)
@@ -104,8 +107,8 @@ class ObservationsNode(Node):
         }
         ls.subscription(String, topics["person"], self.on_person, 10)
         ls.subscription(String, topics["legs"], self.on_legs, 10)
-        if pose_source == "tf":
-            self.map_pose = MapPose(ls, self.on_map_pose, tf_timeout_s)
+        if v.pose_source == "tf":
+            self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s)
         else:
             ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
         ls.subscription(Empty, topics["request"], lambda _msg: self.publish_now(), 10)
