@@ -147,11 +147,12 @@ class LegsNode(Node):
 
     def on_scan(self, msg: LaserScan) -> None:
         """Transform with the pose of the scan's instant: a scan that arrives before
-        that pose waits for it (at most one scan waits; a newer one replaces it)."""
+        that pose waits for it (at most one scan waits; a newer one replaces it). The
+        first scan waits for the first pose too (through TF the pose comes a hop later)."""
         stamp = stamp_to_s(msg.header.stamp)
         if not self._stamp_ok("scan", stamp):
             return
-        if self.pose is not None and self.pose_stamp_s + 1e-6 < stamp:
+        if self.pose is None or self.pose_stamp_s + 1e-6 < stamp:
             if self._waiting_scan is not None:
                 self.process_scan(self._waiting_scan[1])  # its pose never came: use the last
             self._waiting_scan = (stamp - 1e-6, msg)
