@@ -216,6 +216,11 @@ class _Link:
         if self.static:
             self.samples = deque([(stamp_s, tf)])
             return
+        if self.samples and stamp_s < self.samples[-1][0] - self.cache_s:
+            # time jumped back past the cache (a restart, a looped bag, a reset twin): the
+            # old samples describe another run; start over, as tf2 clears on a jump back
+            self.samples = deque([(stamp_s, tf)])
+            return
         if self.samples and stamp_s < self.samples[-1][0]:  # out of order: insert in place
             items = sorted([*self.samples, (stamp_s, tf)], key=lambda s: s[0])
             self.samples = deque(items)

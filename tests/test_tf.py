@@ -139,6 +139,18 @@ def test_cache_keeps_only_the_last_seconds():
         buf.lookup(ODOM, BASE_LINK, 2.0)
 
 
+def test_time_jumping_back_past_the_cache_starts_the_link_over():
+    """A restarted run or a looped bag: after 0..100 s, new data at 0..4 s is what
+    lookups return (before, the t = 100 s pose stayed forever)."""
+    buf = TfBuffer(cache_s=10.0)
+    for i in range(101):
+        buf.set_transform(StampedTransform(ODOM, BASE_LINK, float(i), planar(100.0, 0, 0)))
+    for i in range(5):
+        buf.set_transform(StampedTransform(ODOM, BASE_LINK, float(i), planar(float(i), 0, 0)))
+    assert buf.lookup(ODOM, BASE_LINK).translation[0] == 4.0
+    assert math.isclose(buf.lookup(ODOM, BASE_LINK, 2.5).translation[0], 2.5)
+
+
 def test_out_of_order_stamps_are_sorted():
     buf = TfBuffer()
     for ts in (0.0, 2.0, 1.0):
