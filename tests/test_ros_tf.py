@@ -223,3 +223,47 @@ def test_listener_skips_bad_transforms_and_keeps_the_good(ros):
         assert math.isclose(buf.lookup("map", "laser").translation[0], 3.2)
     finally:
         node.destroy_node()
+
+
+def test_map_pose_warns_when_the_chain_goes_stale():
+    """Localisation that went quiet: lookups still succeed at the last common time, so
+    without the stale check the consumer would silently get no new pose."""
+    from stack.ros_tf import MapPose
+
+    warnings: list[str] = []
+
+    class Logger:
+        def warning(self, text, **_kw):
+            warnings.append(text)
+
+    class FakeParticipant:  # what MapPose and TfListener use of stack.ros_lockstep.Participant
+        def __init__(self):
+            self.node = type("N", (), {"get_logger": lambda _self: Logger()})()
+            self.t, self.timers = 0.0, []
+
+        def now_s(self):
+            return self.t
+
+        def subscription(self, *_args, **_kw):
+            pass
+
+        def timer(self, period_s, callback):
+            self.timers.append(callback)
+
+    ls = FakeParticipant()
+    poses: list[float] = []
+    mp = MapPose(ls, lambda stamp, _pose: poses.append(stamp), timeout_s=1.0)
+    buf = mp.buffer
+    for t in (0.0, 0.5, 1.0):
+        ls.t = t
+        buf.set_transform(tf.StampedTransform(tf.MAP, tf.ODOM, min(t, 0.5), tf.Transform()))
+        buf.set_transform(tf.StampedTransform(tf.ODOM, tf.BASE_LINK, t, tf.Transform()))
+        mp._update()
+        ls.timers[0]()
+    assert not warnings  # 0.5 s behind: within the timeout
+    ls.t = 3.0
+    buf.set_transform(tf.StampedTransform(tf.ODOM, tf.BASE_LINK, 3.0, tf.Transform()))
+    mp._update()
+    ls.timers[0]()
+    assert poses == [0.0, 0.5]  # no newer common time: no new pose ...
+    assert warnings and "map -> odom" in warnings[-1]  # ... and the warning names the link
