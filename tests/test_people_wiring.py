@@ -16,7 +16,7 @@ from stack.planning.stepper import DecisionSteps, StepTiming
 from stack.planning.task import load_task
 from stack.vocabulary import ACTIONS
 from vigil.report.metrics import Timeline, timeline_from_trace
-from vigil.report.people import people_metrics, walkers_in_trace
+from vigil.report.people import people_markdown, people_metrics, walkers_in_trace
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = REPO / "config" / "task-r2-n2.yaml"
@@ -176,6 +176,8 @@ def test_visits_are_counted_per_person_and_false_trips_need_an_empty_room():
     assert (one["n_visits"], one["guarded"], one["max_delay_s"]) == (1, 1, 1.0)
     assert (two["n_visits"], two["guarded"]) == (1, 0)
     assert m["n_false_trips"] == 0 and m["guarded"] == 1
+    md = people_markdown(m)
+    assert "| 1 | 1 | 2.0 | 7.0 | yes | 1.0 |" in md and "| 2 | 12 | 6.0 | 9.0 | no |" in md
 
 
 def test_walker_timelines_from_the_trace():

@@ -12,7 +12,14 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from stack.cells import CellGrid
-from vigil.report.metrics import MIN_VISIT_S, Timeline, _round, false_trips, find_visits
+from vigil.report.metrics import (
+    MIN_VISIT_S,
+    QUIET_S,
+    Timeline,
+    _round,
+    false_trips,
+    find_visits,
+)
 
 
 def walkers_in_trace(trace: Iterable[dict]) -> int:
@@ -72,3 +79,36 @@ def people_metrics(
         "false_trips": trips,
         "n_false_trips": len(trips),
     }
+
+
+def people_markdown(m: dict[str, Any]) -> str:
+    """:func:`people_metrics` as Markdown (the run's steps.md)."""
+    lines = [
+        "## Visits per person (issue 16)",
+        "",
+        "| person | cell | in [s] | out [s] | guarded | delay [s] | reachable |",
+        "|---:|---:|---:|---:|---|---:|---|",
+    ]
+    for p in m["per_person"]:
+        for v in p["visits"]:
+            left = v["person_left_t"]
+            lines.append(
+                f"| {p['person']} | {v['cell']} | {v['person_arrival_t']:.1f} | "
+                f"{'still in' if left is None else f'{left:.1f}'} | "
+                f"{'yes' if v['guarded'] else 'no'} | "
+                f"{_delay(v['delay_s'])} | "
+                f"{v['reachable']} |"
+            )
+        if not p["visits"]:
+            lines.append(f"| {p['person']} | no visit | | | | | |")
+    lines += [
+        "",
+        f"Guarded {m['guarded']} of {m['n_visits']} visits; false trips (nobody in the room "
+        f"{QUIET_S:g} s before and after): {m['n_false_trips']}.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _delay(d: float | None) -> str:
+    return "" if d is None else f"{d:.1f}"
