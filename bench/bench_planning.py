@@ -18,7 +18,7 @@ from stack.planning.pomdp_format import read_pomdp
 from stack.planning.replay import policy_chooser
 from stack.planning.solve import SolverConfig, solve
 from stack.vocabulary import ACTIONS
-from vigil.cli import TASKS, solve_task
+from vigil.solving import TASKS, solve_task_file
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "pomdp"
 SARSOP = {  # ../shared/pomdp/README.md, 60 s
@@ -47,7 +47,7 @@ def main() -> None:
     print("|---|---:|---:|---:|---:|---:|---:|")
     solved = {}
     for name, path in TASKS.items():
-        model, pomdp, result = solve_task(path, ns)
+        model, pomdp, result = solve_task_file(path, ns)
         solved[name] = (model, pomdp, result)
         marks = {1, 10, 25, 50, 100, 150, 200, 300, 400, len(result.history)}
         for s in result.history:

@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # One-shot set-up on a fresh Debian machine with Python 3.11: Debian packages, the
-# virtualenv and the project's Python dependencies. Safe to run again: it only
-# installs what is missing.
+# virtualenv, the project's Python dependencies and the ROS interface packages. Safe to
+# run again: it only installs what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3.11}
 
-# Debian packages: espeak-ng (speech), Mesa's EGL and GL drivers (headless MuJoCo).
-debs=(espeak-ng libegl1 libegl-mesa0 libgl1-mesa-dri libgles2)
+# Debian packages: espeak-ng (speech), Mesa's EGL and GL drivers (headless MuJoCo), cmake and
+# a C++ compiler (the ROS interface packages in interfaces/).
+debs=(espeak-ng libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 cmake g++ make)
 missing=()
 for p in "${debs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -31,3 +32,6 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   "$VENV/bin/python" -m pip install -q -e ".[dev]"
   touch "$stamp"
 fi
+
+# The ROS interface packages (vigil_interfaces, tf2_msgs): built once, cached by a hash.
+VENV="$VENV" bash scripts/build_interfaces.sh

@@ -38,11 +38,14 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-ACK_TOPIC = "/lockstep/ack"
-TICK_TOPIC = "/lockstep/tick"  # after /clock has reached everyone: run the timers
+from stack import topics
+
+ACK_TOPIC = topics.LOCKSTEP_ACK
+TICK_TOPIC = topics.LOCKSTEP_TICK  # after /clock has reached everyone: run the timers
 RUN_ID_ENV = "VIGIL_RUN_ID"  # every node of a run has the run's id in this variable
 MAX_FOREIGN = 64  # names of other runs' participants remembered (a hostile peer is bounded)
 CATCH_UP_S = 5.0
@@ -277,3 +280,139 @@ class Ledger:
             "excused": sorted(n for n, m in self.members.items() if m.excused),
             "pending": self.pending(),
         }
+
+
+# the coordinator's actions (what :meth:`Coordinator.poll` asks the bridge to do)
+WAIT = ""  # nothing yet
+CLOCK = "clock"  # step the physics to the next sensor time (not before the first), publish /clock
+TICK = "tick"  # publish /lockstep/tick: the participants' timers run
+SENSORS = "sensors"  # publish the sensors due now
+ABORT = "abort"  # no progress for stall_abort_s: end the run
+
+
+class Coordinator:
+    """The coordinator's side of a tick: which phase comes next, and when to give up.
+
+    Pure (no rclpy, wall clock passed in): the twin bridge calls :meth:`ack` with every
+    acknowledgement and :meth:`poll` from a short timer, and does what ``poll`` returns.
+    The phases: ``start`` (wait for the expected participants and every publisher's
+    subscriptions), then per tick ``clock`` -> ``tick`` -> ``sensors`` -> ``clock`` ...,
+    each waiting for :meth:`Ledger.pending` to empty.
+
+    Args:
+        ledger: the counts (the bridge also records its own sends in it).
+        stall_warn_s: wall seconds of waiting before a warning (then one per period).
+        stall_timeout_s: wall seconds of waiting before the pending participants are
+            forgiven (:meth:`Ledger.forgive`).
+        stall_abort_s: wall seconds without a tick (forgiving included) before
+            :data:`ABORT`.
+        now_s: the wall clock at start.
+    """
+
+    def __init__(
+        self,
+        ledger: Ledger,
+        stall_warn_s: float,
+        stall_timeout_s: float,
+        stall_abort_s: float,
+        now_s: float,
+    ):
+        self.ledger = ledger
+        self.stall_warn_s = stall_warn_s
+        self.stall_timeout_s = stall_timeout_s
+        self.stall_abort_s = stall_abort_s
+        self.phase = "start"  # start -> clock -> tick -> sensors -> clock ...
+        # (level, line) for the bridge's logger; level "throttled": a warning at most every 5 s
+        self.log: list[tuple[str, str]] = []
+        self._checked_version = -1  # the ledger's version when last checked
+        self._waiting_for = ""  # what that check found pending
+        self._wait_since = now_s
+        self._progress_s = now_s  # the last tick (or the start)
+        self._last_warn = now_s
+        self._foreign_seen = 0
+
+    def ack(self, text: str, now_s: float) -> None:
+        """Record one acknowledgement (JSON); a malformed one is logged and ignored."""
+        try:
+            ours = self.ledger.update(Ack.from_json(text), now_s)
+        except ValueError as err:
+            self.log.append(("throttled", f"lock-step ack ignored: {err}"))
+            ours = True
+        if not ours and len(self.ledger.foreign) > self._foreign_seen:
+            self._foreign_seen = len(self.ledger.foreign)
+            self.log.append(
+                (
+                    "warning",
+                    f"lock-step: ignoring another run's participants "
+                    f"({', '.join(self.ledger.foreign)}); this run is "
+                    f"{self.ledger.run_id or '(no run id)'}",
+                )
+            )
+        self.log.extend(("warning", f"lock-step: {event}") for event in self.ledger.events)
+        self.ledger.events.clear()
+
+    def poll(self, now_s: float, own_matched: Callable[[], dict[str, int]], t_sim: float) -> str:
+        """What to do now: :data:`WAIT`, :data:`CLOCK`, :data:`TICK`, :data:`SENSORS` or
+        :data:`ABORT`.
+
+        Args:
+            now_s: the wall clock.
+            own_matched: the bridge's publishers' subscription counts (asked only
+                before the first tick).
+            t_sim: the simulation time, for the log.
+        """
+        ledger = self.ledger
+        if self.phase == "start":
+            waiting = ledger.missing() + ledger.unmatched(own_matched()) + ledger.pending()
+            if waiting:
+                return self._slow(now_s, t_sim, "waiting for " + ", ".join(waiting), False)
+            self.log.append(
+                (
+                    "info",
+                    f"lock-step: {len(ledger.members)} participants up "
+                    f"({', '.join(sorted(ledger.members))}); starting",
+                )
+            )
+            return self._begin_tick(now_s)
+        if ledger.version != self._checked_version:  # new counts: check them
+            self._checked_version = ledger.version
+            pending = ledger.pending()
+            self._waiting_for = "waiting: " + ", ".join(pending) if pending else ""
+        if self._waiting_for:
+            return self._slow(now_s, t_sim, self._waiting_for, True)
+        self._wait_since = now_s
+        if self.phase == "clock":  # everyone has the new time: now the timers
+            self.phase = "tick"
+            return TICK
+        if self.phase == "tick":
+            self.phase = "sensors"
+            return SENSORS
+        return self._begin_tick(now_s)  # sensors and all they caused processed: next tick
+
+    def _begin_tick(self, now_s: float) -> str:
+        self.phase = "clock"
+        self._wait_since = now_s
+        self._progress_s = now_s
+        return CLOCK
+
+    def _slow(self, now_s: float, t_sim: float, what: str, forgive: bool) -> str:
+        stalled = now_s - self._progress_s
+        if stalled > self.stall_abort_s:
+            self.log.append(
+                (
+                    "error",
+                    f"lock-step stalled: no progress for {stalled:.0f} s at t={t_sim:.2f}: "
+                    f"{what}; ending the run",
+                )
+            )
+            return ABORT
+        waited = now_s - self._wait_since
+        if waited > self.stall_warn_s and now_s - self._last_warn > self.stall_warn_s:
+            self._last_warn = now_s
+            self.log.append(("warning", f"lock-step: {waited:.0f} s at t={t_sim:.2f}: {what}"))
+        if forgive and waited > self.stall_timeout_s:
+            names = self.ledger.stalled_members()
+            for line in self.ledger.forgive(names, now_s, self.stall_timeout_s):
+                self.log.append(("error", f"lock-step: {line}"))
+            self._wait_since = now_s
+        return WAIT

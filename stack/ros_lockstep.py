@@ -11,7 +11,7 @@ callback reads the same time whatever the machine's speed. Timers (:meth:`timer`
 :meth:`on_clock`) run on the coordinator's ``/lockstep/tick``, which follows only
 once every participant has processed the ``/clock``::
 
-    self.lockstep = Participant(self, enabled=p("lockstep", False).value)
+    self.lockstep = Participant(self, enabled=declare(self, lockstep=False).lockstep)
     self.pub = self.lockstep.publisher(String, "/out", 10)
     self.lockstep.subscription(String, "/in", self.on_in, 10)
     ... self.lockstep.now_s() ...
@@ -31,6 +31,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import String
 
+from stack import topics
 from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack
 
 HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
@@ -74,7 +75,7 @@ class Participant:
         clock_topic: the coordinator's clock (subscribed when enabled).
     """
 
-    def __init__(self, node: Node, enabled: bool, clock_topic: str = "/clock"):
+    def __init__(self, node: Node, enabled: bool, clock_topic: str = topics.CLOCK):
         self.node = node
         self.enabled = bool(enabled)
         self.recv: dict[str, int] = defaultdict(int)

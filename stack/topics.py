@@ -21,6 +21,8 @@ ARM = "/arm"
 SAFETY_STATE = "/safety/state"
 STOP = "/stop"
 GOAL_POSE = "/goal_pose"
+TF = "/tf"  # tf2_msgs/TFMessage: odom -> base_link (bridge), map -> odom (localisation)
+TF_STATIC = "/tf_static"  # base_link -> laser (bridge), map -> camera_link -> optical
 
 # perception
 PERSON = "/perception/person"
@@ -54,3 +56,4 @@ TWIN_PERSON_POSE = "/twin/person_pose"
 TWIN_PERSON_CELL = "/twin/person_cell"
 TWIN_PERSON_VELOCITY = "/twin/person_velocity"
 LOCKSTEP_ACK = "/lockstep/ack"
+LOCKSTEP_TICK = "/lockstep/tick"  # after /clock has reached everyone: run the timers

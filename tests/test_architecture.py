@@ -5,12 +5,15 @@
   imports ``twin`` or ``vigil``, ``twin`` never imports ``vigil``;
 - algorithm modules never import rclpy: in ``stack`` and ``twin`` only ``node_*.py``,
   ``ros_*.py`` and the twin's bridge talk ROS (``vigil``, the application, may);
-- a module over 500 lines says why in its docstring.
+- a module over 500 lines says why in its docstring;
+- ROS topic names are written only in ``stack/topics.py``: anywhere else a string literal
+  that looks like a topic name (``"/nav/result"``) fails.
 """
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -115,3 +118,53 @@ def test_long_modules_say_why():
     assert not bad, "modules over 500 lines without a docstring sentence saying why: " + ", ".join(
         bad
     )
+
+
+TOPIC_LIKE = re.compile(r"(/[a-z][a-z0-9_]*)+")  # an absolute ROS name, as a whole string
+NOT_TOPICS = ("/proc/", "/tmp/", "/opt/", "/usr/", "/dev/", "/etc/")  # file-system paths
+# literals that are ROS names but not topics: the SROS2 enclave root
+NOT_TOPIC_NAMES = {("vigil/security.py", "/vigil")}
+
+
+def topic_literals(path: Path) -> list[tuple[int, str]]:
+    """String literals in ``path`` (docstrings aside) that look like topic names."""
+    tree = ast.parse(path.read_text())
+    docs = {
+        id(n.body[0].value)
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+        and n.body
+        and isinstance(n.body[0], ast.Expr)
+    }
+    return [
+        (n.lineno, n.value)
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Constant)
+        and isinstance(n.value, str)
+        and id(n) not in docs
+        and TOPIC_LIKE.fullmatch(n.value)
+        and not n.value.startswith(NOT_TOPICS)
+    ]
+
+
+def test_topic_literals_flagged(tmp_path):
+    """The check itself: it finds a literal topic and passes over paths and docstrings."""
+    src = tmp_path / "probe.py"
+    src.write_text(
+        '"""Publishes ``/nav/result``."""\n'
+        'X = "/nav/result"\nY = "/proc/self/stat"\nZ = f"/vigil/{X}"\n'
+    )
+    assert topic_literals(src) == [(2, "/nav/result")]
+
+
+def test_topic_names_only_in_topics_module():
+    bad = []
+    for folder in (*PACKAGES, "scripts", "bench"):
+        for path in sorted((REPO / folder).rglob("*.py")):
+            rel = path.relative_to(REPO).as_posix()
+            if rel == "stack/topics.py":
+                continue
+            for line, name in topic_literals(path):
+                if (rel, name) not in NOT_TOPIC_NAMES:
+                    bad.append(f"{rel}:{line} {name!r}")
+    assert not bad, "topic names outside stack/topics.py (add a constant there): " + ", ".join(bad)

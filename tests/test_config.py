@@ -78,3 +78,40 @@ def test_out_of_range_is_refused_in_code_as_from_yaml():
         twin_config.CameraConfig(width_px=4)
     with pytest.raises(ConfigError, match="must be an integer"):
         twin_config.CameraConfig(width_px=640.5)
+
+
+# numeric fields where any finite value is meaningful (NaN and infinity are still refused)
+ANY_FINITE = {
+    "Rewards": {"move", "rest_cell", "restricted_guarded", "restricted_idle", "out_of_map",
+                "other_cell"},  # rewards and costs: any real number
+    "HogConfig": {"hit_threshold", "min_weight"},  # SVM margins: negative is meaningful
+    "CameraConfig": {"lateral_offset_m"},  # a signed offset (left or right)
+    "Obstacle": {"x_m", "y_m"},  # positions in the room's frame (signed)
+    "Waypoint": {"x_m", "y_m"},
+    "RobotConfig": {"start_yaw_rad"},  # any angle
+    "RoomConfig": {"door_offset_east_m"},  # signed: east or west of the region's edge
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("cls", CLASSES, ids=lambda c: f"{c.__module__}.{c.__name__}")
+def test_every_numeric_field_has_a_range_in_code_as_from_yaml(cls):
+    """Each int/float field refuses an absurd value (-1e9 or 1e9) built in code and read
+    from YAML alike, unless listed in ANY_FINITE with the reason."""
+    need = REQUIRED.get(cls.__name__, {})
+    hints = typing.get_type_hints(cls)
+    loose = []
+    for f in dataclasses.fields(cls):
+        kind = hints.get(f.name)
+        if kind not in (int, float) or f.name in ANY_FINITE.get(cls.__name__, ()):
+            continue
+        refused = False
+        for bad in (kind(-(10**9)), kind(10**9)):
+            try:
+                cls(**{**need, f.name: bad})
+            except ConfigError:  # its own rule or a cross-field one (min < max)
+                refused = True
+                with pytest.raises(ConfigError):
+                    cls.from_dict({**need, f.name: bad})
+        if not refused:
+            loose.append(f.name)
+    assert not loose, f"{cls.__name__}: fields with no range: {loose}"

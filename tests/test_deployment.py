@@ -232,6 +232,9 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
     assert p["velocity_gate"]["output_topic"] == "/cmd_vel"
     assert p["velocity_gate"]["armed"] is False
     assert p["navigation"]["pose_source"] == "amcl"
+    # no node takes /odom for the map pose on a robot: the map pose comes through TF
+    assert p["legs"]["pose_source"] == p["observations"]["pose_source"] == "tf"
+    assert p["localisation"]["publish_map_odom"] is False  # the robot's localisation does
     assert not any(v.get("lockstep") for v in p.values())
     assert "192.168.1.10" in Path(system.env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()
     stack_cfg = yaml.safe_load((tmp_path / "run" / "stack.yaml").read_text())
@@ -267,3 +270,27 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path):
     assert len(twin["person"]["waypoints"]) == len(scenario.walk) + 1
     assert (tmp_path / "run" / "calibration.yaml").exists()  # from the twin's floor points
     assert p["planner"]["max_steps"] == scenario.steps
+    # the twin's TF: the localisation stand-in publishes map -> odom and the camera frames
+    assert p["localisation"]["publish_map_odom"] is True
+    assert p["localisation"]["calibration_file"].endswith("calibration.yaml")
+    assert p["legs"]["pose_source"] == p["observations"]["pose_source"] == "odom"
+
+
+def test_twin_with_tf_pose_source_gives_every_consumer_tf(tmp_path):
+    from vigil.system import prepare
+
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "twin-tf.yaml").read_text())
+    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
+    data["twin"] = {"scene": str(CONFIG / "twin-scene.yaml")}
+    dep = parse_deployment(data, tmp_path / "twin-tf.yaml")
+    p = prepare(dep, tmp_path / "run", say=lambda s: None).params
+    assert p["navigation"]["pose_source"] == "tf"
+    assert p["legs"]["pose_source"] == p["observations"]["pose_source"] == "tf"
+
+
+def test_hardware_refuses_odometry_as_the_map_pose(tmp_path):
+    data = yaml.safe_load((CONFIG / "hardware.yaml").read_text())
+    data["navigation"] = {**data.get("navigation", {}), "pose_source": "odom"}
+    with pytest.raises(ConfigError, match="navigation.pose_source.*amcl or tf"):
+        parse_deployment(data, tmp_path / "hardware.yaml")

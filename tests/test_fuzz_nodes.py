@@ -193,6 +193,9 @@ def node_params(tmp: Path) -> dict[str, dict]:
     )
     params = {name: {**p, "lockstep": False} for name, p in system.params.items()}
     params["velocity_gate"] = {"require_arming": False}
+    # the map pose through TF (the hardware default): /tf and /tf_static fuzzed too
+    params["legs_tf"] = {**params["legs"], "pose_source": "tf"}
+    params["navigation_tf"] = {**params["navigation"], "pose_source": "tf"}
     return params
 
 
@@ -205,6 +208,9 @@ NODES = {
     "planner": "stack.planning.node_planner:PlannerNode",
     "recorder": "vigil.node_recorder:RecorderNode",
     "velocity_gate": "stack.hardware.node_velocity_gate:VelocityGateNode",
+    "localisation": "stack.nav.node_localisation:LocalisationNode",
+    "legs_tf": "stack.perception.node_legs:LegsNode",
+    "navigation_tf": "stack.nav.node_navigation:NavigationNode",
 }
 
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from stack.lockstep import Ack, Ledger
+from stack.lockstep import ABORT, CLOCK, SENSORS, TICK, WAIT, Ack, Coordinator, Ledger
 
 
 def ack(node, inc="a", recv=None, sent=None, matched=None):
@@ -94,3 +94,94 @@ def test_ack_json_round_trip_and_errors():
         Ack.from_json('{"node": "x", "recv": {"/a": -1}}')
     with pytest.raises(ValueError):
         Ack.from_json("not json")
+
+
+def _coordinator(expected=("cam",), warn=5.0, timeout=30.0, abort=90.0):
+    led = Ledger(expected)
+    return led, Coordinator(led, warn, timeout, abort, now_s=0.0)
+
+
+def test_coordinator_waits_for_participants_then_runs_the_three_phases():
+    led, co = _coordinator()
+    matched = {"/clock": 1, "/image": 1}
+    assert co.poll(0.1, lambda: matched, 0.0) == WAIT  # cam not heard from yet
+    led.update(ack("cam", recv={"/clock": 0, "/lockstep/tick": 0, "/image": 0}), 0.2)
+    assert co.poll(0.2, lambda: {"/clock": 0}, 0.0) == WAIT  # the clock not matched yet
+    assert co.poll(0.3, lambda: matched, 0.0) == CLOCK
+    assert co.log == [("info", "lock-step: 1 participants up (cam); starting")]
+    led.sent("/clock")  # the bridge published the clock
+    assert co.poll(0.4, lambda: matched, 0.0) == WAIT  # cam has not processed it
+    led.update(ack("cam", recv={"/clock": 1, "/lockstep/tick": 0, "/image": 0}), 0.5)
+    assert co.poll(0.5, lambda: matched, 0.0) == TICK
+    led.sent("/lockstep/tick")
+    led.update(ack("cam", recv={"/clock": 1, "/lockstep/tick": 1, "/image": 0}), 0.6)
+    assert co.poll(0.6, lambda: matched, 0.0) == SENSORS
+    led.sent("/image")
+    assert co.poll(0.7, lambda: matched, 0.0) == WAIT
+    led.update(ack("cam", recv={"/clock": 1, "/lockstep/tick": 1, "/image": 1}), 0.8)
+    assert co.poll(0.8, lambda: matched, 0.0) == CLOCK  # the next tick
+
+
+def test_coordinator_same_acks_same_actions():
+    """The phases depend on the counts only, not on when the polls come (determinism)."""
+
+    def run(poll_times):
+        led, co = _coordinator()
+        led.update(ack("cam", recv={"/clock": 0, "/image": 0}), 0.0)
+        actions = []
+        for t in poll_times:
+            a = co.poll(t, lambda: {"/clock": 1, "/image": 1}, 0.0)
+            if a == CLOCK:
+                led.sent("/clock")
+                led.update(ack("cam", recv={"/clock": led.total_sent("/clock"), "/image": 0}), t)
+            elif a == SENSORS:
+                led.sent("/image")
+            elif a == WAIT and led.pending():
+                recv = {"/clock": led.total_sent("/clock"), "/image": led.total_sent("/image")}
+                led.update(ack("cam", recv=recv), t)
+            if a != WAIT:
+                actions.append(a)
+        return actions[:9]
+
+    fast = run([i * 0.001 for i in range(40)])
+    slow = run([i * 0.5 for i in range(40)])
+    assert fast == slow == [CLOCK, TICK, SENSORS] * 3
+
+
+def test_coordinator_forgives_a_stalled_participant_and_aborts_without_progress():
+    led, co = _coordinator(warn=1.0, timeout=2.0, abort=10.0)
+    led.update(ack("cam", recv={"/clock": 0}), 0.0)
+    assert co.poll(0.0, dict, 0.0) == CLOCK
+    led.sent("/clock")
+    assert co.poll(1.5, dict, 0.0) == WAIT
+    assert co.log[-1] == ("warning", "lock-step: 2 s at t=0.00: waiting: cam /clock 0/1")
+    co.log.clear()
+    led.update(ack("cam", recv={"/clock": 0}), 2.2)  # alive (a heartbeat) but lost the clock
+    assert co.poll(2.5, dict, 0.0) == WAIT  # past stall_timeout_s: cam is forgiven
+    assert ("error", "lock-step: cam lost messages: counts rebased") in co.log
+    assert co.poll(2.6, dict, 0.0) == TICK  # the rebased counts balance
+
+
+def test_coordinator_aborts_without_progress():
+    led, co = _coordinator(expected=("cam", "legs"), warn=1.0, timeout=2.0, abort=10.0)
+    led.update(ack("cam", recv={"/clock": 0}), 0.0)
+    assert co.poll(9.0, dict, 0.0) == WAIT  # legs never comes
+    assert co.log[-1] == ("warning", "lock-step: 9 s at t=0.00: waiting for legs")
+    assert co.poll(10.5, dict, 0.0) == ABORT
+    assert co.log[-1] == (
+        "error",
+        "lock-step stalled: no progress for 10 s at t=0.00: waiting for legs; ending the run",
+    )
+
+
+def test_coordinator_logs_bad_and_foreign_acks():
+    led, co = _coordinator()
+    led.run_id = "run-a"
+    co.ack("not json {", 0.0)
+    assert co.log[0][0] == "throttled" and "lock-step ack ignored" in co.log[0][1]
+    co.log.clear()
+    co.ack(ack("cam").to_json(), 0.0)  # run "" is not run-a
+    assert co.log == [
+        ("warning", "lock-step: ignoring another run's participants (cam@?); this run is run-a")
+    ]
+    assert "cam" not in led.members

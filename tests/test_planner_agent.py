@@ -13,7 +13,7 @@ from stack.planning.agent import (
     StateFileError,
 )
 from stack.planning.replay import TABLES, policy_chooser, replay_table
-from vigil.cli import TASKS, solve_task
+from vigil.solving import TASKS, solve_task_file
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,7 @@ def solved():
     args = argparse.Namespace(
         beliefs=200, iterations=40, time_limit=None, fib_time=0.0, seed=0, quiet=True
     )
-    model, pomdp, result = solve_task(TASKS["r1"], args)
+    model, pomdp, result = solve_task_file(TASKS["r1"], args)
     return model, pomdp, result.policy
 
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from stack.planning.replay import TABLES
-from vigil.cli import build_parser, main, run_replay
+from vigil.cli import build_parser, main
+from vigil.replay import run_replay
 
 
 def _args() -> argparse.Namespace:

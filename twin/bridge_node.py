@@ -2,9 +2,11 @@
 
 Publishes ``/camera/image_raw`` (sensor_msgs/Image, rgb8), ``/camera/camera_info``,
 ``/scan`` (sensor_msgs/LaserScan), ``/odom`` (nav_msgs/Odometry), ``/map``
-(nav_msgs/OccupancyGrid, transient local), ``/clock`` (simulated time) and ground truth
-under ``/twin/...``; subscribes to ``/cmd_vel`` (geometry_msgs/Twist) and stops the base
-when commands are older than ``cmd_timeout_s`` of simulated time.
+(nav_msgs/OccupancyGrid, transient local), ``/clock`` (simulated time), TF (``/tf``:
+``odom -> base_link`` with each odometry message; ``/tf_static``: ``base_link -> laser``
+from the lidar's mount) and ground truth under ``/twin/...``; subscribes to ``/cmd_vel``
+(geometry_msgs/Twist) and stops the base when commands are older than ``cmd_timeout_s``
+of simulated time.
 
 Time, three modes:
     lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
@@ -41,10 +43,25 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
 from std_msgs.msg import Int32, String
+from tf2_msgs.msg import TFMessage
 
+import stack.topics as topic
+from stack import tf
 from stack.cells import ConfigError
-from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack, Ledger
+from stack.lockstep import (
+    ABORT,
+    ACK_TOPIC,
+    CLOCK,
+    RUN_ID_ENV,
+    SENSORS,
+    TICK,
+    TICK_TOPIC,
+    Coordinator,
+    Ledger,
+)
 from stack.ros_main import spin_node
+from stack.ros_params import declare
+from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
 from twin.sensors import CameraInfo
@@ -175,31 +192,36 @@ class TwinBridge(Node):
 
     def __init__(self, twin: Twin | None = None, **kwargs):
         super().__init__("twin_bridge", **kwargs)
-        p = self.declare_parameter
-        p("config", "")
-        p("task", "")
-        p("seed", 0)
-        p("realtime", False)
-        p("cmd_timeout_s", 0.5)
-        p("odom_rate_hz", 25.0)
-        self.lockstep = bool(p("lockstep", False).value)
-        participants = list(p("participants", [""]).value)
-        self.stall_warn_s = float(p("stall_warn_s", 5.0).value)
-        self.stall_timeout_s = float(p("stall_timeout_s", 30.0).value)
+        v = declare(
+            self,
+            config="",
+            task="",
+            seed=0,
+            realtime=False,
+            cmd_timeout_s=0.5,
+            odom_rate_hz=25.0,
+            lockstep=False,
+            participants=[""],
+            stall_warn_s=5.0,
+            stall_timeout_s=30.0,
+            sensor_outages="[]",
+        )
+        self.lockstep = v.lockstep
+        participants = list(v.participants)
+        self.stall_warn_s = v.stall_warn_s
+        self.stall_timeout_s = v.stall_timeout_s
         # no tick for this long (forgiving included): the run ends with EXIT_STALLED
-        self.stall_abort_s = float(p("stall_abort_s", 3 * self.stall_timeout_s).value)
-        self.outages = parse_outages(p("sensor_outages", "[]").value)
+        self.stall_abort_s = declare(self, stall_abort_s=3 * self.stall_timeout_s).stall_abort_s
+        self.outages = parse_outages(v.sensor_outages)
         if twin is None:
-            path = self.get_parameter("config").value
-            task = self.get_parameter("task").value or None
-            cfg = load_twin_config(path, task) if path else TwinConfig()
-            twin = Twin(cfg, seed=int(self.get_parameter("seed").value))
+            cfg = load_twin_config(v.config, v.task or None) if v.config else TwinConfig()
+            twin = Twin(cfg, seed=v.seed)
         self.twin = twin
-        self.cmd_timeout_s = float(self.get_parameter("cmd_timeout_s").value)
+        self.cmd_timeout_s = v.cmd_timeout_s
         cfg = twin.config
         self._cmd = VelocityCommand()
         self._cmd_time_s = -math.inf
-        odom_hz = float(self.get_parameter("odom_rate_hz").value)
+        odom_hz = v.odom_rate_hz
         self._periods = {
             "odom": cfg.control_period_s if odom_hz <= 0 else 1.0 / odom_hz,
             "scan": 1.0 / cfg.lidar.rate_hz,
@@ -208,38 +230,41 @@ class TwinBridge(Node):
         self._next = dict.fromkeys(self._periods, 0.0)
         self.run_id = os.environ.get(RUN_ID_ENV, "")
         self.ledger = Ledger(tuple(n for n in participants if n), run_id=self.run_id)
-        self._foreign_seen = 0
-        self._phase = "start"  # lock-step: start -> clock -> tick -> sensors -> step -> clock
-        self._checked_version = -1  # the ledger's version when last checked
-        self._waiting_for = ""  # what that check found pending
-        self._wait_since = self._wall_s()
-        self._progress_s = self._wall_s()  # the last tick (or the start) [wall s]
-        self._last_warn = self._wall_s()
+        self.coordinator = Coordinator(
+            self.ledger, self.stall_warn_s, self.stall_timeout_s, self.stall_abort_s, self._wall_s()
+        )
 
         latched = QoSProfile(
             depth=1,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
             reliability=ReliabilityPolicy.RELIABLE,
         )
-        self.pub_image = self.create_publisher(Image, "/camera/image_raw", 2)
-        self.pub_info = self.create_publisher(CameraInfoMsg, "/camera/camera_info", 2)
-        self.pub_scan = self.create_publisher(LaserScan, "/scan", 5)
-        self.pub_odom = self.create_publisher(OdometryMsg, "/odom", 10)
-        self.pub_map = self.create_publisher(OccupancyGrid, "/map", latched)
-        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_image = self.create_publisher(Image, topic.CAMERA_IMAGE, 2)
+        self.pub_info = self.create_publisher(CameraInfoMsg, topic.CAMERA_INFO, 2)
+        self.pub_scan = self.create_publisher(LaserScan, topic.SCAN, 5)
+        self.pub_odom = self.create_publisher(OdometryMsg, topic.ODOM, 10)
+        self.pub_map = self.create_publisher(OccupancyGrid, topic.MAP, latched)
+        self.pub_clock = self.create_publisher(Clock, topic.CLOCK, 10)
         self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
-        self.pub_truth = self.create_publisher(String, "/twin/truth", 10)
-        self.pub_robot = self.create_publisher(PoseStamped, "/twin/robot_pose", 10)
-        self.pub_person = self.create_publisher(PoseStamped, "/twin/person_pose", 10)
-        self.pub_person_vel = self.create_publisher(TwistStamped, "/twin/person_velocity", 10)
-        self.pub_person_cell = self.create_publisher(Int32, "/twin/person_cell", 10)
-        self.pub_robot_cell = self.create_publisher(Int32, "/twin/robot_cell", 10)
-        self.create_subscription(Twist, "/cmd_vel", self._on_cmd_vel, 10)
+        self.pub_truth = self.create_publisher(String, topic.TWIN_TRUTH, 10)
+        self.pub_robot = self.create_publisher(PoseStamped, topic.TWIN_ROBOT_POSE, 10)
+        self.pub_person = self.create_publisher(PoseStamped, topic.TWIN_PERSON_POSE, 10)
+        self.pub_person_vel = self.create_publisher(TwistStamped, topic.TWIN_PERSON_VELOCITY, 10)
+        self.pub_person_cell = self.create_publisher(Int32, topic.TWIN_PERSON_CELL, 10)
+        self.pub_robot_cell = self.create_publisher(Int32, topic.TWIN_ROBOT_CELL, 10)
+        self.pub_tf = self.create_publisher(TFMessage, topic.TF, TF_QOS)
+        self.pub_tf_static = self.create_publisher(TFMessage, topic.TF_STATIC, TF_STATIC_QOS)
+        self.create_subscription(Twist, topic.CMD_VEL, self._on_cmd_vel, 10)
         if self.lockstep:
-            self.ledger.subscribe("/cmd_vel")
+            self.ledger.subscribe(topic.CMD_VEL)
             self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
         self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
-        realtime = self.get_parameter("realtime").value
+        laser = tf.Transform(twin.lidar_mount_m())
+        self._publish(
+            self.pub_tf_static,
+            tf_message([tf.StampedTransform(tf.BASE_LINK, tf.LASER, twin.time_s, laser)]),
+        )
+        realtime = v.realtime
         period = cfg.control_period_s if realtime and not self.lockstep else 0.001
         self.timer = self.create_timer(period, self._lockstep_poll if self.lockstep else self._tick)
 
@@ -255,23 +280,25 @@ class TwinBridge(Node):
         self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
         self._cmd_time_s = self.twin.time_s
         if self.lockstep:
-            self.ledger.received("/cmd_vel")
+            self.ledger.received(topic.CMD_VEL)
 
     def _on_ack(self, msg: String) -> None:
-        try:
-            ours = self.ledger.update(Ack.from_json(msg.data), self._wall_s())
-        except ValueError as err:
-            self.get_logger().warning(f"lock-step ack ignored: {err}", throttle_duration_sec=5.0)
-            ours = True
-        if not ours and len(self.ledger.foreign) > self._foreign_seen:
-            self._foreign_seen = len(self.ledger.foreign)
-            self.get_logger().warning(
-                f"lock-step: ignoring another run's participants ({', '.join(self.ledger.foreign)}"
-                f"); this run is {self.run_id or '(no run id)'}"
-            )
-        for event in self.ledger.events:
-            self.get_logger().warning(f"lock-step: {event}")
-        self.ledger.events.clear()
+        self.coordinator.ack(msg.data, self._wall_s())
+        self._log_coordinator()
+
+    def _log_coordinator(self) -> None:
+        logger = self.get_logger()
+        # one call site per severity: rclpy refuses a call site that changes severity
+        for level, line in self.coordinator.log:
+            if level == "throttled":
+                logger.warning(line, throttle_duration_sec=5.0)
+            elif level == "error":
+                logger.error(line)
+            elif level == "warning":
+                logger.warning(line)
+            else:
+                logger.info(line)
+        self.coordinator.log.clear()
 
     # -- lock-step ----------------------------------------------------------------------
     def _own_matched(self) -> dict[str, int]:
@@ -282,72 +309,29 @@ class TwinBridge(Node):
             self.pub_scan,
             self.pub_image,
             self.pub_truth,
+            self.pub_tf,
+            self.pub_tf_static,
+            self.pub_robot,
         )
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
     def _lockstep_poll(self) -> None:
-        now = self._wall_s()
-        if self._phase == "start":
-            waiting = self.ledger.missing() + self.ledger.unmatched(self._own_matched())
-            waiting += self.ledger.pending()
-            if waiting:
-                self._warn_if_slow(now, "waiting for " + ", ".join(waiting), forgive=False)
-                return
-            self.get_logger().info(
-                f"lock-step: {len(self.ledger.members)} participants up "
-                f"({', '.join(sorted(self.ledger.members))}); starting"
-            )
-            self._begin_tick(now)
-            return
-        if self.ledger.version != self._checked_version:  # new counts: check them
-            self._checked_version = self.ledger.version
-            pending = self.ledger.pending()
-            self._waiting_for = "waiting: " + ", ".join(pending) if pending else ""
-        if self._waiting_for:
-            self._warn_if_slow(now, self._waiting_for, forgive=True)
-            return
-        self._wait_since = now
-        if self._phase == "clock":  # everyone has the new time: now the timers
+        """Do what the coordinator (:class:`stack.lockstep.Coordinator`) says is next."""
+        first = self.coordinator.phase == "start"
+        action = self.coordinator.poll(self._wall_s(), self._own_matched, self.twin.time_s)
+        self._log_coordinator()
+        if action == CLOCK:  # step the physics to the next sensor time, publish the clock
+            if not first:
+                t_next = min(self._next.values())
+                while self.twin.time_s + 1e-9 < t_next:
+                    self._step_physics()
+            self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s)))
+        elif action == TICK:  # everyone has the new time: now the timers
             self._publish(self.pub_tick, Clock(clock=stamp_of(self.twin.time_s)))
-            self._phase = "tick"
-        elif self._phase == "tick":
+        elif action == SENSORS:
             self._publish_sensors()
-            self._phase = "sensors"
-        else:  # sensors processed and everything they caused: step to the next tick
-            self._begin_tick(now)
-
-    def _begin_tick(self, now: float) -> None:
-        """Step the physics to the next sensor time and publish the clock."""
-        tw = self.twin
-        first = self._phase == "start"
-        if not first:
-            t_next = min(self._next.values())
-            while tw.time_s + 1e-9 < t_next:
-                self._step_physics()
-        self._publish(self.pub_clock, Clock(clock=stamp_of(tw.time_s)))
-        self._phase = "clock"
-        self._wait_since = now
-        self._progress_s = now
-
-    def _warn_if_slow(self, now: float, what: str, forgive: bool) -> None:
-        stalled = now - self._progress_s
-        if stalled > self.stall_abort_s:
-            t = self.twin.time_s
-            self.get_logger().error(
-                f"lock-step stalled: no progress for {stalled:.0f} s at t={t:.2f}: {what}; "
-                "ending the run"
-            )
+        elif action == ABORT:
             raise SystemExit(EXIT_STALLED)
-        waited = now - self._wait_since
-        if waited > self.stall_warn_s and now - self._last_warn > self.stall_warn_s:
-            self._last_warn = now
-            t = self.twin.time_s
-            self.get_logger().warning(f"lock-step: {waited:.0f} s at t={t:.2f}: {what}")
-        if forgive and waited > self.stall_timeout_s:
-            names = self.ledger.stalled_members()
-            for line in self.ledger.forgive(names, now, self.stall_timeout_s):
-                self.get_logger().error(f"lock-step: {line}")
-            self._wait_since = now
 
     # -- stepping -------------------------------------------------------------------------
     def _step_physics(self) -> None:
@@ -372,7 +356,11 @@ class TwinBridge(Node):
         tw = self.twin
         t = tw.time_s
         if self._due("odom", t):
-            self._publish(self.pub_odom, odometry_msg(tw.odometry()))
+            odom = tw.odometry()
+            self._publish(self.pub_odom, odometry_msg(odom))
+            base = tf.Transform.from_pose2d(odom.pose)
+            st = tf.StampedTransform(tf.ODOM, tf.BASE_LINK, odom.time_s, base)
+            self._publish(self.pub_tf, tf_message([st]))
             self._publish_truth(tw.ground_truth())
         if self._due("scan", t) and not self._out("lidar", t):
             self._publish(self.pub_scan, scan_msg(tw.scan()))
@@ -386,7 +374,8 @@ class TwinBridge(Node):
     def _publish_truth(self, gt: GroundTruth) -> None:
         t = gt.time_s
         self._publish(self.pub_truth, String(data=json.dumps(truth_record(gt))))
-        self.pub_robot.publish(pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
+        # counted: the localisation stand-in (a participant) reads it
+        self._publish(self.pub_robot, pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
         self.pub_robot_cell.publish(Int32(data=gt.robot_cell or -1))
         if gt.person is not None:
             p = gt.person

@@ -38,7 +38,7 @@ class CameraInfo:
     R: np.ndarray
     P: np.ndarray
     distortion_model: str = "plumb_bob"
-    frame_id: str = "ceiling_camera_optical"
+    frame_id: str = "camera_optical_frame"  # REP-103 optical frame (stack.tf)
 
     @property
     def fovy_deg(self) -> float:

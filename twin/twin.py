@@ -11,6 +11,10 @@ Several people (issue 16): every walker of ``config.walkers`` has its own script
 its own mocap bodies (``twin.scene.person_prefix``); the lidar and the camera see them
 all, and ``ground_truth().people`` reports each in the config's order. ``person`` and
 ``ground_truth().person`` remain the first walker, so one-person code is unchanged.
+
+The module runs past 500 lines because it is the twin's one public API: the scene's
+build, the step, every sensor read and the ground truth share the MuJoCo model and the
+one random generator, and splitting them would pass both around.
 """
 
 from __future__ import annotations
@@ -466,6 +470,11 @@ class Twin:
         pos = self.data.cam_xpos[self._camera].copy()
         rot = self.data.cam_xmat[self._camera].reshape(3, 3) @ OPTICAL_FROM_MUJOCO_CAMERA
         return CameraPose(pos, rot)
+
+    def lidar_mount_m(self) -> tuple[float, float, float]:
+        """The lidar's position on the robot (base_link -> laser) [m]."""
+        x, y, z = self.model.site_pos[self._lidar_site]
+        return float(x), float(y), float(z)
 
     # -- map ----------------------------------------------------------------
     def occupancy_map(self) -> OccupancyMap:

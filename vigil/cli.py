@@ -27,8 +27,18 @@ import sys
 import time
 from pathlib import Path
 
+import stack.topics as topic
+from vigil.replay import replay_json, replay_markdown, run_replay
+from vigil.solving import (
+    bounds_line,
+    command_start,
+    progress_printer,
+    read_model,
+    solve_task_file,
+    solver_config,
+)
+
 REPO = Path(__file__).resolve().parents[1]
-TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r2.yaml"}
 
 
 def _solver_args(
@@ -73,123 +83,17 @@ def _solver_args(
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
-# kept from --time-limit for writing the policy and exiting: 2 %, at least 0.3 s
-WRITE_RESERVE = 0.02
-WRITE_RESERVE_MIN_S = 0.3
-
-
-def _solver_config(args: argparse.Namespace):
-    from stack.planning.solve import SolverConfig
-
-    limit = getattr(args, "time_limit", None)
-    if limit is not None:
-        if not (limit > 0 and limit < 1e9):
-            raise ValueError(f"--time-limit must be a positive number of seconds, got {limit}")
-        limit = max(limit * 0.5, limit - max(limit * WRITE_RESERVE, WRITE_RESERVE_MIN_S))
-    # a hand-made Namespace (older callers) gets the task defaults for what it lacks
-    return SolverConfig(
-        algorithm=getattr(args, "solver", "perseus"),
-        beliefs=args.beliefs,
-        iterations=args.iterations,
-        time_limit_s=limit,
-        fib_time_s=getattr(args, "fib_time", 0.0),
-        seed=getattr(args, "seed", 0),
-        target_gap=getattr(args, "target_gap", 1e-3),
-        relative_gap=getattr(args, "relative_gap", 0.0),
-        trials=getattr(args, "trials", None),
-        perseus_share=getattr(args, "perseus_share", 0.0),
-        # writing a vector entry as XML text takes ~0.2 us on an idle core, ~1 us
-        # under the load of docs/BENCHMARKS.md; the search stops that much earlier
-        write_s_per_value=1e-6 if getattr(args, "output", None) else 0.0,
-    )
-
-
-def _progress(args: argparse.Namespace, stream=sys.stderr, every_s: float = 1.0):
-    """A progress printer: at most one line per ``every_s`` seconds."""
-    import time
-
-    from stack.planning.solve import format_progress
-
-    if getattr(args, "quiet", False):
-        return None
-    last = [-float("inf")]
-
-    def show(stats) -> None:
-        now = time.perf_counter()
-        if now - last[0] >= every_s:
-            last[0] = now
-            print(format_progress(stats), file=stream, flush=True)
-
-    return show
-
-
-def _start(args: argparse.Namespace) -> float:
-    """When the command's time limit began (``main`` records it)."""
-    import time
-
-    return getattr(args, "start", None) or time.perf_counter()
-
-
-def solve_task(
-    task_path: Path,
-    args: argparse.Namespace,
-    progress=None,
-    require_progress: bool = False,
-    start: float | None = None,
-):
-    """Load and solve a task file; returns (model, pomdp, result).
-
-    The commands pass ``require_progress=True`` (a degenerate solve is an error);
-    quick solves from Python (tests, benchmarks) may leave it off.
-    """
-    from stack.planning.solve import solve_task_model
-    from stack.planning.task import load_task
-
-    sol = solve_task_model(
-        load_task(task_path),
-        _solver_config(args),
-        progress,
-        _start(args) if start is None else start,
-        require_progress,
-    )
-    sol.result.policy.meta["task"] = str(task_path)
-    return sol.model, sol.pomdp, sol.result
-
-
-def read_model(path: str | Path):
-    """A flat POMDP from a task file (.yaml), a .pomdpx file or a .pomdp file."""
-    from stack.planning.pomdp_format import read_pomdp
-
-    path = Path(path)
-    if path.suffix.lower() in (".yaml", ".yml"):
-        from stack.planning.model import build_model
-        from stack.planning.task import load_task
-
-        return build_model(load_task(path)).flat()
-    if path.suffix.lower() == ".pomdpx":
-        from stack.planning.pomdpx import read_pomdpx
-
-        return read_pomdpx(path)
-    return read_pomdp(path)
-
-
 # -- subcommands ------------------------------------------------------------------------
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    _, pomdp, result = solve_task(Path(args.task), args, _progress(args), require_progress=True)
+    _, pomdp, result = solve_task_file(
+        Path(args.task), args, progress_printer(args), require_progress=True
+    )
     path = result.policy.save(args.output)
     out = result.summary() | {"policy": str(path)}
-    print(json.dumps(out, indent=2) if args.json else _bounds_line(out))
+    print(json.dumps(out, indent=2) if args.json else bounds_line(out))
     return 0
-
-
-def _bounds_line(s: dict) -> str:
-    return (
-        f"lower {s['lower_bound']:.4f}  upper {s['upper_bound']:.4f}  gap {s['gap']:.4f} "
-        f"({100 * s['relative_gap']:.1f}%)  alphas {s['alpha_vectors']}  {s['seconds']:.2f} s"
-        + (f"  -> {s['policy']}" if "policy" in s else "")
-    )
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -207,14 +111,15 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_solve_pomdp(args: argparse.Namespace) -> int:
-    import time
 
     from stack.planning.solve import solve
 
-    start = _start(args)
-    config = _solver_config(args)  # checks the arguments before the model is read
+    start = command_start(args)
+    config = solver_config(args)  # checks the arguments before the model is read
     pomdp = read_model(args.file)
-    result = solve(pomdp, config, progress=None if args.json else _progress(args), start=start)
+    result = solve(
+        pomdp, config, progress=None if args.json else progress_printer(args), start=start
+    )
     result.policy.meta["model"] = Path(args.file).name
     out = {
         "file": str(args.file),
@@ -225,7 +130,7 @@ def cmd_solve_pomdp(args: argparse.Namespace) -> int:
     if args.output:
         out["policy"] = str(result.policy.save(args.output))
     out["command_seconds"] = time.perf_counter() - start
-    print(json.dumps(out, indent=2) if args.json else _bounds_line(out))
+    print(json.dumps(out, indent=2) if args.json else bounds_line(out))
     if args.time_limit is not None and getattr(args, "standalone", False):
         # the search tree (10^5 nodes) takes the interpreter a second or more to free
         # on a loaded machine; the policy is written and the output flushed, so a
@@ -264,99 +169,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_replay(tables: list[str], args: argparse.Namespace, policies: dict | None = None):
-    """Replay the named tables; solves each needed task once. Returns TableResults."""
-    from stack.planning.replay import TABLES, policy_chooser, replay_table
-
-    solved: dict[str, tuple] = dict(policies or {})
-    results = []
-    for name in tables:
-        table = TABLES[name]
-        if table.task not in solved:
-            print(f"solving task {table.task} ...", file=sys.stderr, flush=True)
-            # --time-limit holds for each task's solve (the first counts from the
-            # command's start, the later ones from their own)
-            model, pomdp, result = solve_task(
-                TASKS[table.task], args, _progress(args), require_progress=True,
-                start=None if not solved else time.perf_counter(),
-            )  # fmt: skip
-            solved[table.task] = (model, pomdp, result)
-        model, pomdp, result = solved[table.task]
-        results.append(replay_table(model, pomdp, table, policy_chooser(result.policy, pomdp)))
-    return results, solved
-
-
-def replay_markdown(results) -> str:
-    lines = []
-    total = sum(len(r.steps) for r in results)
-    agree = sum(r.agreement for r in results)
-    ties = sum(r.agreement_with_ties for r in results)
-    lines.append(
-        f"Agreement with the thesis's actions: **{agree}/{total}** "
-        f"({ties}/{total} counting ties between equally good moves)\n"
-    )
-    for r in results:
-        t = r.table
-        lines.append(
-            f"## Table {t.name}: {t.title} ({r.agreement}/{len(r.steps)}, "
-            f"{r.agreement_with_ties} with ties)\n"
-        )
-        lines.append(
-            "| step | thesis action | our action | obs robot | obs person | obs velocity | |"
-        )
-        lines.append("|---:|---|---|---:|---|---|---|")
-        for s in r.steps:
-            mark = "=" if s.agrees else ("tie" if s.tie else "**differs**")
-            o = s.observation
-            lines.append(
-                f"| {s.step} | {s.thesis_action} | {s.chosen_action} | {o.robot} | "
-                f"{o.person if o.person is not None else 'No person'} | {o.velocity} | {mark} |"
-            )
-        if r.quotes:
-            lines.append("\n| after step | belief | thesis | ours |")
-            lines.append("|---:|---|---:|---:|")
-            for q in r.quotes:
-                lines.append(
-                    f"| {q.quote.step} | {q.quote.label} | {q.quote.thesis:.2f} | {q.ours:.2f} |"
-                )
-        lines.append("")
-    return "\n".join(lines)
-
-
-def replay_json(results) -> dict:
-    out = {}
-    for r in results:
-        out[r.table.name] = {
-            "agreement": r.agreement,
-            "agreement_with_ties": r.agreement_with_ties,
-            "steps": [
-                {
-                    "step": s.step,
-                    "observation": {
-                        "robot": s.observation.robot,
-                        "person": s.observation.person,
-                        "velocity": s.observation.velocity,
-                    },
-                    "thesis_action": s.thesis_action,
-                    "chosen_action": s.chosen_action,
-                    "agrees": s.agrees,
-                    "tie": s.tie,
-                }
-                for s in r.steps
-            ],
-            "quoted_beliefs": [
-                {
-                    "step": q.quote.step,
-                    "belief": q.quote.label,
-                    "thesis": q.quote.thesis,
-                    "ours": q.ours,
-                }
-                for q in r.quotes
-            ],
-        }
-    return out
-
-
 def cmd_replay(args: argparse.Namespace) -> int:
     from stack.planning.replay import TABLES
 
@@ -388,7 +200,7 @@ def cmd_main(args: argparse.Namespace) -> int:
         }
         print(
             f"task {name}: "
-            + _bounds_line(result.summary())
+            + bounds_line(result.summary())
             + f"; simulated return {ev.mean:.2f} +- {ev.ci95:.2f}"
         )
     (out / "replay.md").write_text("# Chapter 5 replayed\n\n" + replay_markdown(results))
@@ -566,7 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = _command(sec, "keystore", "write a keystore: CA, enclaves, governance, permissions")
     q.add_argument("path", help="a new or empty folder")
     q.add_argument("--domain", type=int, required=True, help="the deployment's ros.domain_id")
-    q.add_argument("--base-topic", default="/cmd_vel", help="the base driver's velocity topic")
+    q.add_argument("--base-topic", default=topic.CMD_VEL, help="the base driver's velocity topic")
     q.set_defaults(func=cmd_security_keystore)
     q = _command(sec, "check", "can the installed DDS enforce a keystore?")
     q.set_defaults(func=cmd_security_check)

@@ -16,6 +16,7 @@ Sections (all optional except ``mode`` and ``task``)::
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
     navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0,
                  drive: holonomic}        # or diff: the follower (and the twin's base)
+                 # pose_source: odom (twin) | amcl | tf (hardware default; odom refused)
     speech: {voice: en}
     planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
     nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
@@ -30,11 +31,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import Config, read_yaml
 
 MODES = ("twin", "hardware")
-NAV_CMD_VEL = "/nav/cmd_vel"  # hardware mode: navigation -> gate; only the gate drives the base
+NAV_CMD_VEL = topic.NAV_CMD_VEL  # hardware mode: navigation -> gate; only the gate drives the base
 TWIN_ONLY = ("twin", "lockstep")
 
 
@@ -81,6 +83,7 @@ class TwinSection(Config):
     stall_timeout_s: float = 30.0
 
     _rules = {
+        "seed": (lambda v: v >= 0, "must be >= 0"),
         "odom_rate_hz": (lambda v: v > 0, "must be > 0"),
         "stall_timeout_s": (lambda v: v > 0, "must be > 0"),
     }
@@ -100,9 +103,11 @@ class NavigationSection(Config):
     control_rate_hz: float = 20.0
     drive: str = "holonomic"  # the base: holonomic (mecanum) or diff (differential drive)
 
+    _rules = {"control_rate_hz": (lambda v: v > 0, "must be > 0")}
+
     def __post_init__(self) -> None:
-        if self.pose_source not in ("odom", "amcl"):
-            raise ConfigError("pose_source", self.pose_source, "must be odom or amcl")
+        if self.pose_source not in ("odom", "amcl", "tf"):
+            raise ConfigError("pose_source", self.pose_source, "must be odom, amcl or tf")
         if self.drive not in ("holonomic", "diff"):
             raise ConfigError("drive", self.drive, "must be holonomic or diff")
 
@@ -118,6 +123,8 @@ class PlannerSection(Config):
     start_delay_s: float = 1.0
     nav_timeout_s: float = 60.0
     obs_timeout_s: float = 5.0
+
+    _rules = {"start_delay_s": (lambda v: v >= 0, "must be >= 0")}
 
     def __post_init__(self) -> None:
         if self.max_steps < 0:
@@ -141,9 +148,9 @@ class NodesSection(Config):
 
 @dataclass(frozen=True)
 class TopicsSection(Config):
-    scan: str = "/scan"
-    odom: str = "/odom"
-    cmd_vel: str = "/cmd_vel"
+    scan: str = topic.SCAN
+    odom: str = topic.ODOM
+    cmd_vel: str = topic.CMD_VEL
 
 
 @dataclass(frozen=True)
@@ -218,7 +225,16 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
     hardware = data.get("hardware") or {}
     if not isinstance(hardware, Mapping):
         raise ConfigError("hardware", hardware, "must be a mapping")
+    if mode == "hardware" and isinstance(data.get("navigation") or {}, Mapping):
+        # a robot's map pose: through TF unless the file names another source
+        data = {**data, "navigation": {"pose_source": "tf", **(data.get("navigation") or {})}}
     sections = {name: cls.from_dict(data.get(name), name) for name, cls in _SECTIONS.items()}
+    if mode == "hardware" and sections["navigation"].pose_source == "odom":
+        raise ConfigError(
+            "navigation.pose_source",
+            "odom",
+            "on a robot odometry drifts from the map: use amcl or tf (REP-105 map -> odom)",
+        )
     dep = Deployment(
         mode=mode,
         task=Path(task),
@@ -265,7 +281,7 @@ def _check_hardware(dep: Deployment) -> None:
         raise ConfigError(
             "ros.interfaces", [], "hardware mode off localhost must list the addresses DDS may use"
         )
-    if dep.topics.cmd_vel in (NAV_CMD_VEL, "/arm", "/safety/state"):
+    if dep.topics.cmd_vel in (NAV_CMD_VEL, topic.ARM, topic.SAFETY_STATE):
         raise ConfigError(
             "topics.cmd_vel",
             dep.topics.cmd_vel,

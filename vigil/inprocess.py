@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.geometry import Pose2D
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
@@ -280,20 +281,22 @@ class InProcessSystem:
         self.rec_speech: list[str] = []
 
         # -- wiring: the topics each core's node subscribes to, in the system's node order --
-        self._sub("/clock", self._clock)
-        self._sub("/odom", self.legs_on_odom, self.nav_on_pose, self.obs_on_odom, self.rec_on_odom)
-        self._sub("/twin/truth", self.rec_on_truth)
-        self._sub("/scan", self.legs_on_scan)
-        self._sub("/camera/image_raw", self.camera_on_image, self.rec_on_image)
-        self._sub("/perception/person", self.obs_on_person, self.rec_on_person)
-        self._sub("/perception/legs", self.obs_on_legs, self.rec_on_legs)
-        self._sub("/perception/leg_people", self.nav.set_people)
-        self._sub("/observations", self.speech_on_observation, self.planner_on_observation)
-        self._sub("/observations/request", lambda _m: self.obs_publish())
-        self._sub("/nav/action", self.nav_on_action)
-        self._sub("/nav/result", self.planner_on_result)
-        self._sub("/cmd_vel", self.bridge_on_cmd)
-        self._sub("/speech/warning", self.rec_on_warning)
+        self._sub(topic.CLOCK, self._clock)
+        self._sub(
+            topic.ODOM, self.legs_on_odom, self.nav_on_pose, self.obs_on_odom, self.rec_on_odom
+        )
+        self._sub(topic.TWIN_TRUTH, self.rec_on_truth)
+        self._sub(topic.SCAN, self.legs_on_scan)
+        self._sub(topic.CAMERA_IMAGE, self.camera_on_image, self.rec_on_image)
+        self._sub(topic.PERSON, self.obs_on_person, self.rec_on_person)
+        self._sub(topic.LEGS, self.obs_on_legs, self.rec_on_legs)
+        self._sub(topic.LEG_PEOPLE, self.nav.set_people)
+        self._sub(topic.OBSERVATIONS, self.speech_on_observation, self.planner_on_observation)
+        self._sub(topic.OBSERVATIONS_REQUEST, lambda _m: self.obs_publish())
+        self._sub(topic.NAV_ACTION, self.nav_on_action)
+        self._sub(topic.NAV_RESULT, self.planner_on_result)
+        self._sub(topic.CMD_VEL, self.bridge_on_cmd)
+        self._sub(topic.SPEECH_WARNING, self.rec_on_warning)
         self.timers = [
             _Timer(FRAME_TIMEOUT_S / 2.0, self.camera_watchdog),
             _Timer(float(op["decision_period_s"]), self.obs_publish),
@@ -352,17 +355,17 @@ class InProcessSystem:
     def _tick(self, obs: dict[str, np.ndarray]) -> None:
         t = float(obs["time"])
         now = ros_time(t)
-        self.publish("/clock", now)
+        self.publish(topic.CLOCK, now)
         self._drain()
         due = self.env.task.due_now
         if "odometry" in due:
             od = obs["odometry"]
-            self.publish("/odom", (now, Pose2D(float(od[0]), float(od[1]), float(od[2]))))
-            self.publish("/twin/truth", self._truth_record())
+            self.publish(topic.ODOM, (now, Pose2D(float(od[0]), float(od[1]), float(od[2]))))
+            self.publish(topic.TWIN_TRUTH, self._truth_record())
         if float(obs["scan_stamp"]) == t and "scan" in due:
-            self.publish("/scan", self._scan(obs["scan"], now))
+            self.publish(topic.SCAN, self._scan(obs["scan"], now))
         if float(obs["camera_stamp"]) == t and "camera" in due:
-            self.publish("/camera/image_raw", (now, obs["camera"]))
+            self.publish(topic.CAMERA_IMAGE, (now, obs["camera"]))
         self._drain()
 
     def _truth_record(self) -> dict:
@@ -393,13 +396,13 @@ class InProcessSystem:
         stamp, rgb = msg
         self._last_frame_s = self.now_s
         state = self.camera.process_frame(rgb[:, :, ::-1].copy(), stamp)  # rgb8 -> BGR
-        self.publish("/perception/person", json.dumps(state.to_dict()))
+        self.publish(topic.PERSON, json.dumps(state.to_dict()))
 
     def camera_watchdog(self) -> None:
         silent_s = self.now_s - self._last_frame_s
         if silent_s <= FRAME_TIMEOUT_S:
             return
-        self.publish("/perception/person", json.dumps(self.camera.state.silent_dict(silent_s)))
+        self.publish(topic.PERSON, json.dumps(self.camera.state.silent_dict(silent_s)))
 
     # -- legs -----------------------------------------------------------------------------
     def legs_on_odom(self, msg: tuple[float, Pose2D]) -> None:
@@ -427,8 +430,8 @@ class InProcessSystem:
             tracks = self.leg_tracker.update(scan.stamp_s, det.people)
         except BadScanError:
             return
-        self.publish("/perception/legs", legs_to_dict(det, tracks, self.thresholds))
-        self.publish("/perception/leg_people", [t.position_m for t in tracks if t.confirmed])
+        self.publish(topic.LEGS, legs_to_dict(det, tracks, self.thresholds))
+        self.publish(topic.LEG_PEOPLE, [t.position_m for t in tracks if t.confirmed])
 
     # -- observations ---------------------------------------------------------------------
     def obs_on_person(self, text: str) -> None:
@@ -443,7 +446,7 @@ class InProcessSystem:
     def obs_publish(self) -> None:
         pose, self.obs_pose = self.obs_pose, None  # a pose is used once (as the node)
         obs = self.combiner.combine(self.now_s, self.obs_camera, self.obs_tracks, pose)
-        self.publish("/observations", obs.to_json())
+        self.publish(topic.OBSERVATIONS, obs.to_json())
 
     # -- navigation -----------------------------------------------------------------------
     def nav_on_pose(self, msg: tuple[float, Pose2D]) -> None:
@@ -455,9 +458,9 @@ class InProcessSystem:
     def _emit_nav(self, outputs) -> None:
         for o in outputs:
             if o.kind == "cmd":
-                self.publish("/cmd_vel", (o.cmd.vx_mps, o.cmd.vy_mps, o.cmd.wz_radps))
+                self.publish(topic.CMD_VEL, (o.cmd.vx_mps, o.cmd.vy_mps, o.cmd.wz_radps))
             elif o.kind == "result":
-                self.publish("/nav/result", json.dumps(o.body))
+                self.publish(topic.NAV_RESULT, json.dumps(o.body))
 
     # -- speech ---------------------------------------------------------------------------
     def speech_on_observation(self, text: str) -> None:
@@ -473,7 +476,7 @@ class InProcessSystem:
         speaking = self.speaker is not None and self.speaker.speaking
         decision = self.gate.update(self.now_s, self.speech_robot, self.speech_person, speaking)
         if decision == "say":
-            self.publish("/speech/warning", self.speaker.config.warning if self.speaker else "")
+            self.publish(topic.SPEECH_WARNING, self.speaker.config.warning if self.speaker else "")
             if self.speaker is not None:
                 try:
                     self.speaker.say(None, self.now_s)
@@ -506,9 +509,9 @@ class InProcessSystem:
     def _planner_run(self, commands) -> None:
         for c in commands:
             if c.kind == "act":
-                self.publish("/nav/action", c.action)
+                self.publish(topic.NAV_ACTION, c.action)
             elif c.kind == "request":
-                self.publish("/observations/request", None)
+                self.publish(topic.OBSERVATIONS_REQUEST, None)
             elif c.kind == "record" and c.record is not None:
                 self.n_steps += 1
                 with open(self.steps_file, "a") as f:

@@ -29,6 +29,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from stack import topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 from stack.visualization import MarkerSpec, scene_markers
 
 
@@ -71,8 +72,8 @@ class MarkersNode(Node):
         super().__init__("markers", **kwargs)
         from stack.planning.task import load_task
 
-        task_file = self.declare_parameter("task_file", "").value
-        rate_hz = self.declare_parameter("rate_hz", 2.0).value
+        v = declare(self, task_file="", rate_hz=2.0)
+        task_file, rate_hz = v.task_file, v.rate_hz
         if not rate_hz > 0:
             raise ConfigError("rate_hz", rate_hz, "must be > 0")
         if task_file:

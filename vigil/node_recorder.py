@@ -29,10 +29,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.perception.errors import BadFrameError
 from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 from vigil.frames import FRAMES_FILE, FrameWriter
 
 TRACE_FILE = "trace.jsonl"
@@ -59,12 +61,17 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
-        p = self.declare_parameter
-        out_dir = Path(p("out_dir", "runs/recording").value)
-        p("task_file", "")  # kept so that older parameter files still load
-        p("config_file", "")
-        video = bool(p("video", True).value)
-        quality = int(p("jpeg_quality", 90).value)
+        # task_file and config_file: unused, kept so that older parameter files still load
+        v = declare(
+            self,
+            out_dir="runs/recording",
+            task_file="",
+            config_file="",
+            video=True,
+            jpeg_quality=90,
+            lockstep=False,
+        )
+        out_dir, video, quality = Path(v.out_dir), v.video, v.jpeg_quality
         out_dir.mkdir(parents=True, exist_ok=True)
         self.trace = open(out_dir / TRACE_FILE, "a")
         self.frames = FrameWriter(out_dir / FRAMES_FILE, quality) if video else None
@@ -74,14 +81,14 @@ class RecorderNode(Node):
         self.legs: list = []
         self.speech: list[str] = []
         self.last_t = 0.0  # the last trace record's time
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
-        ls.subscription(Image, "/camera/image_raw", self.on_image, 5)
-        ls.subscription(String, "/perception/person", self.on_person, 10)
-        ls.subscription(String, "/perception/legs", self.on_legs, 10)
-        ls.subscription(String, "/twin/truth", self.on_truth, 10)
-        ls.subscription(Odometry, "/odom", self.on_odom, 10)
-        ls.subscription(String, "/speech/warning", self.on_warning, 10)
-        ls.subscription(String, "/speech/done", self.on_speech_done, 10)
+        ls = self.lockstep = Participant(self, v.lockstep)
+        ls.subscription(Image, topic.CAMERA_IMAGE, self.on_image, 5)
+        ls.subscription(String, topic.PERSON, self.on_person, 10)
+        ls.subscription(String, topic.LEGS, self.on_legs, 10)
+        ls.subscription(String, topic.TWIN_TRUTH, self.on_truth, 10)
+        ls.subscription(Odometry, topic.ODOM, self.on_odom, 10)
+        ls.subscription(String, topic.SPEECH_WARNING, self.on_warning, 10)
+        ls.subscription(String, topic.SPEECH_DONE, self.on_speech_done, 10)
         self.get_logger().info(f"recording into {out_dir}")
 
     def on_image(self, msg: Image) -> None:

@@ -16,24 +16,26 @@ import json
 from rclpy.node import Node
 from std_msgs.msg import Empty, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.planning.replay import TABLES
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 
 
 class TablePlayerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("table_player", **kwargs)
-        name = self.declare_parameter("table", "5.1").value
+        name = declare(self, table="5.1").table
         if name not in TABLES:
             raise ConfigError("table", name, f"must be one of {sorted(TABLES)}")
         self.rows = TABLES[name].steps
         self.row = 0
         self.goal_id = 0
-        self.pub_result = self.create_publisher(String, "/nav/result", 10)
-        self.pub_obs = self.create_publisher(String, "/observations", 10)
-        self.create_subscription(String, "/nav/action", self.on_action, 10)
-        self.create_subscription(Empty, "/observations/request", self.on_request, 10)
+        self.pub_result = self.create_publisher(String, topic.NAV_RESULT, 10)
+        self.pub_obs = self.create_publisher(String, topic.OBSERVATIONS, 10)
+        self.create_subscription(String, topic.NAV_ACTION, self.on_action, 10)
+        self.create_subscription(Empty, topic.OBSERVATIONS_REQUEST, self.on_request, 10)
         self.get_logger().info(f"table {name}: {len(self.rows)} rows of observations")
 
     def _current(self):

@@ -34,10 +34,11 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import stack.topics as topic
 from stack.cells import ConfigError
 
 ENCLAVE_ROOT = "/vigil"
-BASE_TOPIC = "/cmd_vel"
+BASE_TOPIC = topic.CMD_VEL
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ class Grant:
 NODES = (
     "camera_stream",
     "camera_people",
+    "localisation",
     "legs",
     "observations",
     "navigation",
@@ -65,8 +67,8 @@ NODES = (
 def enclaves(base_topic: str = BASE_TOPIC) -> dict[str, Grant]:
     """Every enclave of a hardware deployment and its extra rights."""
     out = {name: Grant() for name in NODES}
-    out["velocity_gate"] = Grant(publish=(base_topic,), subscribe=("/arm",))
-    out["operator"] = Grant(publish=("/arm",), set_gate_params=True)
+    out["velocity_gate"] = Grant(publish=(base_topic,), subscribe=(topic.ARM,))
+    out["operator"] = Grant(publish=(topic.ARM,), set_gate_params=True)
     out["base_driver"] = Grant(subscribe=(base_topic,))
     return out
 

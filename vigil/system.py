@@ -5,7 +5,7 @@ holding everything the nodes read (the twin's scene with the scenario's person, 
 stack's config with the task's grid, the camera calibration, the policy, one ROS
 parameters file) and the list of :class:`vigil.launch.ProcessSpec` to start.
 
-Twin mode: twin_bridge + camera_people, legs, observations, navigation, speech,
+Twin mode: twin_bridge + localisation, camera_people, legs, observations, navigation, speech,
 planner, recorder (lock-step participants). Hardware mode: camera_stream and
 velocity_gate instead of the bridge; the robot's own drivers provide /scan and the
 pose, navigation drives ``/nav/cmd_vel`` through the gate, and nothing moves until the
@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
 from vigil.dds import dds_env, write_profile
@@ -38,6 +39,7 @@ MODULES = {
     "camera_stream": "stack.hardware.node_camera_stream",
     "velocity_gate": "stack.hardware.node_velocity_gate",
     "camera_people": "stack.perception.node_camera_people",
+    "localisation": "stack.nav.node_localisation",
     "legs": "stack.perception.node_legs",
     "observations": "stack.perception.node_observations",
     "navigation": "stack.nav.node_navigation",
@@ -168,24 +170,39 @@ def prepare(
         params["velocity_gate"] = {
             "config_file": str(hw_file),
             "armed": bool(dep.hardware.get("armed", False)),
-            "input_topic": "/nav/cmd_vel",
+            "input_topic": topic.NAV_CMD_VEL,
             "output_topic": dep.topics.cmd_vel,
         }
 
     cfg = str(stack_file)
     params["camera_people"] = {**common, "config_file": cfg, "calibration_file": str(calibration)}
+    # TF: the camera's static frames; in the twin also map -> odom (on a robot its own
+    # localisation, e.g. AMCL, publishes map -> odom)
+    # the robot's map pose for legs and observations: through TF on a robot (map -> odom
+    # from its localisation) and in the twin when navigation takes it so; else /odom (the
+    # twin's odom frame is the map frame at the start)
+    tf_pose = not twin_mode or dep.navigation.pose_source == "tf"
+    map_pose_source = "tf" if tf_pose else "odom"
+    params["localisation"] = {
+        **common,
+        "calibration_file": str(calibration) if calibration else "",
+        "publish_map_odom": twin_mode,
+        "odom_topic": dep.topics.odom,
+    }
     params["legs"] = {
         **common,
         "config_file": cfg,
         "scan_topic": dep.topics.scan,
         "odom_topic": dep.topics.odom,
         "laser_x_m": LIDAR_X_M if twin_mode else 0.0,
+        "pose_source": map_pose_source,
     }
     params["observations"] = {
         **common,
         "config_file": cfg,
         "calibration_file": str(calibration),  # the cells the robot hides from the camera
         "odom_topic": dep.topics.odom,
+        "pose_source": map_pose_source,
         "decision_period_s": 0.25,  # continuous: speech and the planner's events read it
     }
     if people > 1:
@@ -196,7 +213,7 @@ def prepare(
         "pose_source": dep.navigation.pose_source,
         "pose_topic": dep.navigation.pose_topic,
         "control_rate_hz": dep.navigation.control_rate_hz,
-        "cmd_vel_topic": "/cmd_vel" if twin_mode else "/nav/cmd_vel",
+        "cmd_vel_topic": topic.CMD_VEL if twin_mode else topic.NAV_CMD_VEL,
     }
     params["speech"] = {
         **common,
@@ -233,7 +250,8 @@ def prepare(
     }
 
     names = ["twin_bridge"] if twin_mode else ["camera_stream", "velocity_gate"]
-    names += ["camera_people", "legs", "observations", "navigation", "speech", "planner"]
+    names += ["localisation", "camera_people", "legs", "observations", "navigation", "speech"]
+    names += ["planner"]
     names += ["recorder"]
     if twin_mode and dep.lockstep:
         params["twin_bridge"]["participants"] = [n for n in names if n != "twin_bridge"]

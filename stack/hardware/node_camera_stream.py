@@ -31,6 +31,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import read_section
 from stack.hardware.camera_stream import (
@@ -42,6 +43,7 @@ from stack.hardware.camera_stream import (
     redact_url,
 )
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
 from stack.ros_qos import FRAME_QOS  # one QoS for frames, both ends
 
 STATUS_PERIOD_S = 1.0
@@ -53,8 +55,8 @@ class CameraStreamNode(Node):
     def __init__(self, capture_factory=None, **kwargs):
         super().__init__("camera_stream", **kwargs)
         p = self.declare_parameter
-        config_file = p("config_file", "").value
-        section = read_section(config_file, "camera_stream")
+        v = declare(self, config_file="", frame_id="axis_camera", camera_info_file="")
+        section = read_section(v.config_file, "camera_stream")
         # the file's values, checked, are the parameters' defaults (the url may be given
         # as a parameter only); the parameters are checked again
         url = section.get("url", "")
@@ -66,11 +68,11 @@ class CameraStreamNode(Node):
             for f in dataclasses.fields(StreamConfig)
         }
         self.config = StreamConfig.from_dict(values, "camera_stream")
-        self.frame_id = p("frame_id", "axis_camera").value
-        info_file = p("camera_info_file", "").value
-        image_topic = p("image_topic", "/camera/image_raw").value
-        info_topic = p("info_topic", "/camera/camera_info").value
-        status_topic = p("status_topic", "/camera/status").value
+        self.frame_id, info_file = v.frame_id, v.camera_info_file
+        topics = declare_topics(
+            self, image=topic.CAMERA_IMAGE, info=topic.CAMERA_INFO, status=topic.CAMERA_STATUS
+        )
+        image_topic, info_topic, status_topic = topics["image"], topics["info"], topics["status"]
 
         self.calibration: CameraCalibration | None = (
             load_calibration(info_file) if info_file else None

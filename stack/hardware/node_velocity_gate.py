@@ -46,10 +46,12 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import read_section
 from stack.hardware.velocity_gate import CAPPED, OK, ZERO, GateConfig, VelocityGate
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
 
 REPEAT_PERIOD_S = 0.5  # zeros and state while idle: 2 Hz
 
@@ -66,8 +68,8 @@ class VelocityGateNode(Node):
     def __init__(self, **kwargs):
         super().__init__("velocity_gate", **kwargs)
         p = self.declare_parameter
-        config_file = p("config_file", "").value
-        section = read_section(config_file, "velocity_gate")
+        v = declare(self, config_file="", rate_hz=20.0)
+        section = read_section(v.config_file, "velocity_gate")
         read_only = ParameterDescriptor(read_only=True)
         start = GateConfig.from_dict(section, "velocity_gate")  # the file, checked
         values = {
@@ -75,18 +77,16 @@ class VelocityGateNode(Node):
             for f in dataclasses.fields(GateConfig)
         }
         self.config = GateConfig.from_dict(values, "velocity_gate")  # parameters, checked
-        rate_hz = p("rate_hz", 20.0).value
+        rate_hz = v.rate_hz
         if not rate_hz > 0:
             raise ConfigError("rate_hz", rate_hz, "must be > 0")
-        topics = {
-            name: p(f"{name}_topic", default).value
-            for name, default in (
-                ("input", "/nav/cmd_vel"),
-                ("output", "/cmd_vel"),
-                ("arm", "/arm"),
-                ("state", "/safety/state"),
-            )
-        }
+        topics = declare_topics(
+            self,
+            input=topic.NAV_CMD_VEL,
+            output=topic.CMD_VEL,
+            arm=topic.ARM,
+            state=topic.SAFETY_STATE,
+        )
         if topics["input"] == topics["output"]:
             raise ConfigError(
                 "output_topic", topics["output"], "must differ from input_topic (a bypass)"

@@ -115,6 +115,7 @@ class FollowerConfig(Config):
             "blocked_timeout_s",
             "max_start_escape_m",
             "arrive_margin_m",
+            "region_margin_m",
         )
 
     @property

@@ -5,7 +5,9 @@ Subscribes (names are parameters):
     ``/nav/action_id`` std_msgs/Int32: the same as :class:`stack.cells.Direction` numbers.
     ``/goal_pose`` geometry_msgs/PoseStamped: a goal in the map frame (orientation ignored).
     pose: ``/odom`` nav_msgs/Odometry (twin) or ``/amcl_pose``
-        geometry_msgs/PoseWithCovarianceStamped (robot), chosen by ``pose_source``.
+        geometry_msgs/PoseWithCovarianceStamped (robot), or ``/tf`` and ``/tf_static``
+        (``map <- base_link``, any localisation that fills REP-105), chosen by
+        ``pose_source``.
     ``/map`` nav_msgs/OccupancyGrid (transient local), unless ``map_yaml`` is given.
     ``/perception/leg_people`` geometry_msgs/PoseArray: people's positions in the map
         frame (the leg detector's tracks).
@@ -20,7 +22,8 @@ Publishes:
         nothing (succeeded at once) and refused actions.
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``follower`` sections),
-``pose_source`` (odom | amcl), ``pose_topic`` (empty: the source's default),
+``pose_source`` (odom | amcl | tf), ``tf_timeout_s`` (1.0), ``pose_topic`` (empty: the
+source's default),
 ``map_yaml``, ``control_rate_hz``, ``progress_rate_hz``, ``free_map_margin_m`` (the free
 map used when there is no map), ``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`:
 the control loop then runs on simulated clock ticks).
@@ -45,8 +48,10 @@ from stack.nav.follower import ZERO_TWIST, Twist2D
 from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, load_map_yaml
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
+from stack.ros_tf import MapPose
 
-POSE_SOURCES = {"odom": topic.ODOM, "amcl": topic.AMCL_POSE}
+POSE_SOURCES = {"odom": topic.ODOM, "amcl": topic.AMCL_POSE, "tf": topic.TF}
 
 
 def twist_to_msg(cmd: Twist2D) -> Twist:
@@ -82,34 +87,39 @@ class NavigationNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("navigation", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        source = p("pose_source", "odom").value
-        pose_topic = p("pose_topic", "").value
-        map_yaml = p("map_yaml", "").value
-        rate_hz = p("control_rate_hz", 20.0).value
-        progress_hz = p("progress_rate_hz", 2.0).value
-        margin_m = p("free_map_margin_m", 1.0).value
-        self.map_frame = p("map_frame", "map").value
-        topics = {
-            name: p(f"{name}_topic", default).value
-            for name, default in (
-                ("action", topic.NAV_ACTION),
-                ("action_id", topic.NAV_ACTION_ID),
-                ("goal", topic.GOAL_POSE),
-                ("map", topic.MAP),
-                ("people", topic.LEG_PEOPLE),
-                ("stop", topic.STOP),
-                ("cmd_vel", topic.CMD_VEL),
-                ("progress", topic.NAV_PROGRESS),
-                ("result", topic.NAV_RESULT),
-            )
-        }
+        v = declare(
+            self,
+            config_file="",
+            pose_source="odom",
+            tf_timeout_s=1.0,
+            pose_topic="",
+            map_yaml="",
+            control_rate_hz=20.0,
+            progress_rate_hz=2.0,
+            free_map_margin_m=1.0,
+            map_frame="map",
+            lockstep=False,
+        )
+        source, pose_topic, map_yaml = v.pose_source, v.pose_topic, v.map_yaml
+        rate_hz, progress_hz, margin_m = v.control_rate_hz, v.progress_rate_hz, v.free_map_margin_m
+        self.map_frame = v.map_frame
+        topics = declare_topics(
+            self,
+            action=topic.NAV_ACTION,
+            action_id=topic.NAV_ACTION_ID,
+            goal=topic.GOAL_POSE,
+            map=topic.MAP,
+            people=topic.LEG_PEOPLE,
+            stop=topic.STOP,
+            cmd_vel=topic.CMD_VEL,
+            progress=topic.NAV_PROGRESS,
+            result=topic.NAV_RESULT,
+        )
         if source not in POSE_SOURCES:
             raise ConfigError("pose_source", source, f"must be one of {sorted(POSE_SOURCES)}")
         if not rate_hz > 0 or not progress_hz > 0:
             raise ConfigError("control_rate_hz", (rate_hz, progress_hz), "rates must be > 0")
-        self.grid, self.config = load_config_file(config_file)
+        self.grid, self.config = load_config_file(v.config_file)
         if map_yaml:
             occ_map = load_map_yaml(map_yaml)
         else:  # until /map arrives: free floor around the cells, so the robot can still move
@@ -122,7 +132,7 @@ class NavigationNode(Node):
             self.grid, self.config, occ_map, max(1, round(rate_hz / progress_hz))
         )
 
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls = self.lockstep = Participant(self, v.lockstep)
         self.cmd_pub = ls.publisher(Twist, topics["cmd_vel"], 10)
         self.progress_pub = ls.publisher(String, topics["progress"], 10)
         self.result_pub = ls.publisher(String, topics["result"], 10)
@@ -131,9 +141,12 @@ class NavigationNode(Node):
         ls.subscription(PoseStamped, topics["goal"], self.on_goal, 10)
         ls.subscription(PoseArray, topics["people"], self.on_people, 10)
         ls.subscription(Bool, topics["stop"], self.on_stop, 10)
-        pose_topic = pose_topic or POSE_SOURCES[source]
-        pose_type = Odometry if source == "odom" else PoseWithCovarianceStamped
-        ls.subscription(pose_type, pose_topic, self.on_pose, 10)
+        if source == "tf":
+            self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s, self.map_frame)
+        else:
+            pose_topic = pose_topic or POSE_SOURCES[source]
+            pose_type = Odometry if source == "odom" else PoseWithCovarianceStamped
+            ls.subscription(pose_type, pose_topic, self.on_pose, 10)
         if not map_yaml:
             latched = QoSProfile(
                 depth=1,
@@ -163,6 +176,10 @@ class NavigationNode(Node):
         pose = msg.pose.pose
         yaw = yaw_from_quaternion(pose.orientation)
         self.emit(self.core.set_pose(Pose2D(pose.position.x, pose.position.y, yaw), self.now_s()))
+
+    def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
+        """The map pose through TF (``pose_source: tf``)."""
+        self.emit(self.core.set_pose(pose, self.now_s()))
 
     def on_people(self, msg: PoseArray) -> None:
         self.core.set_people([(p.position.x, p.position.y) for p in msg.poses])

@@ -36,6 +36,7 @@ from stack.nav.config import SpeechConfig, read_node_config
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
 
 
 def load_speech_config(path: str) -> tuple[CellGrid, SpeechConfig]:
@@ -52,22 +53,17 @@ class SpeechNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("speech", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        voice = p("voice", "").value
-        out_dir = p("out_dir", "").value
-        rate_hz = p("poll_rate_hz", 10.0).value
-        topics = {
-            name: p(f"{name}_topic", default).value
-            for name, default in (
-                ("observations", topic.OBSERVATIONS),
-                ("say", topic.SPEECH_SAY),
-                ("done", topic.SPEECH_DONE),
-                ("speaking", topic.SPEECH_SPEAKING),
-                ("warning", topic.SPEECH_WARNING),
-            )
-        }
-        self.grid, config = load_speech_config(config_file)
+        v = declare(self, config_file="", voice="", out_dir="", poll_rate_hz=10.0, lockstep=False)
+        voice, out_dir, rate_hz = v.voice, v.out_dir, v.poll_rate_hz
+        topics = declare_topics(
+            self,
+            observations=topic.OBSERVATIONS,
+            say=topic.SPEECH_SAY,
+            done=topic.SPEECH_DONE,
+            speaking=topic.SPEECH_SPEAKING,
+            warning=topic.SPEECH_WARNING,
+        )
+        self.grid, config = load_speech_config(v.config_file)
         if voice:
             config = replace(config, voice=voice)
         self.config = config
@@ -84,7 +80,7 @@ class SpeechNode(Node):
             self.speaker_error = str(exc)
             self.get_logger().error(f"speech disabled: {exc}")
         self._failed_id = 0
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls = self.lockstep = Participant(self, v.lockstep)
         self.done_pub = ls.publisher(String, topics["done"], 10)
         self.speaking_pub = ls.publisher(Bool, topics["speaking"], 10)
         self.warning_pub = ls.publisher(String, topics["warning"], 10)

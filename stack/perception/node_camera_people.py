@@ -33,6 +33,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
+import stack.topics as topic
 from stack.cells import ConfigError
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus
@@ -42,6 +43,7 @@ from stack.perception.messages import image_from_msg, stamp_to_s
 from stack.perception.observation import NO_PERSON
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 from stack.ros_qos import FRAME_QOS
 from stack.stamp_guard import StampGuard
 
@@ -51,16 +53,24 @@ class CameraPeopleNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("camera_people", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        calibration_file = p("calibration_file", "").value
-        image_topic = p("image_topic", "/camera/image_raw").value
-        self.map_frame = p("map_frame", "map").value
-        self.frame_timeout_s = float(p("frame_timeout_s", 2.0).value)
+        v = declare(
+            self,
+            config_file="",
+            calibration_file="",
+            image_topic=topic.CAMERA_IMAGE,
+            map_frame="map",
+            frame_timeout_s=2.0,
+            lockstep=False,
+            max_future_stamp_s=1.0,
+            max_past_stamp_s=0.0,
+        )
+        calibration_file = v.calibration_file
+        self.map_frame = v.map_frame
+        self.frame_timeout_s = v.frame_timeout_s
         if not self.frame_timeout_s > 0:
             raise ConfigError("frame_timeout_s", self.frame_timeout_s, "must be > 0")
-        self.lockstep = Participant(self, p("lockstep", False).value)
-        grid, sections = load_config_file(config_file)
+        self.lockstep = Participant(self, v.lockstep)
+        grid, sections = load_config_file(v.config_file)
         config = CameraConfig.from_dict(sections.get("camera"))
         homography = None
         try:
@@ -71,14 +81,12 @@ class CameraPeopleNode(Node):
             self.get_logger().error("no calibration_file: person positions will be 'unknown'")
         self.tracker = CameraPeopleTracker(config, grid, homography)
         ls = self.lockstep
-        self.pub_state = ls.publisher(String, "/perception/person", 10)
-        self.pub_position = ls.publisher(PointStamped, "/perception/person_position", 10)
-        self.pub_cell = ls.publisher(String, "/perception/person_cell", 10)
-        self.pub_direction = ls.publisher(String, "/perception/person_direction", 10)
-        self.stamps = StampGuard(
-            float(p("max_future_stamp_s", 1.0).value), float(p("max_past_stamp_s", 0.0).value)
-        )
-        ls.subscription(Image, image_topic, self.on_image, FRAME_QOS)
+        self.pub_state = ls.publisher(String, topic.PERSON, 10)
+        self.pub_position = ls.publisher(PointStamped, topic.PERSON_POSITION, 10)
+        self.pub_cell = ls.publisher(String, topic.PERSON_CELL, 10)
+        self.pub_direction = ls.publisher(String, topic.PERSON_DIRECTION, 10)
+        self.stamps = StampGuard(v.max_future_stamp_s, v.max_past_stamp_s)
+        ls.subscription(Image, v.image_topic, self.on_image, FRAME_QOS)
         self._last_frame_s = self._now_s()
         ls.timer(self.frame_timeout_s / 2.0, self.on_watchdog)
 

@@ -3,7 +3,9 @@
 Subscribes (names are parameters):
     ``/scan`` sensor_msgs/LaserScan.
     ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame (the twin's odom
-        frame is the map frame); scans are transformed with the latest pose.
+        frame is the map frame); scans are transformed with the latest pose. With
+        ``pose_source: tf`` instead ``/tf`` and ``/tf_static``: the pose is looked up as
+        ``map <- base_link`` (on a robot, where odometry drifts from the map).
     ``/map`` nav_msgs/OccupancyGrid (transient local): segments on its obstacles
         (chair and table legs) are ignored.
 
@@ -18,9 +20,11 @@ Parameters: ``config_file`` (YAML with optional ``legs``, ``tracker`` and
 ``observations`` sections), ``scan_topic``, ``odom_topic``, ``map_topic``,
 ``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`), ``laser_x_m``,
 ``laser_y_m``, ``laser_yaw_rad`` (the laser's mount on the
-robot), ``max_pose_age_s`` (older poses make the scan unusable), ``max_future_stamp_s``
-(1.0) and ``max_past_stamp_s`` (0: no limit): a scan or odometry message stamped further from
-the node's clock is ignored and counted (:mod:`stack.stamp_guard`).
+robot), ``pose_source`` (odom | tf), ``tf_timeout_s`` (1.0: how long the TF chain may be
+missing before a warning), ``max_pose_age_s`` (older poses make the scan unusable),
+``max_future_stamp_s`` (1.0) and ``max_past_stamp_s`` (0: no limit): a scan or odometry
+message stamped further from the node's clock is ignored and counted
+(:mod:`stack.stamp_guard`).
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 
+import stack.topics as topic
+from stack.cells import ConfigError
 from stack.perception._config import load_config_file
 from stack.perception.errors import BadScanError
 from stack.perception.legs import LegConfig, Pose2D, detect_legs
@@ -48,6 +54,8 @@ from stack.perception.observation import CombinerConfig
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
+from stack.ros_tf import MapPose
 from stack.stamp_guard import StampGuard
 
 
@@ -56,19 +64,27 @@ class LegsNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("legs", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        scan_topic = p("scan_topic", "/scan").value
-        odom_topic = p("odom_topic", "/odom").value
-        map_topic = p("map_topic", "/map").value
-        self.map_frame = p("map_frame", "map").value
-        self.laser_mount = Pose2D(
-            float(p("laser_x_m", 0.0).value),
-            float(p("laser_y_m", 0.0).value),
-            float(p("laser_yaw_rad", 0.0).value),
+        v = declare(
+            self,
+            config_file="",
+            map_frame="map",
+            pose_source="odom",
+            tf_timeout_s=1.0,
+            laser_x_m=0.0,
+            laser_y_m=0.0,
+            laser_yaw_rad=0.0,
+            max_pose_age_s=0.5,
+            max_future_stamp_s=1.0,
+            max_past_stamp_s=0.0,
+            lockstep=False,
         )
-        self.max_pose_age_s = float(p("max_pose_age_s", 0.5).value)
-        _, sections = load_config_file(config_file)
+        topics = declare_topics(self, scan=topic.SCAN, odom=topic.ODOM, map=topic.MAP)
+        if v.pose_source not in ("odom", "tf"):
+            raise ConfigError("pose_source", v.pose_source, "must be odom or tf")
+        self.map_frame = v.map_frame
+        self.laser_mount = Pose2D(v.laser_x_m, v.laser_y_m, v.laser_yaw_rad)
+        self.max_pose_age_s = v.max_pose_age_s
+        _, sections = load_config_file(v.config_file)
         self.leg_config = LegConfig.from_dict(sections.get("legs"))
         self.thresholds = CombinerConfig.from_dict(
             sections.get("observations")
@@ -78,20 +94,21 @@ class LegsNode(Node):
         self.pose: Pose2D | None = None
         self.pose_stamp_s = 0.0
         self._waiting_scan: tuple[float, LaserScan] | None = None
-        self.stamps = StampGuard(
-            float(p("max_future_stamp_s", 1.0).value), float(p("max_past_stamp_s", 0.0).value)
-        )
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
-        self.pub_legs = ls.publisher(String, "/perception/legs", 10)
-        self.pub_people = ls.publisher(PoseArray, "/perception/leg_people", 10)
+        self.stamps = StampGuard(v.max_future_stamp_s, v.max_past_stamp_s)
+        ls = self.lockstep = Participant(self, v.lockstep)
+        self.pub_legs = ls.publisher(String, topic.LEGS, 10)
+        self.pub_people = ls.publisher(PoseArray, topic.LEG_PEOPLE, 10)
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
-        ls.subscription(OccupancyGrid, map_topic, self.on_map, latched)
-        ls.subscription(Odometry, odom_topic, self.on_odom, 20)
-        ls.subscription(LaserScan, scan_topic, self.on_scan, qos_profile_sensor_data)
+        ls.subscription(OccupancyGrid, topics["map"], self.on_map, latched)
+        if v.pose_source == "tf":
+            self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s, self.map_frame)
+        else:
+            ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
+        ls.subscription(LaserScan, topics["scan"], self.on_scan, qos_profile_sensor_data)
 
     def on_map(self, msg: OccupancyGrid) -> None:
         try:
@@ -117,6 +134,14 @@ class LegsNode(Node):
         except ValueError as err:
             self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
             return
+        if self._waiting_scan is not None and self.pose_stamp_s >= self._waiting_scan[0]:
+            self.process_scan(self._waiting_scan[1])
+
+    def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
+        """The map pose through TF (``pose_source: tf``), used as :meth:`on_odom`'s."""
+        if not self._stamp_ok("map pose", stamp_s):
+            return
+        self.pose, self.pose_stamp_s = pose, stamp_s
         if self._waiting_scan is not None and self.pose_stamp_s >= self._waiting_scan[0]:
             self.process_scan(self._waiting_scan[1])
 

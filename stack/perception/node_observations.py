@@ -3,7 +3,9 @@
 Subscribes (names are parameters):
     ``/perception/person`` std_msgs/String: the camera people node's JSON.
     ``/perception/legs`` std_msgs/String: the legs node's JSON (tracks with speeds).
-    ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame.
+    ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame; with
+        ``pose_source: tf`` instead ``/tf`` and ``/tf_static`` (``map <- base_link``:
+        on a robot, where odometry drifts from the map).
     ``/observations/request`` std_msgs/Empty: publish an observation now (the planner
         asks when the robot has finished its action).
 
@@ -21,11 +23,12 @@ Freshness is judged on this node's clock at reception, so publishers' stamps nee
 not share its clock. Parameters: ``config_file`` (optional ``grid``, ``observations``
 and ``visibility`` sections), ``calibration_file`` (the camera's; with it the cells the
 robot hides from the camera are known, see :mod:`stack.perception.visibility`),
-``lockstep`` (see :mod:`stack.ros_lockstep`), ``decision_period_s`` (0: only on
-request), ``people`` (the task's; 2 or more adds ``"people"``: one {person, velocity}
-per person slot, slot 0 first, from :class:`stack.perception.multi.PeoplePerception`
-on the camera's ``people_m`` and the laser tracks; docs/PERCEPTION.md), topic names.
-A message that cannot be used is logged and skipped; the node never dies of one.
+``lockstep`` (see :mod:`stack.ros_lockstep`), ``pose_source`` (odom | tf),
+``tf_timeout_s`` (1.0), ``decision_period_s`` (0: only on request), ``people`` (the
+task's; 2 or more adds ``"people"``: one {person, velocity} per person slot, slot 0
+first, from :class:`stack.perception.multi.PeoplePerception` on the camera's
+``people_m`` and the laser tracks; docs/PERCEPTION.md), topic names. A message that
+cannot be used is logged and skipped; the node never dies of one.
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ from stack.perception.observation import NOT_MOVING, CombinerConfig, Observation
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare, declare_topics
+from stack.ros_tf import MapPose
 
 
 class ObservationsNode(Node):
@@ -55,33 +60,41 @@ class ObservationsNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("observations", **kwargs)
-        p = self.declare_parameter
-        config_file = p("config_file", "").value
-        calibration_file = p("calibration_file", "").value
-        period_s = float(p("decision_period_s", 1.0).value)
-        n_people = int(p("people", 1).value)
-        topics = {
-            name: p(f"{name}_topic", default).value
-            for name, default in (
-                ("person", topic.PERSON),
-                ("legs", topic.LEGS),
-                ("odom", topic.ODOM),
-                ("request", topic.OBSERVATIONS_REQUEST),
-                ("observations", topic.OBSERVATIONS),
-            )
-        }
+        v = declare(
+            self,
+            config_file="",
+            calibration_file="",
+            decision_period_s=1.0,
+            pose_source="odom",
+            tf_timeout_s=1.0,
+            lockstep=False,
+            people=1,
+        )
+        calibration_file, period_s = v.calibration_file, v.decision_period_s
+        if v.pose_source not in ("odom", "tf"):
+            raise ConfigError("pose_source", v.pose_source, "must be odom or tf")
+        topics = declare_topics(
+            self,
+            person=topic.PERSON,
+            legs=topic.LEGS,
+            odom=topic.ODOM,
+            request=topic.OBSERVATIONS_REQUEST,
+            observations=topic.OBSERVATIONS,
+        )
         if period_s < 0:
             raise ConfigError("decision_period_s", period_s, "must be >= 0")
-        if n_people < 1:
-            raise ConfigError("people", n_people, "must be >= 1")
-        grid, sections = load_config_file(config_file)
+        if v.people < 1:
+            raise ConfigError("people", v.people, "must be >= 1")
+        grid, sections = load_config_file(v.config_file)
         # several people (issue 16): person slots; one person: the combiner alone
         self.people = (
-            PeoplePerception(grid, SlotConfig.from_dict({**(sections.get("slots") or {}),
-                                                         "slots": n_people}))
-            if n_people > 1 else None
-        )  # fmt: skip
-        self.slot_people: tuple[SlotPerson, ...] = tuple(SlotPerson(k) for k in range(n_people))
+            PeoplePerception(
+                grid, SlotConfig.from_dict({**(sections.get("slots") or {}), "slots": v.people})
+            )
+            if v.people > 1
+            else None
+        )
+        self.slot_people: tuple[SlotPerson, ...] = tuple(SlotPerson(k) for k in range(v.people))
         visibility = None
         if calibration_file:
             try:
@@ -101,7 +114,7 @@ class ObservationsNode(Node):
         self.camera = None
         self.tracks = ()
         self.pose: Pose2D | None = None
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls = self.lockstep = Participant(self, v.lockstep)
         base = topics["observations"]
         self.pubs = {
             name: ls.publisher(String, base if name == "" else f"{base}/{name}", 10)
@@ -109,7 +122,10 @@ class ObservationsNode(Node):
         }
         ls.subscription(String, topics["person"], self.on_person, 10)
         ls.subscription(String, topics["legs"], self.on_legs, 10)
-        ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
+        if v.pose_source == "tf":
+            self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s)
+        else:
+            ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
         ls.subscription(Empty, topics["request"], lambda _msg: self.publish_now(), 10)
         if period_s > 0:
             ls.timer(period_s, self.publish_now)
@@ -138,6 +154,10 @@ class ObservationsNode(Node):
             self.pose = pose_from_msg(msg.pose.pose)
         except ValueError as err:
             self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
+
+    def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
+        """The map pose through TF (``pose_source: tf``)."""
+        self.pose = pose
 
     def publish_now(self) -> None:
         pose, self.pose = self.pose, None  # a pose is used once; none new: same cell

@@ -38,6 +38,7 @@ events), ``lockstep`` (see :mod:`stack.ros_lockstep`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -57,6 +58,7 @@ from stack.planning.stepper import Command, DecisionSteps, StepTiming
 from stack.planning.task import load_task
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_params import declare
 
 
 class PlannerNode(Node):
@@ -64,27 +66,28 @@ class PlannerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("planner", **kwargs)
-        p = self.declare_parameter
-        task_file = p("task_file", "").value
-        policy_file = p("policy_file", "").value
-        self.state_file = p("state_file", "").value
-        self.steps_file = p("steps_file", "").value
-        robot = int(p("initial_robot_cell", 0).value)
-        person = int(p("initial_person_cell", -1).value)
-        direction = p("initial_direction", "").value
-        timing = StepTiming(
-            start_delay_s=float(p("start_delay_s", 1.0).value),
-            min_step_s=float(p("min_step_s", 0.0).value),
-            min_event_step_s=float(p("min_event_step_s", 0.0).value),
-            nav_timeout_s=float(p("nav_timeout_s", 60.0).value),
-            obs_timeout_s=float(p("obs_timeout_s", 5.0).value),
-            resume_wait_s=float(p("resume_wait_s", 3.0).value),
-            max_steps=int(p("max_steps", 0).value),
+        v = declare(
+            self,
+            task_file="",
+            policy_file="",
+            state_file="",
+            steps_file="",
+            initial_robot_cell=0,
+            initial_person_cell=-1,
+            initial_direction="",
+            lockstep=False,
         )
+        task_file, policy_file = v.task_file, v.policy_file
+        self.state_file, self.steps_file = v.state_file, v.steps_file
+        robot, person = v.initial_robot_cell, v.initial_person_cell
+        direction = v.initial_direction
+        # one parameter per field, defaulting to the field's default
+        timing = StepTiming(**vars(declare(self, **dataclasses.asdict(StepTiming()))))
+        o = declare(self, online_depth=2, online_samples=32, online_time_limit_s=0.0)
         online = OnlineConfig(
-            depth=int(p("online_depth", OnlineConfig.depth).value),
-            samples=int(p("online_samples", OnlineConfig.samples).value),
-            time_limit_s=float(p("online_time_limit_s", 0.0).value) or None,
+            depth=o.online_depth,
+            samples=o.online_samples,
+            time_limit_s=o.online_time_limit_s or None,
         )
         if not task_file:
             raise ConfigError("task_file", task_file, "is needed")
@@ -120,7 +123,7 @@ class PlannerNode(Node):
                 self.get_logger().error(f"{err}; kept as {bad}, starting from the initial belief")
         self.steps = DecisionSteps(self.agent, timing, first_person, resumed)
 
-        ls = self.lockstep = Participant(self, p("lockstep", False).value)
+        ls = self.lockstep = Participant(self, v.lockstep)
         self.pub_action = ls.publisher(String, topic.NAV_ACTION, 10)
         self.pub_request = ls.publisher(Empty, topic.OBSERVATIONS_REQUEST, 10)
         self.pub_belief = ls.publisher(String, topic.PLANNER_BELIEF, 10)

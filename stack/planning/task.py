@@ -30,6 +30,12 @@ from stack.config import Config, from_mapping, read_text_capped
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
+# per-field ranges (the task's cross-field rules are in _check_models)
+_PROBABILITY = (lambda v: 0.0 < v <= 1.0, "must be a probability in (0, 1]")
+_SHARE = (lambda v: 0.0 <= v <= 1.0, "must be a probability in [0, 1]")
+_WEIGHT = (lambda v: v >= 0.0, "must be >= 0")
+_CELL = (lambda v: v >= 1, "must be a cell number (>= 1)")
+
 
 @dataclass(frozen=True)
 class Rewards(Config):
@@ -49,6 +55,8 @@ class RobotModel(Config):
 
     move_success: float = 0.95  # reaches the neighbouring cell (or leaves the map at an edge)
 
+    _rules = {"move_success": _PROBABILITY}
+
 
 @dataclass(frozen=True)
 class DirectionModel(Config):
@@ -63,6 +71,8 @@ class DirectionModel(Config):
     turn: float = 0.1  # each of the two perpendicular directions
     reverse: float = 0.05
     rest_stay: float = 0.7  # P(not moving -> not moving)
+
+    _rules = dict.fromkeys(("keep", "turn", "reverse", "rest_stay"), _PROBABILITY)
 
 
 @dataclass(frozen=True)
@@ -87,6 +97,15 @@ class PositionModel(Config):
     enter: float = 0.2  # P(no person -> a person somewhere), spread over the cells
     floor: float = 0.002  # total weight spread over all cells
 
+    _rules = {
+        **dict.fromkeys(
+            ("moving_stay", "moving_ahead", "moving_ahead2", "moving_side", "moving_diagonal"),
+            _WEIGHT,
+        ),
+        **dict.fromkeys(("rest_stay", "rest_side", "rest_diagonal", "floor"), _WEIGHT),
+        **dict.fromkeys(("leave", "leave_at_edge", "enter"), _SHARE),
+    }
+
 
 @dataclass(frozen=True)
 class PositionObservationModel(Config):
@@ -96,6 +115,11 @@ class PositionObservationModel(Config):
     miss: float = 0.05  # a person present but not detected: "No person"
     near_decay: float = 0.2  # relative weight of a cell one step further away
     false_positive: float = 0.05  # nobody there, yet a cell is reported (spread uniformly)
+
+    _rules = {
+        **dict.fromkeys(("correct", "miss", "false_positive"), _PROBABILITY),
+        "near_decay": (lambda v: v > 0, "must be > 0"),
+    }
 
 
 @dataclass(frozen=True)
@@ -117,6 +141,17 @@ class VelocityObservationModel(Config):
     rest_not_moving: float = 0.7  # a resting person observed "Not moving"
     absent_not_moving: float = 0.97  # nobody there: "Not moving"
 
+    _rules = dict.fromkeys(
+        (
+            "moving_direction",
+            "moving_turn",
+            "moving_reverse",
+            "rest_not_moving",
+            "absent_not_moving",
+        ),
+        _PROBABILITY,
+    )
+
 
 @dataclass(frozen=True)
 class Initial(Config):
@@ -124,6 +159,8 @@ class Initial(Config):
 
     robot: int = 7  # robot cell
     person: int | None = 11  # person cell, None for "no person"
+
+    _rules = {"robot": _CELL, "person": _CELL}
     direction: str = "not moving"  # north, south, east, west or not moving
 
 

@@ -1,0 +1,126 @@
+"""What the solving commands share: their arguments as a solver configuration, the
+progress printer, solving a task file and reading any model file (``vigil solve``,
+``solve-pomdp``, ``evaluate``, ``replay`` and ``replay-report``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r2.yaml"}
+
+# kept from --time-limit for writing the policy and exiting: 2 %, at least 0.3 s
+WRITE_RESERVE = 0.02
+WRITE_RESERVE_MIN_S = 0.3
+
+
+def solver_config(args: argparse.Namespace):
+    """The solver configuration of a command's arguments (--time-limit less the reserve
+    for writing the policy).
+
+    Raises:
+        ValueError: a time limit that is not a positive number of seconds.
+    """
+    from stack.planning.solve import SolverConfig
+
+    limit = getattr(args, "time_limit", None)
+    if limit is not None:
+        if not (limit > 0 and limit < 1e9):
+            raise ValueError(f"--time-limit must be a positive number of seconds, got {limit}")
+        limit = max(limit * 0.5, limit - max(limit * WRITE_RESERVE, WRITE_RESERVE_MIN_S))
+    # a hand-made Namespace (older callers) gets the task defaults for what it lacks
+    return SolverConfig(
+        algorithm=getattr(args, "solver", "perseus"),
+        beliefs=args.beliefs,
+        iterations=args.iterations,
+        time_limit_s=limit,
+        fib_time_s=getattr(args, "fib_time", 0.0),
+        seed=getattr(args, "seed", 0),
+        target_gap=getattr(args, "target_gap", 1e-3),
+        relative_gap=getattr(args, "relative_gap", 0.0),
+        trials=getattr(args, "trials", None),
+        perseus_share=getattr(args, "perseus_share", 0.0),
+        # writing a vector entry as XML text takes ~0.2 us on an idle core, ~1 us
+        # under the load of docs/BENCHMARKS.md; the search stops that much earlier
+        write_s_per_value=1e-6 if getattr(args, "output", None) else 0.0,
+    )
+
+
+def progress_printer(args: argparse.Namespace, stream=sys.stderr, every_s: float = 1.0):
+    """A progress printer: at most one line per ``every_s`` seconds."""
+    import time
+
+    from stack.planning.solve import format_progress
+
+    if getattr(args, "quiet", False):
+        return None
+    last = [-float("inf")]
+
+    def show(stats) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= every_s:
+            last[0] = now
+            print(format_progress(stats), file=stream, flush=True)
+
+    return show
+
+
+def command_start(args: argparse.Namespace) -> float:
+    """When the command's time limit began (``main`` records it)."""
+    import time
+
+    return getattr(args, "start", None) or time.perf_counter()
+
+
+def solve_task_file(
+    task_path: Path,
+    args: argparse.Namespace,
+    progress=None,
+    require_progress: bool = False,
+    start: float | None = None,
+):
+    """Load and solve a task file; returns (model, pomdp, result).
+
+    The commands pass ``require_progress=True`` (a degenerate solve is an error);
+    quick solves from Python (tests, benchmarks) may leave it off.
+    """
+    from stack.planning.solve import solve_task_model
+    from stack.planning.task import load_task
+
+    sol = solve_task_model(
+        load_task(task_path),
+        solver_config(args),
+        progress,
+        command_start(args) if start is None else start,
+        require_progress,
+    )
+    sol.result.policy.meta["task"] = str(task_path)
+    return sol.model, sol.pomdp, sol.result
+
+
+def read_model(path: str | Path):
+    """A flat POMDP from a task file (.yaml), a .pomdpx file or a .pomdp file."""
+    from stack.planning.pomdp_format import read_pomdp
+
+    path = Path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        from stack.planning.model import build_model
+        from stack.planning.task import load_task
+
+        return build_model(load_task(path)).flat()
+    if path.suffix.lower() == ".pomdpx":
+        from stack.planning.pomdpx import read_pomdpx
+
+        return read_pomdpx(path)
+    return read_pomdp(path)
+
+
+def bounds_line(s: dict) -> str:
+    return (
+        f"lower {s['lower_bound']:.4f}  upper {s['upper_bound']:.4f}  gap {s['gap']:.4f} "
+        f"({100 * s['relative_gap']:.1f}%)  alphas {s['alpha_vectors']}  {s['seconds']:.2f} s"
+        + (f"  -> {s['policy']}" if "policy" in s else "")
+    )
