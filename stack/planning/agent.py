@@ -125,7 +125,7 @@ def _people(data: Any) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
-def _cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
+def parse_cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
     if label == none_label:
         return None
     if label.isdigit() and int(label) in cells:
@@ -267,8 +267,10 @@ class PlannerAgent:
 
     def _observation_index(self, o: Observed) -> tuple[int, int | None, int | None, str]:
         cells = self.model.task.grid.cells
-        robot = _cell(o.robot, OUT_OF_MAP, "robot cell", cells)
-        person = None if o.person == UNSEEN else _cell(o.person, NO_PERSON, "person cell", cells)
+        robot = parse_cell(o.robot, OUT_OF_MAP, "robot cell", cells)
+        person = (
+            None if o.person == UNSEEN else parse_cell(o.person, NO_PERSON, "person cell", cells)
+        )
         if o.velocity not in VELOCITIES:
             raise ObservationError(f"unknown velocity {o.velocity!r}; known: {VELOCITIES}")
         direction = o.velocity.split(" ")[0] if o.velocity != NOT_MOVING else NOT_MOVING

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from stack.config import read_text_capped
-from stack.planning.agent import ObservationError, Observed, StateFileError, _cell
+from stack.planning.agent import ObservationError, Observed, StateFileError, parse_cell
 from stack.planning.belief import ZeroProbabilityObservation
 from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.model import direction_index
@@ -107,7 +107,7 @@ class PeopleAgent:
         if self.action is None:
             raise RuntimeError("observe() without an action under way; call decide() first")
         cells = self.pm.task.grid.cells
-        robot = _cell(observed.robot, OUT_OF_MAP, "robot cell", cells)
+        robot = parse_cell(observed.robot, OUT_OF_MAP, "robot cell", cells)
         slots = self.slot_labels(observed)
         lik = np.stack([self.likelihood(observed, p, v) for p, v in slots])
         note = None
@@ -138,7 +138,7 @@ class PeopleAgent:
         cells = self.pm.task.grid.cells
         for p, v in slots:
             if p != UNSEEN:
-                _cell(p, NO_PERSON, "person cell", cells)
+                parse_cell(p, NO_PERSON, "person cell", cells)
             if v not in VELOCITIES:
                 raise ObservationError(f"unknown velocity {v!r}; known: {VELOCITIES}")
         return slots
