@@ -321,7 +321,11 @@ class BeliefTreeSearch(StoppingRules):
         pomdp: a discounted model.
         config: search settings.
         seed_alphas: extra lower-bound vectors (alphas (K, S), actions (K,)), each the
-            exact value of some policy (e.g. :func:`bounds.plan_alphas`).
+            exact value of some policy (e.g. :func:`bounds.plan_alphas`), optionally
+            with a third array, (K, Z) successors (indices into the seeds) of a closed
+            set (:func:`stack.planning.controller.close_vectors`). Seeds without one
+            are values of plans whose later steps the set need not hold, so the best
+            vector's policy may fall short of them.
         start: time.perf_counter() at which the time limit started (default: now), so
             that a command's own set-up counts against its limit exactly once.
         progress: called with a :class:`SearchStats` at most once per
@@ -332,7 +336,7 @@ class BeliefTreeSearch(StoppingRules):
         self,
         pomdp: POMDP,
         config: SearchConfig = SearchConfig(),
-        seed_alphas: tuple[np.ndarray, np.ndarray] | None = None,
+        seed_alphas: tuple[np.ndarray, ...] | None = None,
         start: float | None = None,
         progress: Callable[[SearchStats], None] | None = None,
         b0: np.ndarray | None = None,
@@ -381,9 +385,21 @@ class BeliefTreeSearch(StoppingRules):
         # -- the lower bound: blind policies and seeds -----------------------------------
         alphas = blind_lower_bound(pomdp)
         actions = np.arange(A)
+        Z = pomdp.n_observations
+        # successors[k, z]: the vector whose plan vector k follows after observation z
+        # (-1: not known, a seed's). Pruning keeps every kept vector's successors, so the
+        # best vector's policy earns at least the bound (controller.py's docstring).
+        succ = np.repeat(np.arange(A)[:, None], Z, axis=1)  # "always do a" loops
         if seed_alphas is not None and len(seed_alphas[0]):
             alphas = np.vstack([alphas, seed_alphas[0]])
             actions = np.concatenate([actions, np.asarray(seed_alphas[1], dtype=int)])
+            n_seeds = len(seed_alphas[0])
+            seed_succ = (
+                np.asarray(seed_alphas[2], dtype=int) + A  # type: ignore[misc]
+                if len(seed_alphas) > 2
+                else np.full((n_seeds, Z), -1)
+            )
+            succ = np.vstack([succ, seed_succ])
         # the vectors are stored transposed, (S, capacity): a gather of the states a
         # belief covers then reads contiguous rows
         self.K = len(actions)
@@ -391,6 +407,8 @@ class BeliefTreeSearch(StoppingRules):
         self._AT[:, : self.K] = np.asarray(alphas, dtype=float).T
         self._act = np.zeros(self._AT.shape[1], dtype=int)
         self._act[: self.K] = actions
+        self._succ = np.full((self._AT.shape[1], Z), -1)
+        self._succ[: self.K] = succ
         self.n_initial_alphas = self.K
         self._pruned_at = self.K
 
@@ -522,12 +540,15 @@ class BeliefTreeSearch(StoppingRules):
         # lower bound: add the backed-up vector if it improves the value here
         a = int(q_lower.argmax())
         if q_lower[a] > node.lb + 1e-12 * max(1.0, abs(node.lb)):
-            self._add_alpha(self._alpha(kids[a], a, choice[a], node), a)
+            self._add_alpha(*self._alpha(kids[a], a, choice[a], node), a)
             node.lb = float(q_lower[a])
         node.lb = min(node.lb, node.ub)
 
-    def _alpha(self, kids: _Kids, a: int, best: np.ndarray, node: _Node) -> np.ndarray:
-        """alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s')."""
+    def _alpha(
+        self, kids: _Kids, a: int, best: np.ndarray, node: _Node
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s'),
+        and its successors k (Z,)."""
         O = self.O[a]
         # observations that b cannot produce: any vector keeps the bound valid; take the
         # best one at b so the new vector is good near b too
@@ -535,16 +556,18 @@ class BeliefTreeSearch(StoppingRules):
         kstar[kids.zs] = best
         rows = self.O_rows[a]
         v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
-        return self.R[:, a] + self.gamma * (self.T[a] @ v)
+        return self.R[:, a] + self.gamma * (self.T[a] @ v), kstar
 
-    def _add_alpha(self, alpha: np.ndarray, action: int) -> None:
+    def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int) -> None:
         if self.K == self._AT.shape[1]:
             grown = np.empty((self.S, 2 * self.K))
             grown[:, : self.K] = self._AT
             self._AT = grown
             self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
+            self._succ = np.vstack([self._succ, np.full_like(self._succ[: self.K], -1)])
         self._AT[:, self.K] = alpha
         self._act[self.K] = action
+        self._succ[self.K] = succ
         self.K += 1
         if self.K > self.config.prune_growth * self._pruned_at + 50:
             self._prune()
@@ -576,9 +599,21 @@ class BeliefTreeSearch(StoppingRules):
             keep[best] = True
             for n, v in zip(part, V[np.arange(len(part)), best], strict=True):
                 n.lb = min(max(n.lb, float(v)), n.ub)
+        # ... and the successors of every kept vector, so the set stays closed
+        succ = self._succ[: self.K]
+        while True:
+            ref = succ[keep].ravel()
+            more = np.zeros(self.K, dtype=bool)
+            more[ref[ref >= 0]] = True
+            if not (more & ~keep).any():
+                break
+            keep |= more
         kept = np.flatnonzero(keep)
+        where = np.full(self.K + 1, -1)  # old index -> new; where[-1] stays -1
+        where[kept] = np.arange(kept.size)
         self._AT[:, : kept.size] = self._AT[:, kept]
         self._act[: kept.size] = self._act[kept]
+        self._succ[: kept.size] = where[self._succ[kept]]
         self.K = kept.size
         self._pruned_at = self.K
 
@@ -677,6 +712,7 @@ class BeliefTreeSearch(StoppingRules):
             self._prune()  # over the backed-up beliefs only: cheap
         self._report(force=True)
         policy = AlphaPolicy(self.alphas.copy(), self.actions.copy(), meta={"solver": "sarsop"})
+        self.successors = self._succ[: self.K].copy()
         result = SearchResult(
             policy=policy,
             lower_bound=self.root.lb,

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
+from stack.planning.controller import close_vectors
 from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
@@ -167,13 +168,24 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         pol, _ = perseus(
             pomdp, B, iterations=iterations, rng=rng, time_limit_s=budget, b0=starts[0]
         )
-        extra = (pol.alphas, pol.actions)
-        if seed_alphas is not None:
-            extra = (
-                np.vstack([seed_alphas[0], extra[0]]),
-                np.concatenate([seed_alphas[1], extra[1]]),
+        # Perseus replaced its vectors every iteration: close the set (each vector's
+        # successors in it, values re-evaluated) so the policy earns its bound
+        closed = close_vectors(
+            pomdp,
+            pol.alphas,
+            pol.actions,
+            B,
+            time_limit_s=max(0.5, 0.1 * budget) if budget is not None else 10.0,
+        )
+        if seed_alphas is None:
+            seed_alphas = closed
+        else:  # the caller's seeds come first, the closed set's successors shift
+            n = len(seed_alphas[0])
+            seed_alphas = (
+                np.vstack([seed_alphas[0], closed[0]]),
+                np.concatenate([seed_alphas[1], closed[1]]),
+                np.vstack([np.full((n, pomdp.n_observations), -1), closed[2] + n]),
             )
-        seed_alphas = extra
     search = BeliefTreeSearch(
         pomdp,
         _search_config(config),
