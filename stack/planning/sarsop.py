@@ -366,6 +366,9 @@ class BeliefTreeSearch(StoppingRules):
                 self.O_dense[a] = self.O_dense[same] if same is not None else self.O[a].toarray()
         # one row slice gives the predictions of every action: T_all[s] = [T_0[s] ... T_A[s]]
         self.T_all = sp.hstack(self.T, format="csr")
+        # ... dense where it is small: a row gather is then a numpy slice, not scipy's
+        # fancy indexing (RockSample_4_4: 1 s of its search)
+        self.T_all_dense = self.T_all.toarray() if S * S * A <= 4_000_000 else None
         self.backups = 0
         self.trials = 0
         self.history: list[SearchStats] = []
@@ -387,7 +390,8 @@ class BeliefTreeSearch(StoppingRules):
         actions = np.arange(A)
         Z = pomdp.n_observations
         # successors[k, z]: the vector whose plan vector k follows after observation z
-        # (-1: not known, a seed's). Pruning keeps every kept vector's successors, so the
+        # (-1: not known, a seed's), by a global id. Pruned vectors stay in an archive:
+        # the written policy adds the successors of its vectors from there, so the
         # best vector's policy earns at least the bound (controller.py's docstring).
         succ = np.repeat(np.arange(A)[:, None], Z, axis=1)  # "always do a" loops
         if seed_alphas is not None and len(seed_alphas[0]):
@@ -407,8 +411,13 @@ class BeliefTreeSearch(StoppingRules):
         self._AT[:, : self.K] = np.asarray(alphas, dtype=float).T
         self._act = np.zeros(self._AT.shape[1], dtype=int)
         self._act[: self.K] = actions
-        self._succ = np.full((self._AT.shape[1], Z), -1)
-        self._succ[: self.K] = succ
+        # every vector ever made, by global id (alphas, actions, successors' ids); the
+        # active set's ids; pruning drops vectors from the active set only
+        self._all_alpha: list[np.ndarray] = list(np.asarray(alphas, dtype=float))
+        self._all_act: list[int] = [int(a) for a in actions]
+        self._all_succ: list[np.ndarray] = list(succ)
+        self._gid = np.zeros(self._AT.shape[1], dtype=int)
+        self._gid[: self.K] = np.arange(self.K)
         self.n_initial_alphas = self.K
         self._pruned_at = self.K
 
@@ -457,7 +466,10 @@ class BeliefTreeSearch(StoppingRules):
         if node.kids is not None:
             return node.kids
         S = self.S
-        pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
+        if self.T_all_dense is not None:
+            pred_all = node.val @ self.T_all_dense[node.idx]
+        else:
+            pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
         kids = []
         for a in range(self.A):
             pred = pred_all[a * S : (a + 1) * S]
@@ -556,7 +568,7 @@ class BeliefTreeSearch(StoppingRules):
         kstar[kids.zs] = best
         rows = self.O_rows[a]
         v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
-        return self.R[:, a] + self.gamma * (self.T[a] @ v), kstar
+        return self.R[:, a] + self.gamma * (self.T[a] @ v), self._gid[kstar]
 
     def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int) -> None:
         if self.K == self._AT.shape[1]:
@@ -564,10 +576,13 @@ class BeliefTreeSearch(StoppingRules):
             grown[:, : self.K] = self._AT
             self._AT = grown
             self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
-            self._succ = np.vstack([self._succ, np.full_like(self._succ[: self.K], -1)])
+            self._gid = np.concatenate([self._gid, np.zeros(self.K, dtype=int)])
         self._AT[:, self.K] = alpha
         self._act[self.K] = action
-        self._succ[self.K] = succ
+        self._gid[self.K] = len(self._all_alpha)
+        self._all_alpha.append(alpha)
+        self._all_act.append(action)
+        self._all_succ.append(succ)
         self.K += 1
         if self.K > self.config.prune_growth * self._pruned_at + 50:
             self._prune()
@@ -599,23 +614,33 @@ class BeliefTreeSearch(StoppingRules):
             keep[best] = True
             for n, v in zip(part, V[np.arange(len(part)), best], strict=True):
                 n.lb = min(max(n.lb, float(v)), n.ub)
-        # ... and the successors of every kept vector, so the set stays closed
-        succ = self._succ[: self.K]
-        while True:
-            ref = succ[keep].ravel()
-            more = np.zeros(self.K, dtype=bool)
-            more[ref[ref >= 0]] = True
-            if not (more & ~keep).any():
-                break
-            keep |= more
         kept = np.flatnonzero(keep)
-        where = np.full(self.K + 1, -1)  # old index -> new; where[-1] stays -1
-        where[kept] = np.arange(kept.size)
         self._AT[:, : kept.size] = self._AT[:, kept]
         self._act[: kept.size] = self._act[kept]
-        self._succ[: kept.size] = where[self._succ[kept]]
+        self._gid[: kept.size] = self._gid[kept]
         self.K = kept.size
         self._pruned_at = self.K
+
+    def _closed_policy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The active vectors and, from the archive, every successor they lead to:
+        (alphas (K', S), actions (K',), successors (K', Z) as positions, -1 unknown).
+        The best vector's policy over a closed set earns its bound (controller.py)."""
+        order = [int(g) for g in self._gid[: self.K]]
+        seen = set(order)
+        i = 0
+        while i < len(order):
+            for g in self._all_succ[order[i]]:
+                g = int(g)
+                if g >= 0 and g not in seen:
+                    seen.add(g)
+                    order.append(g)
+            i += 1
+        where = {g: k for k, g in enumerate(order)}
+        where[-1] = -1
+        succ = np.array([[where[int(g)] for g in self._all_succ[k]] for k in order], dtype=int)
+        alphas = np.vstack([self._all_alpha[k] for k in order])
+        actions = np.array([self._all_act[k] for k in order], dtype=int)
+        return alphas, actions, succ.reshape(len(order), -1)
 
     # -- the search -----------------------------------------------------------------
     def _values_to_write(self) -> int:
@@ -664,12 +689,16 @@ class BeliefTreeSearch(StoppingRules):
             t += 1
         # refine the corners under the deepest belief first: beliefs that approach
         # certainty (Tiger after many listens) are bounded by the corner values
+        # (a corner whose gap already meets the leaf's level, HSVI's rule, is skipped:
+        # on RockSample_4_4 the corners were most of the backups)
         leaf = path[-1]
         if leaf.idx.size <= 32:
             for s in leaf.idx:
                 if self._late():
                     break
-                self._backup(self._node(np.array([s]), np.ones(1)))
+                corner = self._node(np.array([s]), np.ones(1))
+                if corner.ub - corner.lb > eps * g**-t:
+                    self._backup(corner)
         for n in reversed(path):
             if self._late() and n is not root:
                 continue
@@ -711,8 +740,8 @@ class BeliefTreeSearch(StoppingRules):
         if not self._late():
             self._prune()  # over the backed-up beliefs only: cheap
         self._report(force=True)
-        policy = AlphaPolicy(self.alphas.copy(), self.actions.copy(), meta={"solver": "sarsop"})
-        self.successors = self._succ[: self.K].copy()
+        alphas, actions, self.successors = self._closed_policy()
+        policy = AlphaPolicy(alphas, actions, meta={"solver": "sarsop"})
         result = SearchResult(
             policy=policy,
             lower_bound=self.root.lb,
