@@ -418,6 +418,7 @@ class BeliefTreeSearch(StoppingRules):
         self._all_succ: list[np.ndarray] = list(succ)
         self._gid = np.zeros(self._AT.shape[1], dtype=int)
         self._gid[: self.K] = np.arange(self.K)
+        self._n_archived = 0  # archived vectors the policy will hold (at the last pruning)
         self.n_initial_alphas = self.K
         self._pruned_at = self.K
 
@@ -619,12 +620,23 @@ class BeliefTreeSearch(StoppingRules):
         self._act[: kept.size] = self._act[kept]
         self._gid[: kept.size] = self._gid[kept]
         self.K = kept.size
+        self._n_archived = len(self._closure()) - self.K
         self._pruned_at = self.K
 
     def _closed_policy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The active vectors and, from the archive, every successor they lead to:
         (alphas (K', S), actions (K',), successors (K', Z) as positions, -1 unknown).
         The best vector's policy over a closed set earns its bound (controller.py)."""
+        order = self._closure()
+        where = {g: k for k, g in enumerate(order)}
+        where[-1] = -1
+        succ = np.array([[where[int(g)] for g in self._all_succ[k]] for k in order], dtype=int)
+        alphas = np.vstack([self._all_alpha[k] for k in order])
+        actions = np.array([self._all_act[k] for k in order], dtype=int)
+        return alphas, actions, succ.reshape(len(order), -1)
+
+    def _closure(self) -> list[int]:
+        """Global ids of the active vectors, then of the archived ones they lead to."""
         order = [int(g) for g in self._gid[: self.K]]
         seen = set(order)
         i = 0
@@ -635,16 +647,13 @@ class BeliefTreeSearch(StoppingRules):
                     seen.add(g)
                     order.append(g)
             i += 1
-        where = {g: k for k, g in enumerate(order)}
-        where[-1] = -1
-        succ = np.array([[where[int(g)] for g in self._all_succ[k]] for k in order], dtype=int)
-        alphas = np.vstack([self._all_alpha[k] for k in order])
-        actions = np.array([self._all_act[k] for k in order], dtype=int)
-        return alphas, actions, succ.reshape(len(order), -1)
+        return order
 
     # -- the search -----------------------------------------------------------------
     def _values_to_write(self) -> int:
-        return self.K * self.S
+        # the archived successors written with the active set, as counted at the last
+        # pruning (RockSample_5_7: 2,027 vectors written for ~800 active)
+        return (self.K + self._n_archived) * self.S
 
     def _trial(self) -> None:
         g = self.gamma
