@@ -285,6 +285,13 @@ def test_perseus_vectors_closed_into_a_policy_graph():
     pol, _ = perseus(pomdp, B, iterations=15, rng=rng)
     alphas, actions, succ = close_vectors(pomdp, pol.alphas, pol.actions, B)
     _closed(pomdp, alphas, actions, succ)
+    # Perseus's own closure: its final vectors and the earlier ones they lead to
+    closure: dict = {}
+    pol, _ = perseus(pomdp, B, iterations=15, rng=np.random.default_rng(0), closure=closure)
+    _closed(pomdp, closure["alphas"], closure["actions"], closure["successors"])
+    np.testing.assert_array_equal(
+        np.unique(closure["alphas"][: closure["active"]], axis=0), np.unique(pol.alphas, axis=0)
+    )
     tail = 0.25**6 * np.abs(pomdp.R).max() / 0.75
     assert (alphas @ pomdp.b0).max() <= _exact_value(pomdp, 6) + tail + 1e-9
 

@@ -394,23 +394,27 @@ class BeliefTreeSearch(StoppingRules):
         # the written policy adds the successors of its vectors from there, so the
         # best vector's policy earns at least the bound (controller.py's docstring).
         succ = np.repeat(np.arange(A)[:, None], Z, axis=1)  # "always do a" loops
+        n_active = A
         if seed_alphas is not None and len(seed_alphas[0]):
             alphas = np.vstack([alphas, seed_alphas[0]])
             actions = np.concatenate([actions, np.asarray(seed_alphas[1], dtype=int)])
             n_seeds = len(seed_alphas[0])
             seed_succ = (
-                np.asarray(seed_alphas[2], dtype=int) + A  # type: ignore[misc]
+                np.where(seed_alphas[2] >= 0, seed_alphas[2] + A, -1)  # type: ignore[misc]
                 if len(seed_alphas) > 2
                 else np.full((n_seeds, Z), -1)
             )
             succ = np.vstack([succ, seed_succ])
+            # a fourth entry: only the first n seeds are active, the rest are archived
+            # successors (Perseus's earlier vectors)
+            n_active += int(seed_alphas[3]) if len(seed_alphas) > 3 else n_seeds  # type: ignore[misc]
         # the vectors are stored transposed, (S, capacity): a gather of the states a
         # belief covers then reads contiguous rows
-        self.K = len(actions)
+        self.K = n_active
         self._AT = np.empty((S, max(64, 2 * self.K)))
-        self._AT[:, : self.K] = np.asarray(alphas, dtype=float).T
+        self._AT[:, : self.K] = np.asarray(alphas[: self.K], dtype=float).T
         self._act = np.zeros(self._AT.shape[1], dtype=int)
-        self._act[: self.K] = actions
+        self._act[: self.K] = actions[: self.K]
         # every vector ever made, by global id (alphas, actions, successors' ids); the
         # active set's ids; pruning drops vectors from the active set only
         self._all_alpha: list[np.ndarray] = list(np.asarray(alphas, dtype=float))

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
-from stack.planning.controller import close_vectors
 from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
@@ -165,26 +164,33 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
             else config.perseus_share * config.time_limit_s - (time.perf_counter() - t0)
         )
         iterations = config.iterations if budget is not None else max(1, config.iterations)
-        pol, _ = perseus(
-            pomdp, B, iterations=iterations, rng=rng, time_limit_s=budget, b0=starts[0]
-        )
-        # Perseus replaced its vectors every iteration: close the set (each vector's
-        # successors in it, values re-evaluated) so the policy earns its bound
-        closed = close_vectors(
+        closure: dict = {}
+        perseus(
             pomdp,
-            pol.alphas,
-            pol.actions,
             B,
-            time_limit_s=max(0.5, 0.1 * budget) if budget is not None else 10.0,
+            iterations=iterations,
+            rng=rng,
+            time_limit_s=budget,
+            b0=starts[0],
+            closure=closure,
         )
+        # Perseus's final vectors, and (archived, not searched with) the earlier ones
+        # they lead to: with them the policy earns its bound (controller.py)
+        closed = (closure["alphas"], closure["actions"], closure["successors"])
         if seed_alphas is None:
-            seed_alphas = closed
-        else:  # the caller's seeds come first, the closed set's successors shift
+            seed_alphas = (*closed, closure["active"])
+        else:  # the caller's seeds first: they are active, the closure's shift
             n = len(seed_alphas[0])
             seed_alphas = (
                 np.vstack([seed_alphas[0], closed[0]]),
                 np.concatenate([seed_alphas[1], closed[1]]),
-                np.vstack([np.full((n, pomdp.n_observations), -1), closed[2] + n]),
+                np.vstack(
+                    [
+                        np.full((n, pomdp.n_observations), -1),
+                        np.where(closed[2] >= 0, closed[2] + n, -1),
+                    ]
+                ),
+                n + closure["active"],
             )
     search = BeliefTreeSearch(
         pomdp,
