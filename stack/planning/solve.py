@@ -164,16 +164,34 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
             else config.perseus_share * config.time_limit_s - (time.perf_counter() - t0)
         )
         iterations = config.iterations if budget is not None else max(1, config.iterations)
-        pol, _ = perseus(
-            pomdp, B, iterations=iterations, rng=rng, time_limit_s=budget, b0=starts[0]
+        closure: dict = {}
+        perseus(
+            pomdp,
+            B,
+            iterations=iterations,
+            rng=rng,
+            time_limit_s=budget,
+            b0=starts[0],
+            closure=closure,
         )
-        extra = (pol.alphas, pol.actions)
-        if seed_alphas is not None:
-            extra = (
-                np.vstack([seed_alphas[0], extra[0]]),
-                np.concatenate([seed_alphas[1], extra[1]]),
+        # Perseus's final vectors, and (archived, not searched with) the earlier ones
+        # they lead to: with them the policy earns its bound (controller.py)
+        closed = (closure["alphas"], closure["actions"], closure["successors"])
+        if seed_alphas is None:
+            seed_alphas = (*closed, closure["active"])
+        else:  # the caller's seeds first: they are active, the closure's shift
+            n = len(seed_alphas[0])
+            seed_alphas = (
+                np.vstack([seed_alphas[0], closed[0]]),
+                np.concatenate([seed_alphas[1], closed[1]]),
+                np.vstack(
+                    [
+                        np.full((n, pomdp.n_observations), -1),
+                        np.where(closed[2] >= 0, closed[2] + n, -1),
+                    ]
+                ),
+                n + closure["active"],
             )
-        seed_alphas = extra
     search = BeliefTreeSearch(
         pomdp,
         _search_config(config),
