@@ -233,31 +233,36 @@ class _Vectors:
 class _Points:
     """Belief-value points of the upper bound, shared by every robot cell.
 
-    ub_x(b) = c_x . b + min_i ratio_i(b) (v_i(x) - c_x . b_i),  ratio_i(b) = min_y b(y) / b_i(y)
+    If b = r b_i + (1 - r) b' with b' a belief (any r <= min_y b(y) / b_i(y)), convexity
+    of V* gives V*(b) <= r v_i + (1 - r) U(b') for any upper bound U. The sawtooth of
+    Hauskrecht (2000) takes U linear (the corner values); here U is the fast informed
+    bound, max_a Q_a . b', so a point's term is
 
-    (sawtooth interpolation, Hauskrecht 2000), with c_x(y) the fast informed bound at
-    the certain person beliefs. A point is a person belief with a value per cell, so the
-    ratios serve all cells at once. The minimum may run over any subset of the points
-    and stay an upper bound; a posterior after observation z is compared only with the
-    points that were themselves posteriors after z (their *group*): with 65-value
-    beliefs those are the only points near it (the ratio is far from 0), and the
-    comparison costs one 65-value product per point instead of one per point and
-    posterior.
+        r v_i(x) + max_a (Q_xa . b - r Q_xa . b_i),
+
+    which is never above the fast informed bound at b's neighbour b' (with 65-value
+    beliefs the corner plane lies far above the fast informed bound and the plain
+    sawtooth never wins). A point is a person belief with a value per cell; a posterior
+    after observation z is compared only with the points that were themselves
+    posteriors after z (their *group*): the minimum may run over any subset of the
+    points, and those are the only ones near it.
     """
 
-    def __init__(self, corner: np.ndarray):
-        self.corner = corner  # (X, Y)
-        X, Y = corner.shape
+    def __init__(self, fib: np.ndarray, X: int):
+        self.fib = fib  # (X*A, Y) the fast informed bound's vectors
+        Y = fib.shape[1]
+        self.X = X
         self.P = np.empty((0, Y))
         self.Pinv = np.empty((0, Y))
-        self.excess = np.empty((0, X))  # v_i(x) - c_x . b_i, <= 0
+        self.v = np.empty((0, X))  # the upper bound at b_i per cell
+        self.QB = np.empty((0, fib.shape[0]))  # Q_xa . b_i
         self.group = np.empty(0, dtype=np.int64)  # the observation that produced b_i
         self.n = 0
 
     def add(self, b: np.ndarray, v: np.ndarray, group: int) -> int:
         if self.n == self.P.shape[0]:
             cap = max(64, 2 * self.n)
-            for name in ("P", "Pinv", "excess"):
+            for name in ("P", "Pinv", "v", "QB"):
                 old = getattr(self, name)
                 new = np.empty((cap, old.shape[1]))
                 new[: self.n] = old[: self.n]
@@ -269,18 +274,25 @@ class _Points:
         self.P[i] = b
         # 1e300, not inf, where the point has no mass: 0 * inf would be nan
         self.Pinv[i] = np.where(b > 0, 1.0 / np.where(b > 0, b, 1.0), 1e300)
-        self.excess[i] = np.minimum(v - self.corner @ b, 0.0)
+        self.v[i] = v
+        self.QB[i] = self.fib @ b
         self.group[i] = group
         self.n += 1
         return i
 
     def update(self, i: int, v: np.ndarray) -> None:
-        np.minimum(self.excess[i], v - self.corner @ self.P[i], out=self.excess[i])
+        np.minimum(self.v[i], v, out=self.v[i])
+
+    def term(self, i: np.ndarray, ratio: np.ndarray, QM: np.ndarray) -> np.ndarray:
+        """The points' terms (X, p) at beliefs with fast-informed values QM (X*A, p)."""
+        X = self.X
+        d = (QM - ratio * self.QB[i].T).reshape(X, -1, i.size).max(axis=1)
+        return ratio * self.v[i].T + d
 
     def correct(self, out: np.ndarray, B: np.ndarray, col_of_z: np.ndarray, start: int) -> None:
-        """Lower ``out`` (X, n), the bounds at the beliefs B (Y, n), by the sawtooth of
-        the points start.. whose group is the observation of each column (col_of_z:
-        observation -> column, -1 if none)."""
+        """Lower ``out`` (X, n), the bounds at the beliefs B (Y, n), by the points
+        start.. whose group is the observation of each column (col_of_z: observation ->
+        column, -1 if none)."""
         if self.n <= start:
             return
         g = self.group[start : self.n]
@@ -289,8 +301,9 @@ class _Points:
         if i.size == 0:
             return
         j = j[i - start]
-        ratio = (self.Pinv[i] * B[:, j].T).min(axis=1)  # (p,)
-        vals = self.corner @ B[:, j] + self.excess[i].T * ratio  # (X, p)
+        Bj = B[:, j]
+        ratio = (self.Pinv[i] * Bj.T).min(axis=1)  # (p,)
+        vals = self.term(i, ratio, self.fib @ Bj)
         np.minimum.at(out.T, j, vals.T)
 
 
@@ -339,10 +352,17 @@ class MixedSearch(StoppingRules):
         roots: Sequence[np.ndarray],
         start: float | None = None,
         progress: Callable[[SearchStats], None] | None = None,
-        sawtooth: bool = True,
+        sawtooth: bool = False,
+        beliefs: int = 0,
+        rounds: int = 0,
+        depth: int = 30,
     ):
         self.m = m
         self.sawtooth = sawtooth
+        self.n_beliefs = beliefs
+        self.rounds = rounds
+        self.depth = depth
+        self.rounds_done = 0
         self.config = config
         self.start = time.perf_counter() if start is None else start
         self.deadline = (
@@ -362,7 +382,7 @@ class MixedSearch(StoppingRules):
         self.upper_initial = self.Q_upper
         # (X*A, Y): the fast informed bound's vectors, a row per (cell, action)
         self._fib = np.ascontiguousarray(self.Q_upper.transpose(0, 2, 1).reshape(X * m.A, Y))
-        self.points = _Points(self.Q_upper.max(axis=2))
+        self.points = _Points(self._fib, X)
         alphas, actions = seed_alphas
         blocks = np.asarray(alphas, dtype=float).reshape(len(actions), X, Y)
         self.cells = [_Vectors(blocks[:, x, :], np.asarray(actions)) for x in range(X)]
@@ -371,6 +391,7 @@ class MixedSearch(StoppingRules):
         self.RT = np.ascontiguousarray(m.R.transpose(0, 2, 1))  # (X, A, Y)
         self.nodes: dict[bytes, _Node] = {}
         self.backed: list[_Node] = []  # nodes backed up at least once
+        self._B = np.empty((0, Y))  # their beliefs, a row each (for pruning)
         self.backups = 0
         self.trials = 0
         self.history: list[SearchStats] = []
@@ -521,7 +542,7 @@ class MixedSearch(StoppingRules):
         for x, act, alpha in zip(xs, acts, alphas, strict=True):
             c = self.cells[int(x)]
             c.add(alpha, int(act))
-            if c.n > self.config.prune_growth * c.pruned_at + 50:
+            if c.n > max(self.config.prune_growth * c.pruned_at, c.pruned_at + 200):
                 self._prune(int(x))
 
     def _prune(self, x: int) -> None:
@@ -529,9 +550,55 @@ class MixedSearch(StoppingRules):
         if not self.backed:
             return
         c = self.cells[x]
-        B = np.column_stack([n.b for n in self.backed])
-        k = (B.T @ c.cols).argmax(axis=1)
+        if self._B.shape[0] < len(self.backed):
+            new = np.vstack([n.b for n in self.backed[self._B.shape[0] :]])
+            self._B = np.vstack([self._B, new])
+        k = (self._B @ c.cols).argmax(axis=1)
         c.keep(np.unique(k))
+
+    def _rounds(self) -> str:
+        """Back up the sampled beliefs, deepest of each trajectory first, ``rounds``
+        times (Perseus's order of work with the search's backups: each adds the
+        improved vector of every robot cell). The lower bound climbs far faster this
+        way than by trials, whose targets stop them a few steps from the root."""
+        n_traj = max(1, -(-self.n_beliefs // self.depth))
+        sampled = self.sample_nodes(n_traj, self.depth)
+        order = list(reversed([r.node for r in self.roots] + sampled))
+        stopped = ""
+        for _ in range(self.rounds):
+            for n in order:
+                if self._late():
+                    break
+                self._backup(n)
+                self._report()
+            self.rounds_done += 1
+            stopped = self._done()
+            if stopped:
+                break
+        return stopped
+
+    def sample_nodes(self, n_traj: int, depth: int, seed: int = 0) -> list[_Node]:
+        """Person beliefs reached from the starts by simulated observations. The person
+        evolves whatever the robot does, so these are the beliefs any policy meets;
+        the nodes are made as the search would make them (with their groups)."""
+        rng = np.random.default_rng(seed)
+        m = self.m
+        out: list[_Node] = []
+        for t in range(n_traj):
+            node = self.roots[t % len(self.roots)].node
+            y = int(rng.choice(m.Y, p=node.b / node.b.sum()))
+            for _ in range(depth):
+                if self._late():
+                    return out
+                kids, M = self._expand(node)
+                y = int(rng.choice(m.Y, p=m.TY[y]))
+                z = int(rng.choice(m.OY.shape[1], p=m.OY[y]))
+                j = int(np.searchsorted(kids.zs, z))
+                if j >= kids.zs.size or kids.zs[j] != z:
+                    break
+                node = self._child(kids, j, M)
+                out.append(node)
+        return out
 
     # -- the search -----------------------------------------------------------------
     @property
@@ -612,6 +679,8 @@ class MixedSearch(StoppingRules):
         for r in self.roots:
             self._backup(r.node)
         stopped = self._done()
+        if self.rounds > 0 and self.n_beliefs > 0 and not stopped:
+            stopped = self._rounds()
         while not stopped:
             self._trial()
             self._report()
