@@ -377,8 +377,10 @@ class MixedSearch(StoppingRules):
         beliefs: int = 0,
         rounds: int = 0,
         depth: int = 30,
+        plateau: float = 0.01,
     ):
         self.m = m
+        self.plateau = plateau
         self.sawtooth = sawtooth
         self.n_beliefs = beliefs
         self.rounds = rounds
@@ -579,14 +581,16 @@ class MixedSearch(StoppingRules):
 
     def _rounds(self) -> str:
         """Back up the sampled beliefs, deepest of each trajectory first, ``rounds``
-        times (Perseus's order of work with the search's backups: each adds the
-        improved vector of every robot cell). The lower bound climbs far faster this
+        times or until a round gains less than ``plateau`` of the roots' gaps
+        (Perseus's order of work with the search's backups: each adds the improved
+        vector of every robot cell). The lower bound climbs far faster this
         way than by trials, whose targets stop them a few steps from the root."""
         n_traj = max(1, -(-self.n_beliefs // self.depth))
         sampled = self.sample_nodes(n_traj, self.depth)
         order = list(reversed([r.node for r in self.roots] + sampled))
         stopped = ""
         for _ in range(self.rounds):
+            before = [(r.lb, r.ub - r.lb) for r in self.roots]
             for n in order:
                 if self._late():
                     break
@@ -595,6 +599,12 @@ class MixedSearch(StoppingRules):
             self.rounds_done += 1
             stopped = self._done()
             if stopped:
+                break
+            # a plateau: no root's lower bound rose by ``plateau`` of its gap in this
+            # round; the trials, which go where the gap is, take over (r2: 20 rounds
+            # took 160 s, the last 14 of them gained 0.1 % of V)
+            gains = [(r.lb - lb, gap) for r, (lb, gap) in zip(self.roots, before, strict=True)]
+            if all(gain < self.plateau * gap for gain, gap in gains):
                 break
         return stopped
 
