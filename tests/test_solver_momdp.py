@@ -145,3 +145,23 @@ def test_time_limit_is_checked_inside_trials(monkeypatch):
     assert r.stopped == "time"
     assert r.seconds <= 3.0 + 0.2
     assert r.lower_bound <= r.upper_bound
+
+
+def test_rounds_stop_at_a_plateau():
+    """Rounds end once one gains less than ``plateau`` of the gap; with plateau 0 they
+    all run. The plateau's lower bound is within that share of the gap of the rest."""
+    m = _mixed(7, X=4, Y=5, A=3, Z=4, discount=0.95)
+    b0 = _b0(m)
+    pomdp = _flat(m, b0)
+    seeds = (blind_lower_bound(pomdp), np.arange(m.A))
+    cfg = SearchConfig(time_limit_s=None, progress_every_s=0.0, target_gap=0.0, max_trials=1)
+
+    def run(plateau):
+        s = MixedSearch(m, cfg, seeds, [b0], beliefs=40, rounds=60, plateau=plateau)
+        return s, s.run()
+
+    every, r_every = run(0.0)
+    early, r_early = run(0.01)
+    assert every.rounds_done == 60
+    assert 1 <= early.rounds_done < 60
+    assert r_early.lower_bound <= r_every.lower_bound + 1e-12
