@@ -5,10 +5,12 @@ Raw subscriptions (``raw=True``): each message arrives as its CDR bytes and goes
 the bag as it is (:class:`vigil.bag.BagWriter`), never deserialised. A topic is
 subscribed once it appears in the ROS graph (checked every ``DISCOVER_S``), with the type
 its publishers advertise and a QoS that matches them (best effort when one publishes
-best effort, transient local when all of them are latched, so ``/tf_static`` arrives).
+best effort, transient local when all of them are latched; a topic with no publisher
+known yet waits, so ``/tf_static`` arrives).
 
-Log time: the latest ``/clock`` (the twin's simulated time), so the bag plays in the
-run's own time; without any ``/clock`` (hardware), the wall clock.
+Log time: with ``sim_clock`` (the twin), the latest ``/clock`` (simulated time, 0 before
+the first), so the bag plays in the run's own time; without it (hardware) the wall clock
+until a ``/clock`` arrives.
 
 Not a lock-step participant: the twin never waits for it and it sends no acks, so a
 slow disk cannot slow the run (it may only fall behind). Camera frames are kept to one
@@ -16,7 +18,7 @@ per ``camera_period_s`` of log time. SIGINT (the launcher's stop) closes the bag
 cleanly (:func:`stack.ros_main.spin_node` destroys the node); a SIGKILLed recorder
 leaves an MCAP without its summary and no ``metadata.yaml``.
 
-Parameters: ``out_dir``, ``camera_period_s`` (1.0; 0 keeps every frame), ``lockstep``
+Parameters: ``out_dir``, ``camera_period_s`` (1.0; 0 keeps every frame), ``sim_clock``, ``lockstep``
 (accepted, unused).
 """
 
@@ -78,14 +80,17 @@ class BagNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("bag", **kwargs)
-        v = declare(self, out_dir="runs/recording", camera_period_s=1.0, lockstep=False)
+        v = declare(
+            self, out_dir="runs/recording", camera_period_s=1.0, sim_clock=False, lockstep=False
+        )
         if v.camera_period_s < 0:
             raise ConfigError("camera_period_s", v.camera_period_s, "must be >= 0")
         out = Path(v.out_dir)
         out.mkdir(parents=True, exist_ok=True)
         self.bag = BagWriter(fresh_path(out))
         self.limits = {t: RateLimit(int(v.camera_period_s * 1e9)) for t in RATE_LIMITED}
-        self.clock_ns: int | None = None
+        # the twin's time: 0 until its first /clock, never the wall clock mixed in
+        self.clock_ns: int | None = 0 if v.sim_clock else None
         self.subs: dict[str, object] = {}
         self.create_subscription(Clock, topic.CLOCK, self.on_clock, 10)
         self.create_timer(DISCOVER_S, self.discover)
@@ -103,6 +108,9 @@ class BagNode(Node):
         for name in TOPICS:
             if name in self.subs or not graph.get(name):
                 continue
+            pubs = self.get_publishers_info_by_topic(name)
+            if not pubs:  # only subscribers known yet: wait to match the publishers' QoS
+                continue
             type_name = graph[name][0]
             try:
                 cls = _message_class(type_name)
@@ -112,23 +120,8 @@ class BagNode(Node):
                 self.get_logger().warning(f"{name} ({type_name}) not recorded: {exc}")
                 continue
             self.subs[name] = self.create_subscription(
-                cls, name, self._recorder(name), self._qos(name), raw=True
+                cls, name, self._recorder(name), _qos(pubs), raw=True
             )
-
-    def _qos(self, name: str) -> QoSProfile:
-        pubs = self.get_publishers_info_by_topic(name)
-        best_effort = any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in pubs)
-        latched = bool(pubs) and all(
-            p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in pubs
-        )
-        return QoSProfile(
-            depth=100 if latched else 20,
-            history=HistoryPolicy.KEEP_LAST,
-            reliability=ReliabilityPolicy.BEST_EFFORT
-            if best_effort
-            else ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
-        )
 
     def _recorder(self, name: str):
         limit = self.limits.get(name)
@@ -146,6 +139,20 @@ class BagNode(Node):
         counts = ", ".join(f"{k} {n}" for k, n in sorted(self.bag.counts.items()))
         self.get_logger().info(f"bag closed: {counts}")
         super().destroy_node()
+
+
+def _qos(pubs) -> QoSProfile:
+    """A subscription QoS that matches every publisher (latched ones included)."""
+    best_effort = any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in pubs)
+    latched = bool(pubs) and all(
+        p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in pubs
+    )
+    return QoSProfile(
+        depth=100 if latched else 20,
+        history=HistoryPolicy.KEEP_LAST,
+        reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
 
 
 def main(args=None) -> None:

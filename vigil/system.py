@@ -255,7 +255,7 @@ def prepare(
     params["markers"] = {"task_file": str(task)}
     names.append("markers")
     # the run's rosbag2 bag (MCAP): no lock-step participant either, it only listens
-    params["bag"] = {"out_dir": str(run_dir), "camera_period_s": 1.0}
+    params["bag"] = {"out_dir": str(run_dir), "camera_period_s": 1.0, "sim_clock": twin_mode}
     names.append("bag")
     return _write(run_dir, names, params, dep, max_steps)
 
