@@ -31,6 +31,7 @@ from stack.tf import (
     PendingLookup,
     StampedTransform,
     TfBuffer,
+    TfError,
     TfTimeout,
     Transform,
 )
@@ -159,6 +160,24 @@ class MapPose:
         self._frames = (map_frame, base_frame)
         self._lookup = PendingLookup(self.buffer, map_frame, base_frame, timeout_s)
         self._last_s: float | None = None
+        self._timeout_s = timeout_s
+        participant.timer(timeout_s, self._check_stale)
+
+    def _check_stale(self) -> None:
+        """Warn when the chain stops moving: a localisation or odometry that went quiet
+        leaves lookups at the last common time, and consumers would get no new pose."""
+        now = self._participant.now_s()
+        try:
+            stalest = self.buffer.stalest_link(*self._frames)
+        except TfError:
+            return  # incomplete chain: the pending lookup's timeout names the missing link
+        if stalest is not None and now - stalest[2] > self._timeout_s:
+            parent, child, stamp_s = stalest
+            self._participant.node.get_logger().warning(
+                f"TF {self._frames[0]} <- {self._frames[1]} is stale: {parent} -> {child} "
+                f"last heard at {stamp_s:.2f} s, {now - stamp_s:.1f} s ago (no new pose)",
+                throttle_duration_sec=5.0,
+            )
 
     def _update(self) -> None:
         try:

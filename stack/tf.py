@@ -216,6 +216,11 @@ class _Link:
         if self.static:
             self.samples = deque([(stamp_s, tf)])
             return
+        if self.samples and stamp_s < self.samples[-1][0] - self.cache_s:
+            # time jumped back past the cache (a restart, a looped bag, a reset twin): the
+            # old samples describe another run; start over, as tf2 clears on a jump back
+            self.samples = deque([(stamp_s, tf)])
+            return
         if self.samples and stamp_s < self.samples[-1][0]:  # out of order: insert in place
             items = sorted([*self.samples, (stamp_s, tf)], key=lambda s: s[0])
             self.samples = deque(items)
@@ -315,6 +320,21 @@ class TfBuffer:
         a, b = self._chain(target, source)
         newest = [self._links[f].samples[-1][0] for f in a + b if not self._links[f].static]
         return min(newest) if newest else None
+
+    def stalest_link(self, target: str, source: str) -> tuple[str, str, float] | None:
+        """(parent, child, newest stamp) of the chain's dynamic link heard from longest
+        ago (the one holding ``latest_common_time`` back); None when all are static.
+
+        Raises:
+            FrameNotFound, NotConnected: as :meth:`lookup`.
+        """
+        a, b = self._chain(target, source)
+        dynamic = [f for f in a + b if not self._links[f].static]
+        if not dynamic:
+            return None
+        child = min(dynamic, key=lambda f: self._links[f].samples[-1][0])
+        link = self._links[child]
+        return link.parent, child, link.samples[-1][0]
 
     def lookup(self, target: str, source: str, time_s: float | None = None) -> Transform:
         """T_target_source at ``time_s`` (None: the latest time the chain is known at).

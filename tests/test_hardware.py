@@ -513,7 +513,7 @@ def test_camera_stream_node_publishes_rgb8_images_from_a_video_file(ros, tmp_pat
         assert spin_until(ros, lambda: len(probe.images) >= 3, 10.0), "no images"
         img = probe.images[0]
         assert (img.encoding, img.width, img.height, img.step) == ("rgb8", 64, 48, 192)
-        assert img.header.frame_id == "axis_camera"
+        assert img.header.frame_id == "camera_optical_frame"  # the frame TF knows
         assert img.header.stamp.sec > 0
         rgb = np.frombuffer(bytes(img.data), np.uint8).reshape(48, 64, 3)
         assert np.abs(rgb[40, 40].astype(int) - (30, 0, 200)).max() <= 8

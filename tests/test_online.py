@@ -207,7 +207,7 @@ def test_greedy_heads_for_the_restricted_cell_nearest_the_likeliest_intruder(pm)
 def test_single_applies_the_one_person_policy_to_the_most_threatening_person(pm):
     # a stand-in policy (one vector per action): the chooser is replaced by a spy
     policy = AlphaPolicy(np.zeros((5, pm.n_robot * pm.n_person)), np.arange(5))
-    planner = SinglePlanner(pm, policy)
+    planner = SinglePlanner(pm, policy, flat=True)
     seen = []
 
     def spy(b):
@@ -235,6 +235,18 @@ def test_single_with_a_solved_policy_guards_the_occupied_cell(pm, single):
     planner = SinglePlanner(pm, single)
     b = certain(pm, 3, [(None, "not moving"), (1, "not moving")])
     assert planner.action(b) == EAST
+
+
+def test_single_factored_lookahead_chooses_as_the_flat_one(pm, single):
+    fast, flat = SinglePlanner(pm, single), SinglePlanner(pm, single, flat=True)
+    rng = np.random.default_rng(3)
+    for _ in range(25):
+        persons = rng.dirichlet(np.full(pm.n_person, 0.05), size=2)
+        b = PeopleBelief(int(rng.integers(pm.n_cells)), persons)
+        i = most_threatening(pm, b)
+        _, q = flat.choose(b.person_flat(pm, i))
+        np.testing.assert_allclose(fast.values(b.robot, persons[i]), q, rtol=1e-9, atol=1e-6)
+        assert fast.action(b) == flat.action(b)
 
 
 def test_the_one_person_policy_is_cached(pm, tmp_path):

@@ -13,18 +13,16 @@ import time
 
 import numpy as np
 import pytest
+import rclpy
+import tf2_msgs.msg  # noqa: F401  built by scripts/build_interfaces.sh: the stack needs it
+from geometry_msgs.msg import PoseStamped, Twist
 
-rclpy = pytest.importorskip("rclpy")
-pytest.importorskip("tf2_msgs.msg", reason="tf2_msgs is built by scripts/build_interfaces.sh")
+from stack import tf
+from stack.geometry import Pose2D, yaw_from_quaternion
+from stack.ros_lockstep import Participant
+from stack.ros_tf import TfListener, from_msg, to_msg
 
-from geometry_msgs.msg import PoseStamped, Twist  # noqa: E402
-
-from stack import tf  # noqa: E402
-from stack.geometry import Pose2D, yaw_from_quaternion  # noqa: E402
-from stack.ros_lockstep import Participant  # noqa: E402
-from stack.ros_tf import TfListener, from_msg, to_msg  # noqa: E402
-
-pytestmark = pytest.mark.usefixtures("private_ros_domain")
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures("private_ros_domain")]
 
 
 def test_transform_message_round_trip():
@@ -131,6 +129,7 @@ def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
     cell_map, cell_odom = grid.cells[0], grid.cells[-1]
     in_map, in_odom = Pose2D(*grid.center(cell_map), 0.3), Pose2D(*grid.center(cell_odom), 0.3)
     map_odom = tf.map_to_odom(in_map, in_odom)
+    mount = Pose2D(0.2, 0.05, 0.1)  # the robot's base_link -> laser, known only through TF
     tf_params = [Parameter("pose_source", value="tf")]
     legs = LegsNode(parameter_overrides=tf_params)
     obs = ObservationsNode(
@@ -168,15 +167,20 @@ def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
                         tf.StampedTransform(
                             tf.ODOM, tf.BASE_LINK, now, tf.Transform.from_pose2d(in_odom)
                         ),
+                        tf.StampedTransform(
+                            tf.BASE_LINK, tf.LASER, now, tf.Transform.from_pose2d(mount)
+                        ),
                     ]
                 )
             )
             pub_request.publish(Empty())
             for _ in range(5):
                 ros.spin_once(timeout_sec=0.02)
-        for pose in (legs.pose, nav.core.pose):
+        laser_in_map = in_map.compose(mount)  # legs place scans from the laser's own pose
+        for pose, want in ((legs.pose, laser_in_map), (nav.core.pose, in_map)):
             assert pose is not None
-            assert math.hypot(pose.x_m - in_map.x_m, pose.y_m - in_map.y_m) < 1e-6
+            assert math.hypot(pose.x_m - want.x_m, pose.y_m - want.y_m) < 1e-6
+            assert abs(pose.yaw_rad - want.yaw_rad) < 1e-6
         assert labels and labels[-1] == str(cell_map) != str(cell_odom)
     finally:
         for n in nodes:
@@ -219,3 +223,47 @@ def test_listener_skips_bad_transforms_and_keeps_the_good(ros):
         assert math.isclose(buf.lookup("map", "laser").translation[0], 3.2)
     finally:
         node.destroy_node()
+
+
+def test_map_pose_warns_when_the_chain_goes_stale():
+    """Localisation that went quiet: lookups still succeed at the last common time, so
+    without the stale check the consumer would silently get no new pose."""
+    from stack.ros_tf import MapPose
+
+    warnings: list[str] = []
+
+    class Logger:
+        def warning(self, text, **_kw):
+            warnings.append(text)
+
+    class FakeParticipant:  # what MapPose and TfListener use of stack.ros_lockstep.Participant
+        def __init__(self):
+            self.node = type("N", (), {"get_logger": lambda _self: Logger()})()
+            self.t, self.timers = 0.0, []
+
+        def now_s(self):
+            return self.t
+
+        def subscription(self, *_args, **_kw):
+            pass
+
+        def timer(self, period_s, callback):
+            self.timers.append(callback)
+
+    ls = FakeParticipant()
+    poses: list[float] = []
+    mp = MapPose(ls, lambda stamp, _pose: poses.append(stamp), timeout_s=1.0)
+    buf = mp.buffer
+    for t in (0.0, 0.5, 1.0):
+        ls.t = t
+        buf.set_transform(tf.StampedTransform(tf.MAP, tf.ODOM, min(t, 0.5), tf.Transform()))
+        buf.set_transform(tf.StampedTransform(tf.ODOM, tf.BASE_LINK, t, tf.Transform()))
+        mp._update()
+        ls.timers[0]()
+    assert not warnings  # 0.5 s behind: within the timeout
+    ls.t = 3.0
+    buf.set_transform(tf.StampedTransform(tf.ODOM, tf.BASE_LINK, 3.0, tf.Transform()))
+    mp._update()
+    ls.timers[0]()
+    assert poses == [0.0, 0.5]  # no newer common time: no new pose ...
+    assert warnings and "map -> odom" in warnings[-1]  # ... and the warning names the link

@@ -34,20 +34,25 @@ def _b0(m: MixedModel, x: int = 0) -> np.ndarray:
     return b
 
 
-def _search(m, b0, sawtooth=False, **kw):
+def _search(m, b0, sawtooth=False, beliefs=0, rounds=0, **kw):
     pomdp = _flat(m, b0)
     kw.setdefault("time_limit_s", None)
     kw.setdefault("progress_every_s", 0.0)
     seeds = (blind_lower_bound(pomdp), np.arange(m.A))
-    return MixedSearch(m, SearchConfig(**kw), seeds, [b0], sawtooth=sawtooth).run(), pomdp
+    search = MixedSearch(
+        m, SearchConfig(**kw), seeds, [b0], sawtooth=sawtooth, beliefs=beliefs, rounds=rounds
+    )
+    return search.run(), pomdp
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-@pytest.mark.parametrize("sawtooth", [False, True])
-def test_bounds_bracket_the_flat_solution(seed, sawtooth):
+@pytest.mark.parametrize(("sawtooth", "rounds"), [(False, 0), (True, 0), (False, 5)])
+def test_bounds_bracket_the_flat_solution(seed, sawtooth, rounds):
     m = _mixed(seed)
     b0 = _b0(m)
-    r, pomdp = _search(m, b0, sawtooth=sawtooth, target_gap=1e-4, max_trials=300)
+    r, pomdp = _search(
+        m, b0, sawtooth=sawtooth, beliefs=20, rounds=rounds, target_gap=1e-4, max_trials=300
+    )
     flat = BeliefTreeSearch(
         pomdp, SearchConfig(time_limit_s=None, target_gap=1e-6, max_trials=300)
     ).run()
@@ -68,6 +73,19 @@ def test_lower_bound_never_decreases_and_upper_never_increases():
     assert all(b >= a - 1e-12 for a, b in zip(lows, lows[1:], strict=False))
     assert all(b <= a + 1e-12 for a, b in zip(ups, ups[1:], strict=False))
     assert lows[-1] > lows[0]
+
+
+def test_rounds_over_sampled_beliefs_raise_the_lower_bound_and_are_deterministic():
+    m = _mixed(7, X=4, Y=5, A=3, Z=4, discount=0.95)
+    b0 = _b0(m)
+    plain, _ = _search(m, b0, target_gap=0.0, max_trials=1)
+    r1, _ = _search(m, b0, beliefs=40, rounds=10, target_gap=0.0, max_trials=1)
+    r2, _ = _search(m, b0, beliefs=40, rounds=10, target_gap=0.0, max_trials=1)
+    assert r1.lower_bound > plain.lower_bound
+    assert r1.lower_bound <= r1.upper_bound
+    assert np.array_equal(r1.policy.alphas, r2.policy.alphas)
+    lows = [h.lower for h in r1.history]
+    assert all(b >= a - 1e-12 for a, b in zip(lows, lows[1:], strict=False))
 
 
 def test_factored_fib_is_the_flat_fast_informed_bound():

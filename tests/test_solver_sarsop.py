@@ -262,3 +262,57 @@ def test_absorbing_set_of_the_task_is_robot_out_of_the_map():
     B = sample_beliefs(pomdp, task_starts(model, pomdp), 60, np.random.default_rng(2))
     out = B.reshape(len(B), *model.state_shape)[:, model.robot_index(None)].sum(axis=(1, 2))
     assert (out > 1 - 1e-9).sum() == 0
+
+
+def _closed(pomdp, alphas, actions, succ) -> None:
+    """Every successor is in the set and every vector is at most its backup along the
+    graph: the best vector's policy then earns the bound."""
+    from stack.planning.controller import graph_backup
+
+    assert succ.shape == (len(alphas), pomdp.n_observations)
+    assert succ.min() >= 0 and succ.max() < len(alphas)
+    slack = alphas - graph_backup(pomdp, alphas, actions, succ)
+    assert slack.max() <= 1e-9 * max(1.0, np.abs(alphas).max())
+
+
+def test_perseus_vectors_closed_into_a_policy_graph():
+    from stack.planning.controller import close_vectors
+    from stack.planning.pbvi import perseus
+
+    pomdp = _random_pomdp(7, S=5, A=2, Z=3, discount=0.25)
+    rng = np.random.default_rng(0)
+    B = sample_beliefs(pomdp, [pomdp.b0], 40, rng)
+    pol, _ = perseus(pomdp, B, iterations=15, rng=rng)
+    alphas, actions, succ = close_vectors(pomdp, pol.alphas, pol.actions, B)
+    _closed(pomdp, alphas, actions, succ)
+    # Perseus's own closure: its final vectors and the earlier ones they lead to
+    closure: dict = {}
+    pol, _ = perseus(pomdp, B, iterations=15, rng=np.random.default_rng(0), closure=closure)
+    _closed(pomdp, closure["alphas"], closure["actions"], closure["successors"])
+    np.testing.assert_array_equal(
+        np.unique(closure["alphas"][: closure["active"]], axis=0), np.unique(pol.alphas, axis=0)
+    )
+    tail = 0.25**6 * np.abs(pomdp.R).max() / 0.75
+    assert (alphas @ pomdp.b0).max() <= _exact_value(pomdp, 6) + tail + 1e-9
+
+
+def test_search_keeps_its_vector_set_closed_through_pruning():
+    """Seeded with a closed Perseus set and pruned often, the search's final vectors
+    still hold every kept vector's successors (issue 12: Hallway2's policy simulated
+    0.365 against a bound of 0.430 when they were dropped)."""
+    from stack.planning.controller import close_vectors
+    from stack.planning.pbvi import perseus
+
+    pomdp = _random_pomdp(3, S=6, A=3, Z=3, discount=0.9)
+    rng = np.random.default_rng(1)
+    B = sample_beliefs(pomdp, [pomdp.b0], 30, rng)
+    pol, _ = perseus(pomdp, B, iterations=5, rng=rng)
+    seeds = close_vectors(pomdp, pol.alphas, pol.actions, B)
+    search = BeliefTreeSearch(
+        pomdp,
+        SearchConfig(time_limit_s=None, max_trials=60, prune_growth=1.0, target_gap=0.0),
+        seed_alphas=seeds,
+    )
+    r = search.run()
+    assert search.backups > 60  # vectors were added, and pruned (prune_growth 1)
+    _closed(pomdp, r.policy.alphas, r.policy.actions, search.successors)

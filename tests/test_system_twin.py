@@ -210,3 +210,24 @@ def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
     assert stopped and "None" not in stopped[0], out  # every node exited
     assert (tmp_path / "o" / "logs" / "planner.log").exists()
     assert os.path.getsize(steps) > 0  # it was deciding
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_two_people_split_run_end_to_end(tmp_path):
+    """Issue 16: two walkers split toward cells 1 and 12; the planner decides online on
+    the factored belief from the per-slot observations, and the report counts the
+    visits per person."""
+    scenario = REPO / "scenarios" / "people" / "split.yaml"
+    summary = run_scenario(scenario, out=tmp_path / "split", say=lambda s: None)
+    assert summary["steps"] == yaml.safe_load(scenario.read_text())["steps"]
+    assert summary["left_map"] is False
+    steps = steps_of(tmp_path / "split")
+    assert all(len(s["observation"]["people"]) == 2 for s in steps)
+    assert all("person_2" in s["belief"] for s in steps)
+    seen = {p["person"] for s in steps for p in s["observation"]["people"]}
+    assert {"1", "12"} <= seen, seen  # both people seen in their restricted cells
+    people = summary["people"]["per_person"]
+    assert len(people) == 2 and all(p["n_visits"] >= 1 for p in people)
+    assert summary["people"]["guarded"] >= 1  # the robot cannot stand in both cells
+    assert summary["people"]["n_false_trips"] == 0

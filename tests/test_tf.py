@@ -139,6 +139,28 @@ def test_cache_keeps_only_the_last_seconds():
         buf.lookup(ODOM, BASE_LINK, 2.0)
 
 
+def test_time_jumping_back_past_the_cache_starts_the_link_over():
+    """A restarted run or a looped bag: after 0..100 s, new data at 0..4 s is what
+    lookups return (before, the t = 100 s pose stayed forever)."""
+    buf = TfBuffer(cache_s=10.0)
+    for i in range(101):
+        buf.set_transform(StampedTransform(ODOM, BASE_LINK, float(i), planar(100.0, 0, 0)))
+    for i in range(5):
+        buf.set_transform(StampedTransform(ODOM, BASE_LINK, float(i), planar(float(i), 0, 0)))
+    assert buf.lookup(ODOM, BASE_LINK).translation[0] == 4.0
+    assert math.isclose(buf.lookup(ODOM, BASE_LINK, 2.5).translation[0], 2.5)
+
+
+def test_stalest_link_names_the_link_that_went_quiet():
+    buf = TfBuffer()
+    for t in (0.0, 1.0, 2.0, 3.0):
+        buf.set_transform(StampedTransform(ODOM, BASE_LINK, t, planar(t, 0, 0)))
+    buf.set_transform(StampedTransform(MAP, ODOM, 1.0, planar(0, 0, 0)))  # localisation quiet
+    buf.set_transform(StampedTransform(BASE_LINK, LASER, 0.0, planar(0.2, 0, 0)), static=True)
+    assert buf.stalest_link(MAP, LASER) == (MAP, ODOM, 1.0)
+    assert buf.stalest_link(BASE_LINK, LASER) is None  # static only
+
+
 def test_out_of_order_stamps_are_sorted():
     buf = TfBuffer()
     for ts in (0.0, 2.0, 1.0):

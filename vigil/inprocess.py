@@ -411,7 +411,7 @@ class InProcessSystem:
             self.legs_process(self._waiting_scan[1])
 
     def legs_on_scan(self, scan: Scan) -> None:
-        if self.legs_pose is not None and self.legs_pose_stamp_s + 1e-6 < scan.stamp_s:
+        if self.legs_pose is None or self.legs_pose_stamp_s + 1e-6 < scan.stamp_s:
             if self._waiting_scan is not None:
                 self.legs_process(self._waiting_scan[1])
             self._waiting_scan = (scan.stamp_s - 1e-6, scan)

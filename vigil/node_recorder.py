@@ -159,6 +159,8 @@ class RecorderNode(Node):
             "legs": self.legs,
             "speech": self.speech or None,
         }
+        if truth.get("people"):  # several walkers (issue 16): each one's truth
+            record["people"] = truth["people"]
         self.speech = []
         self.last_t = float(t)
         self.trace.write(json.dumps(record, sort_keys=True) + "\n")

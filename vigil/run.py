@@ -194,6 +194,12 @@ def _progress(rec: dict, total: int) -> str:
     o = rec.get("observation") or {}
     t = rec.get("stamp_s") or 0.0
     when = f" t={t:.1f}s" if t < 1e6 else ""  # simulated time; wall-clock stamps not shown
+    if o.get("people"):  # several people (issue 16): every slot's labels
+        people = "; ".join(f"{p.get('person')}, {p.get('velocity')}" for p in o["people"])
+        return (
+            f"step {rec.get('step')}/{total}{when}: {rec.get('action')} -> "
+            f"robot {o.get('robot', '-')}, people {people}"
+        )
     return (
         f"step {rec.get('step')}/{total}{when}: {rec.get('action')} -> "
         f"robot {o.get('robot', '-')}, person {o.get('person', '-')}, {o.get('velocity', '-')}"

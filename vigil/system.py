@@ -111,10 +111,13 @@ def prepare(
     restricted = list(task_data.get("restricted_cells", []))
     if restricted:
         stack_cfg["speech"] = {**stack_cfg.get("speech", {}), "restricted_cells": restricted}
+    people = int(task_data.get("people", 1))
+    if people > 1:  # issue 16: the camera reports everyone, the observations per slot
+        stack_cfg["camera"] = {**stack_cfg.get("camera", {}), "max_people": people}
     stack_file = run_dir / "stack.yaml"
     stack_file.write_text(yaml.safe_dump(stack_cfg, sort_keys=True))
 
-    policy = dep.policy or policy_for(task, say)
+    policy = _policy(dep, task, people, say)
     common = {"lockstep": dep.lockstep, "use_sim_time": False}
     params: dict[str, dict[str, Any]] = {}
     twin_mode = dep.mode == "twin"
@@ -203,6 +206,8 @@ def prepare(
         "pose_source": map_pose_source,
         "decision_period_s": 0.25,  # continuous: speech and the planner's events read it
     }
+    if people > 1:
+        params["observations"]["people"] = people
     params["navigation"] = {
         **common,
         "config_file": cfg,
@@ -264,7 +269,7 @@ def prepare_table(dep: Deployment, run_dir: Path, scenario: Scenario, say=print)
     """Planner + table player: the thesis's table as the observations."""
     if not scenario.thesis_table:
         raise ConfigError("thesis_table", "", "the scenario names no thesis table")
-    policy = dep.policy or policy_for(scenario.task, say)
+    policy = _policy(dep, scenario.task, int(read_yaml(scenario.task).get("people", 1)), say)
     params = {
         "planner": {
             "lockstep": False,
@@ -283,6 +288,14 @@ def prepare_table(dep: Deployment, run_dir: Path, scenario: Scenario, say=print)
     }
     dep = replace(dep, lockstep=False)
     return _write(run_dir, ["planner", "table_player"], params, dep, scenario.steps)
+
+
+def _policy(dep: Deployment, task: Path, people: int, say) -> Path | str:
+    """The policy file of a one-person task; "" with several people (the planner node
+    plans online, issue 16)."""
+    if people > 1:
+        return ""
+    return dep.policy or policy_for(task, say)
 
 
 def _write(

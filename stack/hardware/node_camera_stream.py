@@ -18,8 +18,9 @@ Publishes (names are parameters):
 Parameters: ``config_file`` (YAML with a ``camera_stream:`` section, keys as
 :class:`StreamConfig`); each key of that section is also a parameter (``url``,
 ``rate_hz``, ``width_px``, ``height_px``, ``reconnect_s``, ``frozen_after_frames``,
-``open_timeout_s``) whose value overrides the file's; ``frame_id`` (``axis_camera``),
-``camera_info_file``, ``image_topic``, ``info_topic``, ``status_topic``.
+``open_timeout_s``) whose value overrides the file's; ``frame_id``
+(``camera_optical_frame``, the optical frame of :mod:`stack.tf`), ``camera_info_file``,
+``image_topic``, ``info_topic``, ``status_topic``.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import String
 
 import stack.topics as topic
+from stack import tf
 from stack.cells import ConfigError
 from stack.config import read_section
 from stack.hardware.camera_stream import (
@@ -55,7 +57,7 @@ class CameraStreamNode(Node):
     def __init__(self, capture_factory=None, **kwargs):
         super().__init__("camera_stream", **kwargs)
         p = self.declare_parameter
-        v = declare(self, config_file="", frame_id="axis_camera", camera_info_file="")
+        v = declare(self, config_file="", frame_id=tf.CAMERA_OPTICAL, camera_info_file="")
         section = read_section(v.config_file, "camera_stream")
         # the file's values, checked, are the parameters' defaults (the url may be given
         # as a parameter only); the parameters are checked again

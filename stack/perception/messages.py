@@ -173,6 +173,7 @@ def camera_state_from_json(text: str, now_s: float) -> CameraPersonState:
             direction=directions[d.get("direction", "Not moving")],
             missed_frames=int(d.get("missed_frames", 0)),
             warning=d.get("warning"),
+            people_m=tuple((float(q[0]), float(q[1])) for q in d.get("people_m") or ()),
         )
     except (
         json.JSONDecodeError,

@@ -75,7 +75,7 @@ from stack.perception.tracker import (
     TrackEstimate,
     measurements,
 )
-from stack.vocabulary import NOT_MOVING
+from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
 
 _FAR = 1e6  # cost of a forbidden pair (outside the gate)
 
@@ -405,6 +405,20 @@ def model_persons(people: Sequence[SlotPerson]) -> list[tuple[int | None, str]]:
     """The slots as ``FactoredModel.observation_index`` takes them: [(cell or None,
     velocity label)], slot 0 first (None: "No person")."""
     return [(p.cell, p.velocity_label) for p in sorted(people, key=lambda p: p.slot)]
+
+
+def slot_labels(people: Sequence[SlotPerson], unseen: bool = False) -> list[dict[str, str]]:
+    """The slots as the observations message carries them (issue 16), slot 0 first:
+    ``{"person": cell or "No person", "velocity": label}`` each; every slot "Unseen"
+    (velocity "Not moving") when the camera could not look at all (``unseen``)."""
+    out = []
+    for p in sorted(people, key=lambda p: p.slot):
+        if unseen:
+            out.append({"person": UNSEEN, "velocity": NOT_MOVING})
+        else:
+            label = NO_PERSON if p.cell is None else str(p.cell)
+            out.append({"person": label, "velocity": p.velocity_label})
+    return out
 
 
 class PeoplePerception:

@@ -128,7 +128,10 @@ class CameraPeopleNode(Node):
         self.pub_direction.publish(String(data="Not moving"))
 
     def publish(self, state, stamp_msg) -> None:
-        self.pub_state.publish(String(data=json.dumps(state.to_dict())))
+        out = state.to_dict()
+        if self.tracker.config.max_people > 1:  # several people (issue 16): all of them
+            out["people_m"] = [list(q) for q in state.people_m]
+        self.pub_state.publish(String(data=json.dumps(out)))
         seen = state.status is PersonStatus.PERSON and state.position_m is not None
         self.pub_cell.publish(String(data=str(state.cell) if seen and state.cell else NO_PERSON))
         self.pub_direction.publish(String(data=state.direction.label))

@@ -5,7 +5,9 @@ Subscribes (names are parameters):
     ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame (the twin's odom
         frame is the map frame); scans are transformed with the latest pose. With
         ``pose_source: tf`` instead ``/tf`` and ``/tf_static``: the pose is looked up as
-        ``map <- base_link`` (on a robot, where odometry drifts from the map).
+        ``map <- laser_frame`` (on a robot, where odometry drifts from the map; the laser's
+        mount then comes from TF's ``base_link -> laser_frame``, and the ``laser_*``
+        parameters are not used).
     ``/map`` nav_msgs/OccupancyGrid (transient local): segments on its obstacles
         (chair and table legs) are ignored.
 
@@ -20,7 +22,8 @@ Parameters: ``config_file`` (YAML with optional ``legs``, ``tracker`` and
 ``observations`` sections), ``scan_topic``, ``odom_topic``, ``map_topic``,
 ``map_frame``, ``lockstep`` (see :mod:`stack.ros_lockstep`), ``laser_x_m``,
 ``laser_y_m``, ``laser_yaw_rad`` (the laser's mount on the
-robot), ``pose_source`` (odom | tf), ``tf_timeout_s`` (1.0: how long the TF chain may be
+robot, with ``pose_source: odom``), ``laser_frame`` (``laser``: the scan's frame in TF),
+``pose_source`` (odom | tf), ``tf_timeout_s`` (1.0: how long the TF chain may be
 missing before a warning), ``max_pose_age_s`` (older poses make the scan unusable),
 ``max_future_stamp_s`` (1.0) and ``max_past_stamp_s`` (0: no limit): a scan or odometry
 message stamped further from the node's clock is ignored and counted
@@ -39,6 +42,7 @@ from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 
 import stack.topics as topic
+from stack import tf
 from stack.cells import ConfigError
 from stack.perception._config import load_config_file
 from stack.perception.errors import BadScanError
@@ -70,6 +74,7 @@ class LegsNode(Node):
             map_frame="map",
             pose_source="odom",
             tf_timeout_s=1.0,
+            laser_frame=tf.LASER,
             laser_x_m=0.0,
             laser_y_m=0.0,
             laser_yaw_rad=0.0,
@@ -105,7 +110,11 @@ class LegsNode(Node):
         )
         ls.subscription(OccupancyGrid, topics["map"], self.on_map, latched)
         if v.pose_source == "tf":
-            self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s, self.map_frame)
+            # the laser's own pose: TF holds its mount (base_link -> laser) on any robot
+            self.laser_mount = Pose2D(0.0, 0.0, 0.0)
+            self.map_pose = MapPose(
+                ls, self.on_map_pose, v.tf_timeout_s, self.map_frame, v.laser_frame
+            )
         else:
             ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
         ls.subscription(LaserScan, topics["scan"], self.on_scan, qos_profile_sensor_data)
@@ -147,11 +156,12 @@ class LegsNode(Node):
 
     def on_scan(self, msg: LaserScan) -> None:
         """Transform with the pose of the scan's instant: a scan that arrives before
-        that pose waits for it (at most one scan waits; a newer one replaces it)."""
+        that pose waits for it (at most one scan waits; a newer one replaces it). The
+        first scan waits for the first pose too (through TF the pose comes a hop later)."""
         stamp = stamp_to_s(msg.header.stamp)
         if not self._stamp_ok("scan", stamp):
             return
-        if self.pose is not None and self.pose_stamp_s + 1e-6 < stamp:
+        if self.pose is None or self.pose_stamp_s + 1e-6 < stamp:
             if self._waiting_scan is not None:
                 self.process_scan(self._waiting_scan[1])  # its pose never came: use the last
             self._waiting_scan = (stamp - 1e-6, msg)

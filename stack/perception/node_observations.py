@@ -24,9 +24,11 @@ not share its clock. Parameters: ``config_file`` (optional ``grid``, ``observati
 and ``visibility`` sections), ``calibration_file`` (the camera's; with it the cells the
 robot hides from the camera are known, see :mod:`stack.perception.visibility`),
 ``lockstep`` (see :mod:`stack.ros_lockstep`), ``pose_source`` (odom | tf),
-``tf_timeout_s`` (1.0), ``decision_period_s`` (0: only on
-request), topic names. A message that cannot be used is logged and skipped; the node
-never dies of one.
+``tf_timeout_s`` (1.0), ``decision_period_s`` (0: only on request), ``people`` (the
+task's; 2 or more adds ``"people"``: one {person, velocity} per person slot, slot 0
+first, from :class:`stack.perception.multi.PeoplePerception` on the camera's
+``people_m`` and the laser tracks; docs/PERCEPTION.md), topic names. A message that
+cannot be used is logged and skipped; the node never dies of one.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from stack.perception.errors import CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import Pose2D
 from stack.perception.messages import camera_state_from_json, pose_from_msg, tracks_from_dict
+from stack.perception.multi import PeoplePerception, SlotConfig, SlotPerson, slot_labels
 from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
@@ -65,6 +68,7 @@ class ObservationsNode(Node):
             pose_source="odom",
             tf_timeout_s=1.0,
             lockstep=False,
+            people=1,
         )
         calibration_file, period_s = v.calibration_file, v.decision_period_s
         if v.pose_source not in ("odom", "tf"):
@@ -79,7 +83,18 @@ class ObservationsNode(Node):
         )
         if period_s < 0:
             raise ConfigError("decision_period_s", period_s, "must be >= 0")
+        if v.people < 1:
+            raise ConfigError("people", v.people, "must be >= 1")
         grid, sections = load_config_file(v.config_file)
+        # several people (issue 16): person slots; one person: the combiner alone
+        self.people = (
+            PeoplePerception(
+                grid, SlotConfig.from_dict({**(sections.get("slots") or {}), "slots": v.people})
+            )
+            if v.people > 1
+            else None
+        )
+        self.slot_people: tuple[SlotPerson, ...] = tuple(SlotPerson(k) for k in range(v.people))
         visibility = None
         if calibration_file:
             try:
@@ -121,6 +136,10 @@ class ObservationsNode(Node):
     def on_person(self, msg: String) -> None:
         try:
             self.camera = camera_state_from_json(msg.data, self._now_s())
+            if self.people is not None:
+                self.slot_people = self.people.update(
+                    self.camera.stamp_s, self.camera.people_m, self.tracks
+                )
         except ValueError as err:
             self.get_logger().warning(f"person message ignored: {err}", throttle_duration_sec=5.0)
 
@@ -147,8 +166,11 @@ class ObservationsNode(Node):
         except (ValueError, ArithmeticError) as err:  # never die of one bad input
             self.get_logger().error(f"observation skipped: {err}", throttle_duration_sec=5.0)
             return
+        text = obs.to_json()
+        if self.people is not None:
+            text = json.dumps({**obs.to_dict(), "people": slot_labels(self.slot_people, obs.blind)})
         labels = {
-            "": obs.to_json(),
+            "": text,
             "robot": obs.robot_label,
             "person": obs.person_label,
             "velocity": obs.velocity_label,

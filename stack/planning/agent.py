@@ -61,6 +61,7 @@ class Observed:
     velocity: str  # "Not moving" or "East higher", ...
     hidden: tuple[tuple[int, float], ...] = ()
     source: str = ""
+    people: tuple[tuple[str, str], ...] = ()  # (person, velocity) per person slot (issue 16)
 
     @classmethod
     def from_dict(cls, data: Any) -> Observed:
@@ -84,7 +85,7 @@ class Observed:
         source = data.get("source", "")
         return cls(
             labels["robot"], labels["person"], labels["velocity"], parsed,
-            source if isinstance(source, str) else "",
+            source if isinstance(source, str) else "", _people(data.get("people")),
         )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
@@ -97,10 +98,34 @@ class Observed:
             out["hidden"] = {str(c): round(f, 3) for c, f in self.hidden}
         if self.source:
             out["source"] = self.source
+        if self.people:
+            out["people"] = [{"person": p, "velocity": v} for p, v in self.people]
         return out
 
 
-def _cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
+def _people(data: Any) -> tuple[tuple[str, str], ...]:
+    """The observation's ``people`` list (absent: ()).
+
+    Raises:
+        ObservationError: not a list of {"person": str, "velocity": str} objects.
+    """
+    if data is None:
+        return ()
+    if not isinstance(data, list):
+        raise ObservationError(f"observation 'people' must be a list, got {type(data).__name__}")
+    out = []
+    for i, item in enumerate(data):
+        if not isinstance(item, dict) or not all(
+            isinstance(item.get(k), str) for k in ("person", "velocity")
+        ):
+            raise ObservationError(
+                f"observation 'people' entry {i + 1} must have string 'person' and 'velocity'"
+            )
+        out.append((item["person"], item["velocity"]))
+    return tuple(out)
+
+
+def parse_cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
     if label == none_label:
         return None
     if label.isdigit() and int(label) in cells:
@@ -242,8 +267,10 @@ class PlannerAgent:
 
     def _observation_index(self, o: Observed) -> tuple[int, int | None, int | None, str]:
         cells = self.model.task.grid.cells
-        robot = _cell(o.robot, OUT_OF_MAP, "robot cell", cells)
-        person = None if o.person == UNSEEN else _cell(o.person, NO_PERSON, "person cell", cells)
+        robot = parse_cell(o.robot, OUT_OF_MAP, "robot cell", cells)
+        person = (
+            None if o.person == UNSEEN else parse_cell(o.person, NO_PERSON, "person cell", cells)
+        )
         if o.velocity not in VELOCITIES:
             raise ObservationError(f"unknown velocity {o.velocity!r}; known: {VELOCITIES}")
         direction = o.velocity.split(" ")[0] if o.velocity != NOT_MOVING else NOT_MOVING

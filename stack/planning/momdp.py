@@ -11,23 +11,25 @@ more structure that this module uses:
   for every action and every next robot cell: one posterior per person observation;
 - the robot's dynamics P(x' | x, a) do not depend on the person.
 
-Both bounds are kept per robot cell:
+A node of the search is therefore a person belief b alone, holding both bounds for
+every robot cell; a backup at b updates all cells at once:
 
 - **lower bound**: alpha vectors over y for each x, started from the flat model's
   blind and "walk to a cell and wait" policies cut into their robot-cell blocks;
-  every backup adds a vector at its node's cell (never a wholesale replacement),
-  and a cell's set is pruned to the vectors that are best at some backed-up belief
-  of that cell (dominance at the sampled beliefs);
+  a backup adds, for every cell whose bound improves at b, the backed-up vector
+  (never a wholesale replacement), and a cell's set is pruned to the vectors that
+  are best at some backed-up belief (dominance at the sampled beliefs). Before the
+  trials, person beliefs sampled from the starts (the person evolves whatever the
+  robot does, so these are the beliefs every policy meets) are backed up in rounds,
+  deepest first: this raises the lower bound far faster than trials, which SARSOP's
+  target levels stop a few steps from the root;
 - **upper bound**: the fast informed bound computed on the factors (a sweep is one
   (X, Y, Y) x (Y, Z) product per action, milliseconds, against a second for the
-  flat form), refined by sawtooth interpolation of belief-value points per cell.
-  A node's bound is cached and only re-interpolated against the points added since
-  it was last computed (a cached upper bound stays valid: the bound only decreases).
-
-The trial rule is the flat search's (:mod:`stack.planning.sarsop`): the action with
-the best upper bound, the observation (here the pair next cell, person observation)
-with the largest weighted excess gap, SARSOP's target levels, backups deepest first.
-The search is deterministic.
+  flat form), refined by the backups in the tree, and optionally (``sawtooth``) by
+  interpolating belief-value points (:class:`_Points`). Measured on the task: the
+  interpolation, and even a point-based value iteration of the upper bound over 550
+  sampled beliefs to its fixed point, lowered V(b0)'s bound by less than 0.01; the
+  bound's looseness is spread over the whole 100-step horizon (docs/BENCHMARKS.md).
 
 The policy the rest of the system runs is flat: each cell's vectors become flat
 vectors that hold the cell's values on its block and a lower bound of every state's
@@ -115,6 +117,25 @@ def mixed_from_task(model) -> MixedModel:
     )
 
 
+def _mdp_start(m: MixedModel, deadline: float, sweeps: int = 4000) -> np.ndarray:
+    """A start for the fast informed bound: value iteration of the fully observable
+    MDP down from max R / (1 - gamma) (a sweep costs ~0.1 ms against ~10 ms for the
+    fast informed bound's). Every iterate Q satisfies M(Q) <= Q for the MDP operator M,
+    and the fast informed bound's operator H lies below M, so H(Q) <= Q: the start is
+    above the fast informed bound's fixed point, as its iteration needs."""
+    g = m.discount
+    Q = np.full(m.R.shape, float(m.R.max()) / (1 - g))
+    TYT = m.TY
+    for i in range(sweeps):
+        U = Q.max(axis=2) @ TYT.T  # (X', Y): sum_y' P(y'|y) max_a' Q(x', y', a')
+        new = np.minimum(m.R + g * np.einsum("axk,ky->xya", m.TX, U), Q)
+        done = float((Q - new).max()) < 1e-9
+        Q = new
+        if done or (i % 100 == 0 and time.perf_counter() > deadline):
+            break
+    return Q
+
+
 def factored_fib(
     m: MixedModel, tol: float = 1e-3, max_iterations: int = 5000, deadline: float = math.inf
 ) -> np.ndarray:
@@ -123,7 +144,7 @@ def factored_fib(
     H(Q)(x,y,a) = R(x,y,a) + gamma sum_x' P(x'|x,a) sum_z max_a' sum_y' P(y'|y) P(z|y') Q(x',y',a')
 
     H is monotone and a contraction, so any Q with H(Q) <= Q lies above the fixed point
-    (H^n(Q) decreases to it). The iteration starts from max R / (1 - gamma) and, as
+    (H^n(Q) decreases to it). The iteration starts from the MDP's values (QMDP) and, as
     gamma = 0.99 makes plain iteration slow (~600 sweeps), extrapolates each step
     along the last decrease (Q - beta (Q_prev - Q)) and keeps the extrapolated table
     only where that check H(Q) <= Q holds for the whole table; otherwise beta halves.
@@ -137,7 +158,7 @@ def factored_fib(
         U = W.max(axis=3).sum(axis=2)  # (X', Y)
         return m.R + g * np.einsum("axk,ky->xya", m.TX, U)
 
-    Q = np.full(m.R.shape, float(m.R.max()) / (1 - g))  # H(Q) <= Q holds
+    Q = _mdp_start(m, deadline)  # H(Q) <= Q holds
     HQ = np.minimum(H(Q), Q)
     beta = 1.0
     for _ in range(max_iterations):
@@ -157,100 +178,181 @@ def factored_fib(
 
 
 class _Node:
-    __slots__ = ("x", "b", "ub", "lb", "seen", "kids", "point", "key")
+    """A person belief b with the bounds of every robot cell at it: lb[x], ub[x]."""
 
-    def __init__(self, x: int, b: np.ndarray, ub: float, lb: float, seen: int):
-        self.x = x
+    __slots__ = ("b", "ub", "lb", "kids", "point", "group")
+
+    def __init__(self, b: np.ndarray, ub: np.ndarray, lb: np.ndarray, group: int = -1):
         self.b = b
-        self.ub = ub
-        self.lb = lb
-        self.seen = seen  # points of cell x already interpolated into ub
+        self.group = group  # the observation this belief followed (-1: a start)
+        self.ub = ub  # (X,)
+        self.lb = lb  # (X,) the best vector of each cell at b
         self.kids: _Kids | None = None
-        self.point = -1
+        self.point = -1  # row of the upper bound's points; -1 never backed up, -2 no point
 
 
 class _Kids:
-    """The successors of a node: one person posterior per observation z, and per
-    action the next cells with their probabilities. Successor nodes are made only
-    when a trial descends into them; until then their bounds live in ``lb``/``ub``."""
+    """The successors of a node: one person posterior per observation z, shared by
+    every action and next cell. The posteriors (Y, nz) are recomputed from the parent's
+    belief when needed (cheap) rather than kept; the bounds of every (cell, z) pair
+    are kept, with the vectors and points already folded in, so a refresh only
+    evaluates what was added since."""
 
-    __slots__ = ("pz", "zs", "b", "xs", "nodes", "reward", "px", "lb", "ub", "seen")
+    __slots__ = ("pz", "zs", "nodes", "reward", "lbv", "lbk", "lb_seen", "lb_gen", "ub", "seen")
 
-    def __init__(self, pz, zs, b, xs, reward, px, lb, ub, seen):
+    def __init__(self, pz, zs, reward, X):
         self.pz = pz  # (nz,) P(z | b)
-        self.zs = zs  # (nz,) the observations
-        # the parent's belief: the posteriors (Y, nz) are recomputed from it when needed
-        # (MixedSearch._posteriors) rather than kept, 88 kB a node in the task
-        self.b = b
-        self.xs = xs  # next cells reachable under some action
-        self.nodes: dict[tuple[int, int], _Node] = {}  # (i, j) -> node (xs[i], M[:, j])
-        self.reward = reward  # (A,) R(x, b, a)
-        self.px = px  # (A, len(xs)) P(x' | x, a)
-        self.lb = lb  # (len(xs), nz)
-        self.ub = ub  # (len(xs), nz)
-        self.seen = seen  # (len(xs),) points of each next cell interpolated into ub
+        self.zs = zs  # (nz,) the observations with P(z | b) > 0
+        self.nodes: dict[int, _Node] = {}  # j -> successor node (made when entered)
+        self.reward = reward  # (X, A) R(x, b, a)
+        nz = zs.size
+        self.lbv = np.full((X, nz), -np.inf)  # best vector value of cell x at posterior j
+        self.lbk = np.zeros((X, nz), dtype=np.int32)  # ... and its column in the cell
+        self.lb_seen = np.zeros(X, dtype=np.int64)  # columns of each cell evaluated
+        self.lb_gen = np.full(X, -1, dtype=np.int64)  # the cell's pruning generation
+        self.ub = np.empty((X, nz))
+        self.seen = 0  # upper-bound points folded into ub
 
 
-class _Cell:
-    """One robot cell's lower-bound vectors and upper-bound points."""
+class _Vectors:
+    """One robot cell's lower-bound vectors (columns of G, over the person factor)."""
 
-    def __init__(self, Y: int, alphas: np.ndarray, actions: np.ndarray, corner: np.ndarray):
-        self.G = np.ascontiguousarray(alphas.T)  # (Y, K)
-        self.act = np.asarray(actions, dtype=int)
-        self.pruned_at = self.G.shape[1]
-        self.corner = corner  # (Y,) upper bound at the certain beliefs
-        self.P = np.empty((0, Y))  # points
-        self.Pinv = np.empty((0, Y))  # 1 / P where P > 0, 1e300 elsewhere
-        self.excess = np.empty(0)  # v_i - corner . b_i (<= 0)
-        self.n_points = 0
+    def __init__(self, alphas: np.ndarray, actions: np.ndarray):
+        Y = alphas.shape[1]
+        cap = max(64, 2 * len(actions))
+        self.G = np.empty((Y, cap))
+        self.G[:, : len(actions)] = alphas.T
+        self.act = np.empty(cap, dtype=int)
+        self.act[: len(actions)] = actions
+        self.n = len(actions)
+        self.gen = 0  # bumped by every pruning (column indices change)
+        self.pruned_at = self.n
 
-    def add_alpha(self, alpha: np.ndarray, action: int) -> None:
-        self.G = np.hstack([self.G, alpha[:, None]])
-        self.act = np.append(self.act, action)
+    @property
+    def cols(self) -> np.ndarray:
+        return self.G[:, : self.n]
 
-    def add_point(self, b: np.ndarray, v: float) -> int:
-        ex = v - float(self.corner @ b)
-        if ex >= -1e-12:
-            return -1
-        if self.n_points == self.P.shape[0]:
-            cap = max(16, 2 * self.n_points)
-            P = np.empty((cap, b.size))
-            P[: self.n_points] = self.P[: self.n_points]
-            Pinv = np.empty((cap, b.size))
-            Pinv[: self.n_points] = self.Pinv[: self.n_points]
-            excess = np.empty(cap)
-            excess[: self.n_points] = self.excess[: self.n_points]
-            self.P, self.Pinv, self.excess = P, Pinv, excess
-        i = self.n_points
+    def add(self, alpha: np.ndarray, action: int) -> None:
+        if self.n == self.G.shape[1]:
+            G = np.empty((self.G.shape[0], 2 * self.n))
+            G[:, : self.n] = self.G[:, : self.n]
+            act = np.empty(2 * self.n, dtype=int)
+            act[: self.n] = self.act[: self.n]
+            self.G, self.act = G, act
+        self.G[:, self.n] = alpha
+        self.act[self.n] = action
+        self.n += 1
+
+    def keep(self, idx: np.ndarray) -> None:
+        k = idx.size
+        self.G[:, :k] = self.G[:, idx]
+        self.act[:k] = self.act[idx]
+        self.n = self.pruned_at = k
+        self.gen += 1
+
+
+class _Points:
+    """Belief-value points of the upper bound, shared by every robot cell.
+
+    If b = r b_i + (1 - r) b' with b' a belief (any r <= min_y b(y) / b_i(y)), convexity
+    of V* gives V*(b) <= r v_i + (1 - r) U(b') for any upper bound U. The sawtooth of
+    Hauskrecht (2000) takes U linear (the corner values); here U is the fast informed
+    bound, max_a Q_a . b', so a point's term is
+
+        r v_i(x) + max_a (Q_xa . b - r Q_xa . b_i),
+
+    which is never above the fast informed bound at b's neighbour b' (with 65-value
+    beliefs the corner plane lies far above the fast informed bound and the plain
+    sawtooth never wins). A point is a person belief with a value per cell; a posterior
+    after observation z is compared only with the points that were themselves
+    posteriors after z (their *group*): the minimum may run over any subset of the
+    points, and those are the only ones near it.
+    """
+
+    def __init__(self, fib: np.ndarray, X: int):
+        self.fib = fib  # (X*A, Y) the fast informed bound's vectors
+        Y = fib.shape[1]
+        self.X = X
+        self.P = np.empty((0, Y))
+        self.Pinv = np.empty((0, Y))
+        self.v = np.empty((0, X))  # the upper bound at b_i per cell
+        self.QB = np.empty((0, fib.shape[0]))  # Q_xa . b_i
+        self.group = np.empty(0, dtype=np.int64)  # the observation that produced b_i
+        self.n = 0
+
+    def add(self, b: np.ndarray, v: np.ndarray, group: int) -> int:
+        if self.n == self.P.shape[0]:
+            cap = max(64, 2 * self.n)
+            for name in ("P", "Pinv", "v", "QB"):
+                old = getattr(self, name)
+                new = np.empty((cap, old.shape[1]))
+                new[: self.n] = old[: self.n]
+                setattr(self, name, new)
+            g = np.empty(cap, dtype=np.int64)
+            g[: self.n] = self.group[: self.n]
+            self.group = g
+        i = self.n
         self.P[i] = b
         # 1e300, not inf, where the point has no mass: 0 * inf would be nan
         self.Pinv[i] = np.where(b > 0, 1.0 / np.where(b > 0, b, 1.0), 1e300)
-        self.excess[i] = ex
-        self.n_points += 1
+        self.v[i] = v
+        self.QB[i] = self.fib @ b
+        self.group[i] = group
+        self.n += 1
         return i
 
-    def update_point(self, i: int, b: np.ndarray, v: float) -> None:
-        self.excess[i] = min(self.excess[i], v - float(self.corner @ b))
+    def update(self, i: int, v: np.ndarray) -> None:
+        np.minimum(self.v[i], v, out=self.v[i])
 
-    def sawtooth(self, B: np.ndarray, start: int = 0) -> np.ndarray:
-        """min over points start.. of the sawtooth at the beliefs B (Y, n): the
-        correction below the corner plane (<= 0), shape (n,)."""
-        n = B.shape[1]
-        if self.n_points <= start:
-            return np.zeros(n)
-        out = np.zeros(n)
-        Pinv = self.Pinv[start : self.n_points]
-        ex = self.excess[start : self.n_points]
-        # ratio[i, j] = min_y B[y, j] / P[i, y]; chunks bound the (pts, Y, n) temporary
-        step = max(1, 2_000_000 // max(1, B.size))
-        for lo in range(0, Pinv.shape[0], step):
-            R = (Pinv[lo : lo + step, :, None] * B[None, :, :]).min(axis=1)
-            out = np.minimum(out, (R * ex[lo : lo + step, None]).min(axis=0))
-        return out
+    def term(self, i: np.ndarray, ratio: np.ndarray, QM: np.ndarray) -> np.ndarray:
+        """The points' terms (X, p) at beliefs with fast-informed values QM (X*A, p)."""
+        X = self.X
+        d = (QM - ratio * self.QB[i].T).reshape(X, -1, i.size).max(axis=1)
+        return ratio * self.v[i].T + d
+
+    def correct(self, out: np.ndarray, B: np.ndarray, col_of_z: np.ndarray, start: int) -> None:
+        """Lower ``out`` (X, n), the bounds at the beliefs B (Y, n), by the points
+        start.. whose group is the observation of each column (col_of_z: observation ->
+        column, -1 if none)."""
+        if self.n <= start:
+            return
+        g = self.group[start : self.n]
+        j = np.where(g >= 0, col_of_z[g], -1)
+        i = np.flatnonzero(j >= 0) + start
+        if i.size == 0:
+            return
+        j = j[i - start]
+        Bj = B[:, j]
+        ratio = (self.Pinv[i] * Bj.T).min(axis=1)  # (p,)
+        vals = self.term(i, ratio, self.fib @ Bj)
+        np.minimum.at(out.T, j, vals.T)
+
+
+class _Root:
+    """A start: a node and the robot's cell there (lb/ub as the stopping rules read them)."""
+
+    def __init__(self, node: _Node, x: int):
+        self.node = node
+        self.x = x
+
+    @property
+    def lb(self) -> float:
+        return float(self.node.lb[self.x])
+
+    @property
+    def ub(self) -> float:
+        return float(self.node.ub[self.x])
 
 
 class MixedSearch(StoppingRules):
-    """HSVI2/SARSOP-style search over (observed cell, person belief) pairs.
+    """HSVI2/SARSOP-style search over person beliefs, every robot cell at once.
+
+    A node of the tree is a person belief b; since the person's dynamics and
+    observations do not depend on the robot, the tree is the same for every robot
+    cell, and a node holds both bounds for all cells (13 values each in the task). A
+    backup at b then updates every cell: the bounds of all (cell, action) pairs are one
+    (A, X, X) x (X,) product over the successors' expected values, and the new lower-
+    bound vectors of all cells share the successors' best vectors.
 
     Args:
         m: the model.
@@ -260,6 +362,7 @@ class MixedSearch(StoppingRules):
         roots: flat beliefs, each certain about x; the first is b0 (bounds reported).
         start: time.perf_counter() at which the time limit started.
         progress: called with :class:`SearchStats` at most once per progress_every_s.
+        sawtooth: refine the upper bound between nodes by sawtooth interpolation.
     """
 
     def __init__(
@@ -271,9 +374,16 @@ class MixedSearch(StoppingRules):
         start: float | None = None,
         progress: Callable[[SearchStats], None] | None = None,
         sawtooth: bool = False,
+        beliefs: int = 0,
+        rounds: int = 0,
+        depth: int = 30,
     ):
         self.m = m
         self.sawtooth = sawtooth
+        self.n_beliefs = beliefs
+        self.rounds = rounds
+        self.depth = depth
+        self.rounds_done = 0
         self.config = config
         self.start = time.perf_counter() if start is None else start
         self.deadline = (
@@ -291,221 +401,256 @@ class MixedSearch(StoppingRules):
         )
         self.Q_upper = factored_fib(m, deadline=fib_deadline)  # (X, Y, A)
         self.upper_initial = self.Q_upper
+        # (X*A, Y): the fast informed bound's vectors, a row per (cell, action)
+        self._fib = np.ascontiguousarray(self.Q_upper.transpose(0, 2, 1).reshape(X * m.A, Y))
+        self.points = _Points(self._fib, X)
         alphas, actions = seed_alphas
         blocks = np.asarray(alphas, dtype=float).reshape(len(actions), X, Y)
-        self.cells = [
-            _Cell(Y, blocks[:, x, :], actions, self.Q_upper[x].max(axis=1)) for x in range(X)
-        ]
+        self.cells = [_Vectors(blocks[:, x, :], np.asarray(actions)) for x in range(X)]
         self.n_initial_alphas = len(actions)
         self.TYT = np.ascontiguousarray(m.TY.T)
-        # the next cells of each cell, and their probabilities per action
-        self.next_cells = []
-        for x in range(X):
-            xs = np.flatnonzero(m.TX[:, x, :].max(axis=0) > 0)
-            self.next_cells.append((xs, np.ascontiguousarray(m.TX[:, x, xs])))
+        self.RT = np.ascontiguousarray(m.R.transpose(0, 2, 1))  # (X, A, Y)
         self.nodes: dict[bytes, _Node] = {}
-        self._post_for: _Kids | None = None
-        self._post = np.empty((0, 0))
+        self.backed: list[_Node] = []  # nodes backed up at least once
+        self._B = np.empty((0, Y))  # their beliefs, a row each (for pruning)
         self.backups = 0
         self.trials = 0
         self.history: list[SearchStats] = []
         self._last_report = -math.inf
-        self.roots: list[_Node] = []
+        self.roots: list[_Root] = []
         for b in roots:
             x, by = m.split(b)
-            node = self._node(x, by)
-            if all(node is not r for r in self.roots):
-                self.roots.append(node)
+            if not any(r.x == x and np.array_equal(r.node.b, by) for r in self.roots):
+                self.roots.append(_Root(self._node(by), x))
         self.root = self.roots[0]
         self.initial_lower = self.root.lb
 
     # -- bounds at beliefs ----------------------------------------------------------
-    def _lower(self, x: int, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Best vector value and index at the beliefs B (Y, n) of cell x."""
-        V = B.T @ self.cells[x].G
-        k = V.argmax(axis=1)
-        return V[np.arange(k.size), k], k
+    def _lower_all(self, b: np.ndarray) -> np.ndarray:
+        """The best vector value of every cell at the person belief b, (X,)."""
+        return np.array([float((b @ c.cols).max()) for c in self.cells])
 
-    def _upper_fresh(self, x: int, B: np.ndarray, start: int = 0) -> np.ndarray:
-        c = self.cells[x]
-        fib = (self.Q_upper[x].T @ B).max(axis=0) if start == 0 else np.inf
-        return np.minimum(fib, c.corner @ B + c.sawtooth(B, start))
+    def _fib_at(self, B: np.ndarray) -> np.ndarray:
+        """The fast informed bound of every cell at the beliefs B (Y, n), (X, n)."""
+        X, A = self.m.X, self.m.A
+        return (self._fib @ B).reshape(X, A, -1).max(axis=1)
 
-    def _node(self, x: int, b: np.ndarray) -> _Node:
-        key = bytes([x]) + np.round(b, 10).tobytes() if self.m.X < 256 else None
-        assert key is not None
+    def _key(self, b: np.ndarray) -> bytes:
+        return np.round(b, 10).tobytes()
+
+    def _node(self, b: np.ndarray) -> _Node:
+        key = self._key(b)
         node = self.nodes.get(key)
         if node is None:
-            B = b[:, None]
-            ub = float(self._upper_fresh(x, B)[0])
-            lb = float(self._lower(x, B)[0][0])
-            node = _Node(x, b, ub, min(lb, ub), self.cells[x].n_points)
+            ub = self._fib_at(b[:, None])[:, 0]
+            lb = np.minimum(self._lower_all(b), ub)
+            node = _Node(b, ub, lb)
             self.nodes[key] = node
         return node
 
-    def _expand(self, node: _Node) -> _Kids:
-        if node.kids is not None:
-            return node.kids
-        m = self.m
-        pred = self.TYT @ node.b
-        joint = m.OY * pred[:, None]
-        pz = joint.sum(axis=0)
-        zs = np.flatnonzero(pz > _PROB_EPS)
-        M = joint[:, zs] / pz[zs]
-        xs, px = self.next_cells[node.x]
-        lb = np.empty((xs.size, zs.size))
-        ub = np.empty((xs.size, zs.size))
-        seen = np.empty(xs.size, dtype=int)
-        for i, x2 in enumerate(xs):
-            ub[i] = self._upper_fresh(int(x2), M)
-            lb[i] = np.minimum(self._lower(int(x2), M)[0], ub[i])
-            seen[i] = self.cells[int(x2)].n_points
-        reward = node.b @ m.R[node.x]  # (A,)
-        node.kids = _Kids(pz[zs], zs, node.b, xs, reward, px, lb, ub, seen)
-        return node.kids
+    def _posteriors(self, node: _Node, kids: _Kids) -> np.ndarray:
+        """The successor person beliefs (Y, nz); the same operations as in ``_expand``,
+        so the same numbers."""
+        joint = self.m.OY * (self.TYT @ node.b)[:, None]
+        return joint[:, kids.zs] / kids.pz
 
-    def _posteriors(self, kids: _Kids) -> np.ndarray:
-        """The successor person beliefs (Y, nz) of ``kids``, computed as ``_expand`` did
-        (the same operations, so the same numbers); the last one is kept."""
-        if self._post_for is not kids:
-            joint = self.m.OY * (self.TYT @ kids.b)[:, None]
-            self._post = joint[:, kids.zs] / kids.pz
-            self._post_for = kids
-        return self._post
+    def _expand(self, node: _Node) -> tuple[_Kids, np.ndarray]:
+        """The node's successors with their bounds up to date, and the posteriors."""
+        kids = node.kids
+        if kids is None:
+            joint = self.m.OY * (self.TYT @ node.b)[:, None]
+            pz = joint.sum(axis=0)
+            zs = np.flatnonzero(pz > _PROB_EPS)
+            kids = _Kids(pz[zs], zs, np.einsum("xay,y->xa", self.RT, node.b), self.m.X)
+            M = joint[:, zs] / kids.pz
+            kids.ub[:] = self._fib_at(M)
+            node.kids = kids
+        else:
+            M = self._posteriors(node, kids)
+        if kids.seen < self.points.n:
+            col = np.full(self.m.OY.shape[1], -1)
+            col[kids.zs] = np.arange(kids.zs.size)
+            self.points.correct(kids.ub, M, col, kids.seen)
+            kids.seen = self.points.n
+        for x, c in enumerate(self.cells):
+            if kids.lb_gen[x] != c.gen:
+                V = M.T @ c.cols  # (nz, K)
+                k = V.argmax(axis=1)
+                kids.lbv[x] = V[np.arange(k.size), k]
+                kids.lbk[x] = k
+                kids.lb_gen[x] = c.gen
+            elif kids.lb_seen[x] < c.n:
+                s = int(kids.lb_seen[x])
+                V = M.T @ c.G[:, s : c.n]
+                k = V.argmax(axis=1)
+                v = V[np.arange(k.size), k]
+                better = v > kids.lbv[x]
+                kids.lbv[x, better] = v[better]
+                kids.lbk[x, better] = k[better] + s
+            kids.lb_seen[x] = c.n
+        for j, n in kids.nodes.items():
+            np.minimum(kids.ub[:, j], n.ub, out=kids.ub[:, j])
+            n.ub = kids.ub[:, j].copy()
+            n.lb = np.minimum(kids.lbv[:, j], n.ub)
+        return kids, M
 
-    def _child(self, kids: _Kids, i: int, j: int) -> _Node:
-        node = kids.nodes.get((i, j))
+    def _child(self, kids: _Kids, j: int, M: np.ndarray) -> _Node:
+        node = kids.nodes.get(j)
         if node is None:
-            x2 = int(kids.xs[i])
-            b = self._posteriors(kids)[:, j].copy()
-            key = bytes([x2]) + np.round(b, 10).tobytes()
+            b = M[:, j].copy()
+            key = self._key(b)
             node = self.nodes.get(key)
             if node is None:
-                node = _Node(x2, b, float(kids.ub[i, j]), float(kids.lb[i, j]), kids.seen[i])
+                node = _Node(
+                    b,
+                    kids.ub[:, j].copy(),
+                    np.minimum(kids.lbv[:, j], kids.ub[:, j]),
+                    int(kids.zs[j]),
+                )
                 self.nodes[key] = node
-            kids.nodes[(i, j)] = node
+            kids.nodes[j] = node
         return node
 
-    def _refresh_upper(self, kids: _Kids, i: int) -> None:
-        """Re-interpolate the successors in next cell xs[i] against new points."""
-        c = self.cells[int(kids.xs[i])]
-        if kids.seen[i] < c.n_points:
-            M = self._posteriors(kids)
-            fresh = c.corner @ M + c.sawtooth(M, int(kids.seen[i]))
-            np.minimum(kids.ub[i], fresh, out=kids.ub[i])
-            kids.seen[i] = c.n_points
-
-    def _child_bounds(self, kids: _Kids) -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) of every successor, (len(xs), nz), freshly interpolated;
-        the successors that are nodes contribute their own (backed-up) bounds."""
-        for i in range(len(kids.xs)):
-            self._refresh_upper(kids, i)
-        for (i, j), n in kids.nodes.items():
-            kids.ub[i, j] = n.ub = min(n.ub, kids.ub[i, j])
-            kids.lb[i, j] = n.lb = min(max(n.lb, kids.lb[i, j]), n.ub)
-        return kids.lb, kids.ub
+    def _q(self, kids: _Kids, v: np.ndarray) -> np.ndarray:
+        """Q(a, x) = R(x, b, a) + gamma sum_x' P(x'|x,a) sum_z P(z|b) v(x', z), (A, X)."""
+        return kids.reward.T + self.g * (self.m.TX @ (v @ kids.pz))
 
     def _backup(self, node: _Node) -> None:
-        kids = self._expand(node)
-        g = self.g
-        nx = len(kids.xs)
-        lbs = np.empty((nx, kids.zs.size))
-        best = []
-        for i, x2 in enumerate(kids.xs):
-            v, k = self._lower(int(x2), self._posteriors(kids))
-            best.append(k)
-            lbs[i] = v
-            # the vector values are what the new vector achieves: q_lower uses them, so
-            # the bound reported is the policy's own value
-            np.maximum(kids.lb[i], v, out=kids.lb[i])
-        _, ubs = self._child_bounds(kids)
-        q_lower = kids.reward + g * (kids.px @ (lbs @ kids.pz))
-        q_upper = kids.reward + g * (kids.px @ (ubs @ kids.pz))
+        kids, M = self._expand(node)
+        q_upper = self._q(kids, kids.ub)
+        q_lower = self._q(kids, kids.lbv)
         self.backups += 1
-        cell = self.cells[node.x]
-        u = float(q_upper.max())
-        if u < node.ub:
+        if node.point == -1:
+            self.backed.append(node)
+            node.point = -2  # backed up, no point yet
+        u = np.minimum(node.ub, q_upper.max(axis=0))
+        if (u < node.ub).any():
             node.ub = u
-            if node.point < 0:
-                if self.sawtooth:
-                    node.point = cell.add_point(node.b, u)
-            else:
-                cell.update_point(node.point, node.b, u)
-        a = int(q_lower.argmax())
-        if q_lower[a] > node.lb + 1e-12 * max(1.0, abs(node.lb)):
-            self._add_alpha(node, kids, a, best)
-            node.lb = float(q_lower[a])
-        node.lb = min(node.lb, node.ub)
+            if self.sawtooth:
+                if node.point < 0:
+                    node.point = self.points.add(node.b, u, node.group)
+                else:
+                    self.points.update(node.point, u)
+        cur = self._lower_all(node.b)
+        a = q_lower.argmax(axis=0)  # (X,)
+        v = q_lower[a, np.arange(self.m.X)]
+        xs = np.flatnonzero(v > cur + 1e-12 * np.maximum(1.0, np.abs(cur)))
+        if xs.size:
+            self._add_alphas(node, kids, a, xs)
+            cur[xs] = v[xs]
+        node.lb = np.minimum(cur, node.ub)
 
-    def _add_alpha(self, node: _Node, kids: _Kids, a: int, best: list[np.ndarray]) -> None:
-        """The backed-up vector at ``node`` for action a:
+    def _add_alphas(self, node: _Node, kids: _Kids, a: np.ndarray, xs: np.ndarray) -> None:
+        """The backed-up vectors at ``node`` of the cells xs, each for its action a[x]:
 
         alpha(y) = R(x,y,a) + gamma sum_y' P(y'|y) sum_x' P(x'|x,a) sum_z P(z|y') alpha_x'z(y')
         """
         m = self.m
         Z = m.OY.shape[1]
-        acc = np.zeros(m.Y)
+        S = np.empty((m.X, m.Y))
         pred = self.TYT @ node.b
-        for i, x2 in enumerate(kids.xs):
-            p = kids.px[a, i]
-            if p <= 0:
-                continue
-            c = self.cells[int(x2)]
-            # observations b cannot produce: the vector best at the prediction
-            k = np.full(Z, int((pred @ c.G).argmax()))
-            k[kids.zs] = best[i]
-            acc += p * (m.OY * c.G[:, k]).sum(axis=1)
-        alpha = m.R[node.x, :, a] + self.g * (m.TY @ acc)
-        cell = self.cells[node.x]
-        cell.add_alpha(alpha, a)
-        if cell.G.shape[1] > self.config.prune_growth * cell.pruned_at + 50:
-            self._prune(node.x)
+        for x2, c in enumerate(self.cells):
+            if kids.zs.size == Z:
+                k = kids.lbk[x2]
+            else:
+                # observations b cannot produce: the vector best at the prediction
+                k = np.full(Z, int((pred @ c.cols).argmax()))
+                k[kids.zs] = kids.lbk[x2]
+            S[x2] = (m.OY * c.G[:, k]).sum(axis=1)
+        acts = a[xs]
+        C = m.TX[acts, xs, :] @ S  # (n, Y)
+        alphas = m.R[xs, :, acts] + self.g * (C @ self.TYT)
+        for x, act, alpha in zip(xs, acts, alphas, strict=True):
+            c = self.cells[int(x)]
+            c.add(alpha, int(act))
+            if c.n > max(self.config.prune_growth * c.pruned_at, c.pruned_at + 200):
+                self._prune(int(x))
 
     def _prune(self, x: int) -> None:
-        """Keep the vectors of cell x that are best at some backed-up belief there."""
-        c = self.cells[x]
-        nodes = [n for n in self.nodes.values() if n.x == x and n.kids is not None]
-        if not nodes:
+        """Keep the vectors of cell x that are best at some backed-up belief."""
+        if not self.backed:
             return
-        B = np.column_stack([n.b for n in nodes])
-        V = B.T @ c.G
-        k = V.argmax(axis=1)
-        for n, v in zip(nodes, V[np.arange(k.size), k], strict=True):
-            n.lb = min(max(n.lb, float(v)), n.ub)
-        keep = np.unique(k)
-        c.G = np.ascontiguousarray(c.G[:, keep])
-        c.act = c.act[keep]
-        c.pruned_at = keep.size
+        c = self.cells[x]
+        if self._B.shape[0] < len(self.backed):
+            new = np.vstack([n.b for n in self.backed[self._B.shape[0] :]])
+            self._B = np.vstack([self._B, new])
+        k = (self._B @ c.cols).argmax(axis=1)
+        c.keep(np.unique(k))
+
+    def _rounds(self) -> str:
+        """Back up the sampled beliefs, deepest of each trajectory first, ``rounds``
+        times (Perseus's order of work with the search's backups: each adds the
+        improved vector of every robot cell). The lower bound climbs far faster this
+        way than by trials, whose targets stop them a few steps from the root."""
+        n_traj = max(1, -(-self.n_beliefs // self.depth))
+        sampled = self.sample_nodes(n_traj, self.depth)
+        order = list(reversed([r.node for r in self.roots] + sampled))
+        stopped = ""
+        for _ in range(self.rounds):
+            for n in order:
+                if self._late():
+                    break
+                self._backup(n)
+                self._report()
+            self.rounds_done += 1
+            stopped = self._done()
+            if stopped:
+                break
+        return stopped
+
+    def sample_nodes(self, n_traj: int, depth: int, seed: int = 0) -> list[_Node]:
+        """Person beliefs reached from the starts by simulated observations. The person
+        evolves whatever the robot does, so these are the beliefs any policy meets;
+        the nodes are made as the search would make them (with their groups)."""
+        rng = np.random.default_rng(seed)
+        m = self.m
+        out: list[_Node] = []
+        for t in range(n_traj):
+            node = self.roots[t % len(self.roots)].node
+            y = int(rng.choice(m.Y, p=node.b / node.b.sum()))
+            for _ in range(depth):
+                if self._late():
+                    return out
+                kids, M = self._expand(node)
+                y = int(rng.choice(m.Y, p=m.TY[y]))
+                z = int(rng.choice(m.OY.shape[1], p=m.OY[y]))
+                j = int(np.searchsorted(kids.zs, z))
+                if j >= kids.zs.size or kids.zs[j] != z:
+                    break
+                node = self._child(kids, j, M)
+                out.append(node)
+        return out
 
     # -- the search -----------------------------------------------------------------
     @property
     def n_alphas(self) -> int:
-        return sum(c.G.shape[1] for c in self.cells)
+        return sum(c.n for c in self.cells)
 
     def _values_to_write(self) -> int:
         return self.n_alphas * self.m.X * self.m.Y
 
     def _trial(self) -> None:
         g = self.g
+        TX = self.m.TX
         open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
         root = max(open_roots, key=lambda r: r.ub - r.lb)
         eps = self.config.trial_improvement * (root.ub - root.lb)
         L, U = root.lb, root.lb + eps
-        path = [root]
-        node = root
+        path = [root.node]
+        node, x = root.node, root.x
         t = 0
         while t < self.config.max_depth and not self._late():
-            if node.ub - node.lb <= eps * g**-t:
+            if node.ub[x] - node.lb[x] <= eps * g**-t:
                 break
-            if self.config.target_levels and node.ub <= U:
+            if self.config.target_levels and node.ub[x] <= U:
                 break
-            kids = self._expand(node)
-            lb, ub = self._child_bounds(kids)
-            q_upper = kids.reward + g * (kids.px @ (ub @ kids.pz))
-            q_lower = kids.reward + g * (kids.px @ (lb @ kids.pz))
+            kids, M = self._expand(node)
+            lb, ub = kids.lbv, kids.ub
+            q_upper = kids.reward[x] + g * (TX[:, x, :] @ (ub @ kids.pz))
+            q_lower = kids.reward[x] + g * (TX[:, x, :] @ (lb @ kids.pz))
             a = int(q_upper.argmax())
             # weighted excess over (next cell, observation) pairs
-            w = kids.px[a][:, None] * kids.pz[None, :]
+            w = TX[a, x, :][:, None] * kids.pz[None, :]
             excess = w * (ub - lb - eps * g ** -(t + 1))
             i, j = np.unravel_index(int(excess.argmax()), excess.shape)
             if w[i, j] <= 0:
@@ -514,16 +659,16 @@ class MixedSearch(StoppingRules):
             Up = max(U, float(q_lower.max()) + eps * g**-t)
             rest_l = float((w * lb).sum()) - w[i, j] * lb[i, j]
             rest_u = float((w * ub).sum()) - w[i, j] * ub[i, j]
-            L = (Lp - kids.reward[a] - g * rest_l) / (g * w[i, j])
-            U = (Up - kids.reward[a] - g * rest_u) / (g * w[i, j])
-            node = self._child(kids, int(i), int(j))
+            L = (Lp - kids.reward[x, a] - g * rest_l) / (g * w[i, j])
+            U = (Up - kids.reward[x, a] - g * rest_u) / (g * w[i, j])
+            node, x = self._child(kids, int(j), M), int(i)
             path.append(node)
             t += 1
         late = False
         for n in reversed(path):
             # past the deadline only the root is backed up (the clock is read until then)
             late = late or self._late()
-            if late and n is not root:
+            if late and n is not root.node:
                 continue
             self._backup(n)
         self.trials += 1
@@ -538,7 +683,7 @@ class MixedSearch(StoppingRules):
             lower=self.root.lb,
             upper=self.root.ub,
             n_alphas=self.n_alphas,
-            n_points=sum(c.n_points for c in self.cells),
+            n_points=self.points.n,
             n_nodes=len(self.nodes),
             backups=self.backups,
             elapsed_s=now - self.start,
@@ -553,8 +698,10 @@ class MixedSearch(StoppingRules):
 
     def _run(self) -> SearchResult:
         for r in self.roots:
-            self._backup(r)
+            self._backup(r.node)
         stopped = self._done()
+        if self.rounds > 0 and self.n_beliefs > 0 and not stopped:
+            stopped = self._rounds()
         while not stopped:
             self._trial()
             self._report()
@@ -584,8 +731,8 @@ class MixedSearch(StoppingRules):
         X, Y = self.m.X, self.m.Y
         out, acts = [], []
         for x, c in enumerate(self.cells):
-            F = np.full((c.G.shape[1], X, Y), self.v_min)
-            F[:, x, :] = c.G.T
-            out.append(F.reshape(c.G.shape[1], X * Y))
-            acts.append(c.act)
+            F = np.full((c.n, X, Y), self.v_min)
+            F[:, x, :] = c.cols.T
+            out.append(F.reshape(c.n, X * Y))
+            acts.append(c.act[: c.n])
         return np.vstack(out), np.concatenate(acts)

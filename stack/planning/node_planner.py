@@ -27,7 +27,10 @@ Parameters: ``task_file``, ``policy_file`` (alpha vectors, ``vigil solve``),
 resumed), ``steps_file`` (JSON lines, appended), ``initial_robot_cell`` (0: the
 task's), ``initial_person_cell`` (-1: the task's, 0: nobody), ``initial_direction``
 ("": the task's), ``max_steps`` (0: no end), ``start_delay_s``, ``nav_timeout_s``,
-``obs_timeout_s``, ``resume_wait_s``, ``min_step_s`` (a step lasts at least this long: "Do
+``obs_timeout_s``, ``resume_wait_s``, ``online_depth``, ``online_samples``,
+``online_time_limit_s`` (a task with two or more people: the online planner's search,
+:mod:`stack.planning.online`; no policy file then; 0: no time limit, so that a run is
+repeatable), ``min_step_s`` (a step lasts at least this long: "Do
 nothing" is done at once, but the model's time steps are of one length, about one
 cell's move), ``min_event_step_s`` (a step ends on a person event no sooner; 0: no
 events), ``lockstep`` (see :mod:`stack.ros_lockstep`).
@@ -46,7 +49,10 @@ from std_msgs.msg import Empty, String
 import stack.topics as topic
 from stack.cells import ConfigError
 from stack.planning.agent import ObservationError, Observed, PlannerAgent, StateFileError
+from stack.planning.factored import PeopleModel
 from stack.planning.model import build_model
+from stack.planning.online import OnlineConfig
+from stack.planning.people_agent import PeopleAgent, initial_people_belief
 from stack.planning.policy import AlphaPolicy
 from stack.planning.stepper import Command, DecisionSteps, StepTiming
 from stack.planning.task import load_task
@@ -77,17 +83,36 @@ class PlannerNode(Node):
         direction = v.initial_direction
         # one parameter per field, defaulting to the field's default
         timing = StepTiming(**vars(declare(self, **dataclasses.asdict(StepTiming()))))
-        if not task_file or not policy_file:
-            raise ConfigError("task_file/policy_file", (task_file, policy_file), "both are needed")
-        model = build_model(load_task(task_file))
-        pomdp = model.flat()
-        policy = AlphaPolicy.load(policy_file, pomdp.n_states, model_hash=pomdp.fingerprint())
-        ini = model.task.initial
-        first_person = ini.person if person < 0 else (person or None)
-        b0 = model.initial_belief(
-            robot or ini.robot, [(first_person, direction or ini.direction)] * model.people
+        o = declare(self, online_depth=2, online_samples=32, online_time_limit_s=0.0)
+        online = OnlineConfig(
+            depth=o.online_depth,
+            samples=o.online_samples,
+            time_limit_s=o.online_time_limit_s or None,
         )
-        self.agent = PlannerAgent(model, pomdp, policy, b0)
+        if not task_file:
+            raise ConfigError("task_file", task_file, "is needed")
+        task = load_task(task_file)
+        ini = task.initial
+        first_person = ini.person if person < 0 else (person or None)
+        self.agent: PlannerAgent | PeopleAgent
+        if task.people >= 2:  # issue 16: the online planner on the factored belief
+            pm = PeopleModel.of(task)
+            b = initial_people_belief(
+                pm, robot or ini.robot, first_person, direction or ini.direction
+            )
+            self.agent = PeopleAgent(pm, b, online)
+            what_policy = f"online planner (depth {online.depth}, {online.samples} samples)"
+        else:
+            if not policy_file:
+                raise ConfigError("policy_file", policy_file, "is needed for one person")
+            model = build_model(task)
+            pomdp = model.flat()
+            policy = AlphaPolicy.load(policy_file, pomdp.n_states, model_hash=pomdp.fingerprint())
+            b0 = model.initial_belief(
+                robot or ini.robot, [(first_person, direction or ini.direction)] * model.people
+            )
+            self.agent = PlannerAgent(model, pomdp, policy, b0)
+            what_policy = f"{len(policy.alphas)} vectors"
         resumed = False
         if self.state_file:
             try:
@@ -108,9 +133,7 @@ class PlannerNode(Node):
         ls.subscription(String, topic.OBSERVATIONS, self.on_observation, 10)
         ls.timer(0.1, self.poll)
         what = f"resuming at step {self.agent.step + 1}" if resumed else "initial belief"
-        self.get_logger().info(
-            f"planner: {Path(task_file).name}, {len(policy.alphas)} vectors, {what}"
-        )
+        self.get_logger().info(f"planner: {Path(task_file).name}, {what_policy}, {what}")
 
     def now_s(self) -> float:
         return self.lockstep.now_s()

@@ -59,7 +59,7 @@ from stack.vocabulary import ACTIONS
 
 LEAVES = ("mdp", "single")
 STAY = ACTIONS.index("Do nothing")
-CHUNK = 256  # belief nodes between two looks at the clock (with a time limit)
+CHUNK = 64  # belief nodes between two looks at the clock (with a time limit)
 
 
 class _OutOfTime(Exception):
@@ -191,10 +191,13 @@ class Leaf:
             return v.max(axis=(1, 2))
         if not self.pairs:
             return B[:, 0, :] @ self.V.T
+        nR, S = self.V.shape[0], self.V.shape[1]
+        flat = self.V.reshape(nR * S, S)
         out = None
         for i, j in self.pairs:
-            t = np.einsum("rst,Nt->Nrs", self.V, B[:, j, :])
-            v = np.einsum("Nrs,Ns->Nr", t, B[:, i, :])
+            # sum_t V[r, s, t] B_j[t] as one matrix product (BLAS), then along s
+            t = (flat @ B[:, j, :].T).reshape(nR, S, -1)  # (nR, S, N)
+            v = np.einsum("rsN,Ns->Nr", t, B[:, i, :])
             out = v if out is None else np.maximum(out, v)
         assert out is not None
         return out

@@ -78,6 +78,7 @@ class Backup:
         # observations unreachable from b: any vector gives a valid alpha; take b's best
         kstar = np.full(self.Z, int(np.argmax(alphas @ b)))
         kstar[zs] = k
+        self.last_successors = kstar  # the vector followed after each observation
         O = self.O[a]
         rows = self.O_rows[a]
         v = np.bincount(rows, weights=O.data * alphas[kstar[O.indices], rows], minlength=self.S)
@@ -204,6 +205,7 @@ def perseus(
     time_limit_s: float | None = None,
     progress: Callable[[IterationStats], None] | None = None,
     b0: np.ndarray | None = None,
+    closure: dict | None = None,
 ) -> tuple[AlphaPolicy, list[IterationStats]]:
     """Perseus: randomised point-based value iteration over a fixed belief set.
 
@@ -216,6 +218,11 @@ def perseus(
         time_limit_s: stop after the iteration that passes this time.
         progress: called after every iteration.
         b0: belief whose value is reported (default pomdp.b0).
+        closure: if given, filled with "alphas", "actions", "successors" (positions,
+            -1 unknown) and "active": the final vectors first, then every earlier vector
+            they lead to. Perseus replaces its set every iteration, so its vectors are
+            values of plans whose later steps are earlier vectors; with those kept the
+            best vector's policy earns the bound (stack/planning/controller.py).
 
     Returns:
         The policy and the per-iteration statistics.
@@ -229,6 +236,13 @@ def perseus(
     else:
         alphas, actions = initial.alphas.copy(), initial.actions.copy()
     B = np.asarray(beliefs)
+    Z = pomdp.n_observations
+    # every vector made, by global id, with its successors' ids (blind: itself; given
+    # initial vectors: unknown)
+    arch_alpha = list(alphas)
+    arch_act = [int(a) for a in actions]
+    arch_succ = [np.full(Z, i if initial is None else -1, dtype=int) for i in range(len(alphas))]
+    gids = np.arange(len(alphas))
     start = time.perf_counter()
     history: list[IterationStats] = []
     n_backups = 0
@@ -236,6 +250,7 @@ def perseus(
         old = (alphas @ B.T).max(axis=0)
         new_alphas: list[np.ndarray] = []
         new_actions: list[int] = []
+        new_gids: list[int] = []
         new_vals = np.full(len(B), -np.inf)
         todo = np.arange(len(B))
         while todo.size:
@@ -248,12 +263,20 @@ def perseus(
             if alpha @ B[i] < old[i]:
                 k = int(np.argmax(alphas @ B[i]))
                 alpha, a = alphas[k], int(actions[k])
+                new_gids.append(int(gids[k]))
+            else:
+                pool_gids = np.concatenate([gids, np.asarray(new_gids, dtype=int)])
+                new_gids.append(len(arch_alpha))
+                arch_alpha.append(alpha)
+                arch_act.append(a)
+                arch_succ.append(pool_gids[backup.last_successors])
             new_alphas.append(alpha)
             new_actions.append(a)
             new_vals = np.maximum(new_vals, B @ alpha)
             todo = np.flatnonzero(new_vals < old - 1e-9)
         alphas = np.vstack(new_alphas)
         actions = np.asarray(new_actions)
+        gids = np.asarray(new_gids, dtype=int)
         stats = IterationStats(
             iteration=it,
             value_b0=float((alphas @ b0).max()),
@@ -266,4 +289,22 @@ def perseus(
             progress(stats)
         if time_limit_s is not None and stats.elapsed_s > time_limit_s:
             break
+    if closure is not None:
+        order = list(dict.fromkeys(int(g) for g in gids))  # the final set, duplicates once
+        seen = set(order)
+        i = 0
+        while i < len(order):
+            for g in arch_succ[order[i]]:
+                if g >= 0 and int(g) not in seen:
+                    seen.add(int(g))
+                    order.append(int(g))
+            i += 1
+        where = {g: k for k, g in enumerate(order)}
+        where[-1] = -1
+        closure["alphas"] = np.vstack([arch_alpha[g] for g in order])
+        closure["actions"] = np.array([arch_act[g] for g in order], dtype=int)
+        closure["successors"] = np.array(
+            [[where[int(g)] for g in arch_succ[k]] for k in order], dtype=int
+        ).reshape(len(order), Z)
+        closure["active"] = len(set(int(g) for g in gids))
     return AlphaPolicy(alphas=alphas, actions=actions, meta={"solver": "perseus"}), history

@@ -321,7 +321,11 @@ class BeliefTreeSearch(StoppingRules):
         pomdp: a discounted model.
         config: search settings.
         seed_alphas: extra lower-bound vectors (alphas (K, S), actions (K,)), each the
-            exact value of some policy (e.g. :func:`bounds.plan_alphas`).
+            exact value of some policy (e.g. :func:`bounds.plan_alphas`), optionally
+            with a third array, (K, Z) successors (indices into the seeds) of a closed
+            set (:func:`stack.planning.controller.close_vectors`). Seeds without one
+            are values of plans whose later steps the set need not hold, so the best
+            vector's policy may fall short of them.
         start: time.perf_counter() at which the time limit started (default: now), so
             that a command's own set-up counts against its limit exactly once.
         progress: called with a :class:`SearchStats` at most once per
@@ -332,7 +336,7 @@ class BeliefTreeSearch(StoppingRules):
         self,
         pomdp: POMDP,
         config: SearchConfig = SearchConfig(),
-        seed_alphas: tuple[np.ndarray, np.ndarray] | None = None,
+        seed_alphas: tuple[np.ndarray, ...] | None = None,
         start: float | None = None,
         progress: Callable[[SearchStats], None] | None = None,
         b0: np.ndarray | None = None,
@@ -362,6 +366,9 @@ class BeliefTreeSearch(StoppingRules):
                 self.O_dense[a] = self.O_dense[same] if same is not None else self.O[a].toarray()
         # one row slice gives the predictions of every action: T_all[s] = [T_0[s] ... T_A[s]]
         self.T_all = sp.hstack(self.T, format="csr")
+        # ... dense where it is small: a row gather is then a numpy slice, not scipy's
+        # fancy indexing (RockSample_4_4: 1 s of its search)
+        self.T_all_dense = self.T_all.toarray() if S * S * A <= 4_000_000 else None
         self.backups = 0
         self.trials = 0
         self.history: list[SearchStats] = []
@@ -381,16 +388,43 @@ class BeliefTreeSearch(StoppingRules):
         # -- the lower bound: blind policies and seeds -----------------------------------
         alphas = blind_lower_bound(pomdp)
         actions = np.arange(A)
+        Z = pomdp.n_observations
+        # successors[k, z]: the vector whose plan vector k follows after observation z
+        # (-1: not known, a seed's), by a global id. Pruned vectors stay in an archive:
+        # the written policy adds the successors of its vectors from there, so the
+        # best vector's policy earns at least the bound (controller.py's docstring).
+        succ = np.repeat(np.arange(A)[:, None], Z, axis=1)  # "always do a" loops
+        n_active = A
         if seed_alphas is not None and len(seed_alphas[0]):
             alphas = np.vstack([alphas, seed_alphas[0]])
             actions = np.concatenate([actions, np.asarray(seed_alphas[1], dtype=int)])
+            n_seeds = len(seed_alphas[0])
+            seed_succ = (
+                np.where(seed_alphas[2] >= 0, seed_alphas[2] + A, -1)  # type: ignore[misc]
+                if len(seed_alphas) > 2
+                else np.full((n_seeds, Z), -1)
+            )
+            succ = np.vstack([succ, seed_succ])
+            # a fourth entry: only the first n seeds are active, the rest are archived
+            # successors (Perseus's earlier vectors)
+            n_active += int(seed_alphas[3]) if len(seed_alphas) > 3 else n_seeds  # type: ignore[misc]
         # the vectors are stored transposed, (S, capacity): a gather of the states a
         # belief covers then reads contiguous rows
-        self.K = len(actions)
+        self.K = n_active
         self._AT = np.empty((S, max(64, 2 * self.K)))
-        self._AT[:, : self.K] = np.asarray(alphas, dtype=float).T
+        self._AT[:, : self.K] = np.asarray(alphas[: self.K], dtype=float).T
         self._act = np.zeros(self._AT.shape[1], dtype=int)
-        self._act[: self.K] = actions
+        self._act[: self.K] = actions[: self.K]
+        # every vector ever made, by global id (alphas, actions, successors' ids); the
+        # active set's ids; pruning drops vectors from the active set only
+        self._all_alpha: list[np.ndarray] = list(np.asarray(alphas, dtype=float))
+        self._all_act: list[int] = [int(a) for a in actions]
+        self._all_succ: list[np.ndarray] = list(succ)
+        self._gid = np.zeros(self._AT.shape[1], dtype=int)
+        self._gid[: self.K] = np.arange(self.K)
+        self._n_archived = 0  # archived vectors the policy will hold (at the last pruning)
+        self._write_factor = 1.0
+        self._measure_writing()
         self.n_initial_alphas = self.K
         self._pruned_at = self.K
 
@@ -439,7 +473,10 @@ class BeliefTreeSearch(StoppingRules):
         if node.kids is not None:
             return node.kids
         S = self.S
-        pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
+        if self.T_all_dense is not None:
+            pred_all = node.val @ self.T_all_dense[node.idx]
+        else:
+            pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
         kids = []
         for a in range(self.A):
             pred = pred_all[a * S : (a + 1) * S]
@@ -522,12 +559,15 @@ class BeliefTreeSearch(StoppingRules):
         # lower bound: add the backed-up vector if it improves the value here
         a = int(q_lower.argmax())
         if q_lower[a] > node.lb + 1e-12 * max(1.0, abs(node.lb)):
-            self._add_alpha(self._alpha(kids[a], a, choice[a], node), a)
+            self._add_alpha(*self._alpha(kids[a], a, choice[a], node), a)
             node.lb = float(q_lower[a])
         node.lb = min(node.lb, node.ub)
 
-    def _alpha(self, kids: _Kids, a: int, best: np.ndarray, node: _Node) -> np.ndarray:
-        """alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s')."""
+    def _alpha(
+        self, kids: _Kids, a: int, best: np.ndarray, node: _Node
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s'),
+        and its successors k (Z,)."""
         O = self.O[a]
         # observations that b cannot produce: any vector keeps the bound valid; take the
         # best one at b so the new vector is good near b too
@@ -535,16 +575,21 @@ class BeliefTreeSearch(StoppingRules):
         kstar[kids.zs] = best
         rows = self.O_rows[a]
         v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
-        return self.R[:, a] + self.gamma * (self.T[a] @ v)
+        return self.R[:, a] + self.gamma * (self.T[a] @ v), self._gid[kstar]
 
-    def _add_alpha(self, alpha: np.ndarray, action: int) -> None:
+    def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int) -> None:
         if self.K == self._AT.shape[1]:
             grown = np.empty((self.S, 2 * self.K))
             grown[:, : self.K] = self._AT
             self._AT = grown
             self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
+            self._gid = np.concatenate([self._gid, np.zeros(self.K, dtype=int)])
         self._AT[:, self.K] = alpha
         self._act[self.K] = action
+        self._gid[self.K] = len(self._all_alpha)
+        self._all_alpha.append(alpha)
+        self._all_act.append(action)
+        self._all_succ.append(succ)
         self.K += 1
         if self.K > self.config.prune_growth * self._pruned_at + 50:
             self._prune()
@@ -579,12 +624,55 @@ class BeliefTreeSearch(StoppingRules):
         kept = np.flatnonzero(keep)
         self._AT[:, : kept.size] = self._AT[:, kept]
         self._act[: kept.size] = self._act[kept]
+        self._gid[: kept.size] = self._gid[kept]
         self.K = kept.size
+        self._measure_writing()
         self._pruned_at = self.K
+
+    def _closed_policy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The active vectors and, from the archive, every successor they lead to:
+        (alphas (K', S), actions (K',), successors (K', Z) as positions, -1 unknown).
+        The best vector's policy over a closed set earns its bound (controller.py)."""
+        order = self._closure()
+        where = {g: k for k, g in enumerate(order)}
+        where[-1] = -1
+        succ = np.array([[where[int(g)] for g in self._all_succ[k]] for k in order], dtype=int)
+        alphas = np.vstack([self._all_alpha[k] for k in order])
+        actions = np.array([self._all_act[k] for k in order], dtype=int)
+        return alphas, actions, succ.reshape(len(order), -1)
+
+    def _closure(self) -> list[int]:
+        """Global ids of the active vectors, then of the archived ones they lead to."""
+        order = [int(g) for g in self._gid[: self.K]]
+        seen = set(order)
+        i = 0
+        while i < len(order):
+            for g in self._all_succ[order[i]]:
+                g = int(g)
+                if g >= 0 and g not in seen:
+                    seen.add(g)
+                    order.append(g)
+            i += 1
+        return order
 
     # -- the search -----------------------------------------------------------------
     def _values_to_write(self) -> int:
-        return self.K * self.S
+        # the archived successors written with the active set, as counted at the last
+        # pruning (RockSample_5_7: 2,027 vectors written for ~800 active), scaled by
+        # the machine's measured speed of writing (TagAvoid's 888 x 870 values took
+        # 5.5 s at load 10, 7 us a value against the 1 us assumed)
+        return int((self.K + self._n_archived) * self.S * self._write_factor)
+
+    def _measure_writing(self) -> None:
+        """How much slower than ``config.write_s_per_value`` writing a value is now."""
+        self._n_archived = len(self._closure()) - self.K
+        if self.config.write_s_per_value <= 0:
+            return
+        block = self._AT[: min(self.S, 200), : min(self.K, 50)]
+        t = time.perf_counter()
+        " ".join(map(repr, block.ravel().tolist()))  # what write_policy_xml does
+        per_value = (time.perf_counter() - t) / max(1, block.size)
+        self._write_factor = max(1.0, per_value / self.config.write_s_per_value)
 
     def _trial(self) -> None:
         g = self.gamma
@@ -629,12 +717,16 @@ class BeliefTreeSearch(StoppingRules):
             t += 1
         # refine the corners under the deepest belief first: beliefs that approach
         # certainty (Tiger after many listens) are bounded by the corner values
+        # (a corner whose gap already meets the leaf's level, HSVI's rule, is skipped:
+        # on RockSample_4_4 the corners were most of the backups)
         leaf = path[-1]
         if leaf.idx.size <= 32:
             for s in leaf.idx:
                 if self._late():
                     break
-                self._backup(self._node(np.array([s]), np.ones(1)))
+                corner = self._node(np.array([s]), np.ones(1))
+                if corner.ub - corner.lb > eps * g**-t:
+                    self._backup(corner)
         for n in reversed(path):
             if self._late() and n is not root:
                 continue
@@ -676,7 +768,8 @@ class BeliefTreeSearch(StoppingRules):
         if not self._late():
             self._prune()  # over the backed-up beliefs only: cheap
         self._report(force=True)
-        policy = AlphaPolicy(self.alphas.copy(), self.actions.copy(), meta={"solver": "sarsop"})
+        alphas, actions, self.successors = self._closed_policy()
+        policy = AlphaPolicy(alphas, actions, meta={"solver": "sarsop"})
         result = SearchResult(
             policy=policy,
             lower_bound=self.root.lb,

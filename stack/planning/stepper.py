@@ -23,9 +23,9 @@ loop can drive the same machine.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
-from stack.planning.agent import ObservationError, Observed, PlannerAgent
+from stack.planning.agent import ObservationError, Observed
 from stack.vocabulary import ACTIONS
 
 
@@ -65,6 +65,19 @@ class Command:
     text: str = ""
 
 
+class Agent(Protocol):
+    """What the machine needs of an agent (:class:`~stack.planning.agent.PlannerAgent`,
+    or :class:`~stack.planning.people_agent.PeopleAgent` for several people)."""
+
+    step: int
+    phase: str
+    action: int | None
+
+    def decide(self) -> int: ...
+
+    def observe(self, observed: Observed) -> dict[str, Any]: ...
+
+
 @dataclass
 class DecisionSteps:
     """The step machine around a :class:`PlannerAgent`.
@@ -77,7 +90,7 @@ class DecisionSteps:
         resumed: the agent was restored from a state file (recorded on the next step).
     """
 
-    agent: PlannerAgent
+    agent: Agent
     timing: StepTiming = field(default_factory=StepTiming)
     first_person: int | None = None
     resumed: bool = False
@@ -144,7 +157,7 @@ class DecisionSteps:
             return []
         trigger = "step"
         if self.waiting != "obs":  # an event: the person shows up in a new cell
-            person = _person_key(observed.person)
+            person = _event_key(observed)
             elapsed = now_s - self.step_start_s
             if not (
                 self.timing.min_event_step_s > 0
@@ -157,7 +170,7 @@ class DecisionSteps:
             if self.last_nav is None:
                 self.last_nav = {"result": "in progress", "action": self.sent_action}
         record = self.agent.observe(observed)
-        self.last_person = _person_key(observed.person)
+        self.last_person = _event_key(observed)
         record.update(
             stamp_s=round(now_s, 6), nav=self.last_nav, resumed=self.resumed, trigger=trigger
         )
@@ -201,6 +214,15 @@ class DecisionSteps:
 
 def _person_key(label: str) -> str:
     return label if label.isdigit() else ""
+
+
+def _event_key(observed: Observed) -> str:
+    """The person's cell ("" for none); with person slots (issue 16) every slot's
+    cell, joined by "," ("" when nobody is in a cell): any of them moving is an event."""
+    if not observed.people:
+        return _person_key(observed.person)
+    keys = [_person_key(p) for p, _ in observed.people]
+    return ",".join(keys) if any(keys) else ""
 
 
 __all__ = ["Command", "DecisionSteps", "ObservationError", "StepTiming"]

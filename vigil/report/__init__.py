@@ -28,6 +28,7 @@ from stack.cells import CellGrid
 from stack.planning.model import FactoredModel
 from stack.vocabulary import ACTIONS, OUT_OF_MAP
 from vigil.report.metrics import Timeline, guard_metrics, timeline_from_trace
+from vigil.report.people import people_markdown, people_metrics, walkers_in_trace
 from vigil.report.records import (
     UNKNOWN,
     RunRecordError,
@@ -284,8 +285,14 @@ def write_report(
     wavs = sorted(p.relative_to(run_dir).as_posix() for p in (run_dir / "speech").glob("*.wav"))
     title = f"{run_dir.name} ({task.name})"
     summary = summarise(model, rows, records, tl, wavs, thesis_table)
+    walkers = walkers_in_trace(trace)
+    if walkers > 1:  # several people (issue 16): visits per person
+        tls = [timeline_from_trace(trace, grid, room, until, walker=i) for i in range(walkers)]
+        summary["people"] = people_metrics(tls, task.restricted_cells, grid=grid)
     md = steps_markdown(rows, title, thesis_table, task.discount)
     md += "\n" + metrics_markdown(summary["metrics"])
+    if "people" in summary:
+        md += "\n" + people_markdown(summary["people"])
     (run_dir / "steps.md").write_text(md, encoding="utf-8")
     (run_dir / "steps.csv").write_text(steps_csv(rows), encoding="utf-8")
     files = ["steps.md", "steps.csv"]

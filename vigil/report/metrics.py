@@ -106,6 +106,7 @@ def timeline_from_trace(
     grid: CellGrid,
     room_m: tuple[float, float, float, float] | None = None,
     until_t: float | None = None,
+    walker: int | None = None,
 ) -> Timeline:
     """The timeline of ``trace.jsonl`` records (see :mod:`vigil.report.records`).
 
@@ -119,6 +120,8 @@ def timeline_from_trace(
         room_m: (x0, y0, x1, y1) of the room's inside; None: the grid's region.
         until_t: ignore records after this time (the last decision's stamp: after it
             the twin runs until a wall-clock stop, so the tail differs between runs).
+        walker: with several walkers (records with ``people``, issue 16), the person
+            is walker ``walker`` (0-based) instead of the first.
     """
     t, robot, known, person, present, sources = [], [], [], [], [], set()
     for rec in trace:
@@ -129,6 +132,9 @@ def timeline_from_trace(
             rx, ry = rec["robot"][:2]
             r_known, r_cell = True, grid.cell_at(rx, ry)
             p = rec.get("person")
+            if walker is not None:
+                people = rec.get("people") or []
+                p = people[walker].get("position") if walker < len(people) else None
             p_cell = grid.cell_at(p[0], p[1]) if p is not None else None
             if p is None:
                 here = False

@@ -1,0 +1,114 @@
+"""Guarding metrics per person when the twin has several walkers (issue 16): pure.
+
+The trace's records list every walker (``people``); :func:`walkers_in_trace` counts
+them, :func:`~vigil.report.metrics.timeline_from_trace` with ``walker=i`` gives walker
+i's timeline, and :func:`people_metrics` finds each walker's visits (the definitions
+of :mod:`vigil.report.metrics`) and the false trips with nobody at all in the room.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from stack.cells import CellGrid
+from vigil.report.metrics import (
+    MIN_VISIT_S,
+    QUIET_S,
+    Timeline,
+    _round,
+    false_trips,
+    find_visits,
+)
+
+
+def walkers_in_trace(trace: Iterable[dict]) -> int:
+    """How many walkers the trace's records list (``people``; 0: one-person records)."""
+    return max((len(rec.get("people") or ()) for rec in trace), default=0)
+
+
+def people_metrics(
+    timelines: Sequence[Timeline],
+    restricted: Sequence[int],
+    min_visit_s: float = MIN_VISIT_S,
+    grid: CellGrid | None = None,
+) -> dict[str, Any]:
+    """Visits per person, and false trips with anybody in the room (issue 16).
+
+    Args:
+        timelines: one timeline per walker (:func:`timeline_from_trace` with ``walker``),
+            on the same instants.
+
+    Returns:
+        ``per_person``: each walker's visits, guarded, reachable, max delay; the totals;
+        ``false_trips``: arrivals in a restricted cell with nobody in the room during
+        ``QUIET_S`` before and after.
+    """
+    per = []
+    for i, tl in enumerate(timelines):
+        visits = find_visits(tl, restricted, min_visit_s, grid)
+        delays = [v.delay_s for v in visits if v.delay_s is not None]
+        per.append(
+            {
+                "person": i + 1,
+                "visits": [v.as_dict() for v in visits],
+                "n_visits": len(visits),
+                "guarded": sum(v.guarded for v in visits),
+                "reachable": sum(bool(v.reachable) for v in visits),
+                "guarded_reachable": sum(v.guarded and bool(v.reachable) for v in visits),
+                "abandoned": sum(v.abandoned for v in visits),
+                "max_delay_s": _round(max(delays)) if delays else None,
+            }
+        )
+    trips: list[dict[str, Any]] = []
+    if timelines:
+        first = timelines[0]
+        anyone = tuple(any(tl.present[k] for tl in timelines) for k in range(len(first)))
+        trips = false_trips(
+            Timeline(first.t, first.robot, first.robot_known, first.person, anyone, first.source),
+            restricted,
+        )
+    delays = [p["max_delay_s"] for p in per if p["max_delay_s"] is not None]
+    return {
+        "per_person": per,
+        "n_visits": sum(p["n_visits"] for p in per),
+        "guarded": sum(p["guarded"] for p in per),
+        "reachable": sum(p["reachable"] for p in per),
+        "guarded_reachable": sum(p["guarded_reachable"] for p in per),
+        "max_delay_s": max(delays) if delays else None,
+        "false_trips": trips,
+        "n_false_trips": len(trips),
+    }
+
+
+def people_markdown(m: dict[str, Any]) -> str:
+    """:func:`people_metrics` as Markdown (the run's steps.md)."""
+    lines = [
+        "## Visits per person (issue 16)",
+        "",
+        "| person | cell | in [s] | out [s] | guarded | delay [s] | reachable |",
+        "|---:|---:|---:|---:|---|---:|---|",
+    ]
+    for p in m["per_person"]:
+        for v in p["visits"]:
+            left = v["person_left_t"]
+            lines.append(
+                f"| {p['person']} | {v['cell']} | {v['person_arrival_t']:.1f} | "
+                f"{'still in' if left is None else f'{left:.1f}'} | "
+                f"{'yes' if v['guarded'] else 'no'} | "
+                f"{_delay(v['delay_s'])} | "
+                f"{v['reachable']} |"
+            )
+        if not p["visits"]:
+            lines.append(f"| {p['person']} | no visit | | | | | |")
+    lines += [
+        "",
+        f"Guarded {m['guarded']} of {m['n_visits']} visits; false trips (nobody in the room "
+        f"{QUIET_S:g} s before and after): {m['n_false_trips']}.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _delay(d: float | None) -> str:
+    return "" if d is None else f"{d:.1f}"
