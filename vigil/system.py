@@ -48,6 +48,7 @@ MODULES = {
     "recorder": "vigil.node_recorder",
     "table_player": "vigil.node_table_player",
     "markers": "vigil.node_markers",
+    "bag": "vigil.node_bag",
 }
 
 
@@ -258,6 +259,9 @@ def prepare(
     # the viewer's markers (RViz, Foxglove): no lock-step participant, it only draws
     params["markers"] = {"task_file": str(task)}
     names.append("markers")
+    # the run's rosbag2 bag (MCAP): no lock-step participant either, it only listens
+    params["bag"] = {"out_dir": str(run_dir), "camera_period_s": 1.0, "sim_clock": twin_mode}
+    names.append("bag")
     return _write(run_dir, names, params, dep, max_steps)
 
 

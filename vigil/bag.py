@@ -1,0 +1,116 @@
+"""A run's rosbag2 bag (MCAP storage), written with the ``rosbags`` library: no rclpy here.
+
+:class:`BagWriter` takes messages as CDR bytes (as a raw ROS subscription hands them
+over) with the ROS type name and a log time, and writes a rosbag2 folder (``metadata.yaml``
++ ``<name>_0.mcap``) that ``rosbags`` and Foxglove read. The message definitions come
+from the ``rosbags`` typestore of ROS 2 Jazzy (standard types) and from the ``.msg`` files
+under ``interfaces/`` (vigil_interfaces, and tf2_msgs where the store lacks one), so each
+connection carries its schema.
+
+:class:`RateLimit` keeps a topic to at most one message per period of log time (the
+camera's frames: about 900 kB each at full rate would make the bag the run's largest file
+by far).
+
+The writer never touches a path it did not create: an existing bag folder is an error.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+REPO = Path(__file__).resolve().parents[1]
+INTERFACES = REPO / "interfaces"
+BAG_DIR = "bag"  # the bag's folder inside a run folder
+
+
+class BagError(ValueError):
+    """A message the bag cannot take (unknown type, undeclared topic)."""
+
+
+def fresh_path(folder: Path, name: str = BAG_DIR) -> Path:
+    """``folder/name``, or ``name_1``, ``name_2``... if taken (a restarted recorder)."""
+    path, n = Path(folder) / name, 0
+    while path.exists():
+        n += 1
+        path = Path(folder) / f"{name}_{n}"
+    return path
+
+
+def typestore(interfaces: Path = INTERFACES) -> Typestore:
+    """Jazzy's standard types plus every ``<pkg>/msg/<Name>.msg`` under ``interfaces``
+    that the store does not already hold."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    extra: dict = {}
+    for path in sorted(interfaces.glob("*/msg/*.msg")):
+        name = f"{path.parents[1].name}/msg/{path.stem}"
+        if name not in store.fielddefs:
+            extra.update(get_types_from_msg(path.read_text(), name))
+    if extra:
+        store.register(extra)
+    return store
+
+
+class RateLimit:
+    """At most one message per ``period_ns`` of log time (0: every message)."""
+
+    def __init__(self, period_ns: int):
+        if period_ns < 0:
+            raise ValueError(f"rate limit period must be >= 0, got {period_ns} ns")
+        self.period_ns = period_ns
+        self.last_ns: int | None = None
+
+    def admit(self, t_ns: int) -> bool:
+        if self.last_ns is not None and 0 <= t_ns - self.last_ns < self.period_ns:
+            return False
+        self.last_ns = t_ns
+        return True
+
+
+class BagWriter:
+    """One rosbag2 bag (MCAP) at ``path``, which must not exist yet (FileExistsError).
+
+    Args:
+        path: the bag's folder (created here).
+        store: the typestore holding every type to be written (:func:`typestore`).
+    """
+
+    def __init__(self, path: Path, store: Typestore | None = None):
+        path = Path(path)
+        if path.exists():
+            raise FileExistsError(f"bag {path} already exists: not overwriting it")
+        self.path = path
+        self.store = store if store is not None else typestore()
+        self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self.connections: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+        self.closed = False
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """Declare a topic with its ROS type (``pkg/msg/Name``)."""
+        if topic in self.connections:
+            return
+        if msgtype not in self.store.fielddefs:
+            raise BagError(f"topic {topic}: no message definition for type {msgtype!r}")
+        self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
+        self.counts[topic] = 0
+
+    def write(self, topic: str, t_ns: int, cdr: bytes) -> None:
+        """One message (CDR bytes) at log time ``t_ns``; the topic must be declared."""
+        if self.closed:
+            return
+        conn = self.connections.get(topic)
+        if conn is None:
+            raise BagError(f"topic {topic} was not declared with add_topic")
+        self.writer.write(conn, int(t_ns), bytes(cdr))
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Write the MCAP summary and metadata.yaml; safe to call twice."""
+        if not self.closed:
+            self.closed = True
+            self.writer.close()

@@ -1,0 +1,163 @@
+"""The bag node: records a run's topics into a rosbag2 bag (MCAP), ``<out_dir>/bag``
+(``bag_1``... when that exists: a restarted node never overwrites a bag).
+
+Raw subscriptions (``raw=True``): each message arrives as its CDR bytes and goes into
+the bag as it is (:class:`vigil.bag.BagWriter`), never deserialised. A topic is
+subscribed once it appears in the ROS graph (checked every ``DISCOVER_S``), with the type
+its publishers advertise and a QoS that matches them (best effort when one publishes
+best effort, transient local when all of them are latched; a topic with no publisher
+known yet waits, so ``/tf_static`` arrives).
+
+Log time: with ``sim_clock`` (the twin), the latest ``/clock`` (simulated time, 0 before
+the first), so the bag plays in the run's own time; without it (hardware) the wall clock
+until a ``/clock`` arrives.
+
+Not a lock-step participant: the twin never waits for it and it sends no acks, so a
+slow disk cannot slow the run (it may only fall behind). Camera frames are kept to one
+per ``camera_period_s`` of log time. SIGINT (the launcher's stop) closes the bag
+cleanly (:func:`stack.ros_main.spin_node` destroys the node); a SIGKILLed recorder
+leaves an MCAP without its summary and no ``metadata.yaml``.
+
+Parameters: ``out_dir``, ``camera_period_s`` (1.0; 0 keeps every frame), ``sim_clock``, ``lockstep``
+(accepted, unused).
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+import stack.topics as topic
+from stack.cells import ConfigError
+from stack.ros_main import spin_node
+from stack.ros_params import declare
+from vigil.bag import BagError, BagWriter, RateLimit, fresh_path
+
+DISCOVER_S = 0.5
+# what a run shows (sensors, TF, perception, planner, navigation, speech, truth)
+TOPICS = (
+    topic.TF,
+    topic.TF_STATIC,
+    topic.SCAN,
+    topic.MAP,
+    topic.ODOM,
+    topic.CMD_VEL,
+    topic.CAMERA_IMAGE,
+    topic.CAMERA_INFO,
+    topic.PERSON,
+    topic.PERSON_POSITION,
+    topic.LEGS,
+    topic.LEG_PEOPLE,
+    topic.OBSERVATIONS,
+    topic.PLANNER_BELIEF,
+    topic.PLANNER_STEP,
+    topic.PLANNER_DONE,
+    topic.NAV_ACTION,
+    topic.NAV_PROGRESS,
+    topic.NAV_RESULT,
+    topic.SPEECH_WARNING,
+    topic.SPEECH_DONE,
+    topic.SPEECH_SPEAKING,
+    topic.TWIN_TRUTH,
+    topic.MARKERS,
+)
+RATE_LIMITED = (topic.CAMERA_IMAGE,)
+
+
+def _message_class(type_name: str):
+    """``pkg/msg/Name`` -> the generated Python class."""
+    pkg, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+class BagNode(Node):
+    """Every topic of :data:`TOPICS` into ``<out_dir>/bag``."""
+
+    def __init__(self, **kwargs):
+        super().__init__("bag", **kwargs)
+        v = declare(
+            self, out_dir="runs/recording", camera_period_s=1.0, sim_clock=False, lockstep=False
+        )
+        if v.camera_period_s < 0:
+            raise ConfigError("camera_period_s", v.camera_period_s, "must be >= 0")
+        out = Path(v.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        self.bag = BagWriter(fresh_path(out))
+        self.limits = {t: RateLimit(int(v.camera_period_s * 1e9)) for t in RATE_LIMITED}
+        # the twin's time: 0 until its first /clock, never the wall clock mixed in
+        self.clock_ns: int | None = 0 if v.sim_clock else None
+        self.subs: dict[str, object] = {}
+        self.create_subscription(Clock, topic.CLOCK, self.on_clock, 10)
+        self.create_timer(DISCOVER_S, self.discover)
+        self.get_logger().info(f"recording a bag into {self.bag.path}")
+
+    def on_clock(self, msg: Clock) -> None:
+        self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+
+    def now_ns(self) -> int:
+        return self.clock_ns if self.clock_ns is not None else time.time_ns()
+
+    def discover(self) -> None:
+        """Subscribe to the wanted topics that have appeared since the last look."""
+        graph = dict(self.get_topic_names_and_types())
+        for name in TOPICS:
+            if name in self.subs or not graph.get(name):
+                continue
+            pubs = self.get_publishers_info_by_topic(name)
+            if not pubs:  # only subscribers known yet: wait to match the publishers' QoS
+                continue
+            type_name = graph[name][0]
+            try:
+                cls = _message_class(type_name)
+                self.bag.add_topic(name, type_name)
+            except (BagError, ImportError, AttributeError, ValueError) as exc:
+                self.subs[name] = None  # said once, not retried
+                self.get_logger().warning(f"{name} ({type_name}) not recorded: {exc}")
+                continue
+            self.subs[name] = self.create_subscription(
+                cls, name, self._recorder(name), _qos(pubs), raw=True
+            )
+
+    def _recorder(self, name: str):
+        limit = self.limits.get(name)
+
+        def record(data: bytes) -> None:
+            t_ns = self.now_ns()
+            if limit is not None and not limit.admit(t_ns):
+                return
+            self.bag.write(name, t_ns, data)
+
+        return record
+
+    def destroy_node(self) -> None:
+        self.bag.close()
+        counts = ", ".join(f"{k} {n}" for k, n in sorted(self.bag.counts.items()))
+        self.get_logger().info(f"bag closed: {counts}")
+        super().destroy_node()
+
+
+def _qos(pubs) -> QoSProfile:
+    """A subscription QoS that matches every publisher (latched ones included)."""
+    best_effort = any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in pubs)
+    latched = bool(pubs) and all(
+        p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in pubs
+    )
+    return QoSProfile(
+        depth=100 if latched else 20,
+        history=HistoryPolicy.KEEP_LAST,
+        reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+def main(args=None) -> None:
+    spin_node(BagNode, args)
+
+
+if __name__ == "__main__":
+    main()
