@@ -135,6 +135,47 @@ def parse_cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -
     )
 
 
+def save_state(path: str | Path, state: dict[str, Any]) -> None:
+    """Write a planner's state atomically (a crash mid-write leaves the old file intact)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(state))
+    os.replace(tmp, path)
+
+
+def read_state(path: Path) -> dict[str, Any] | None:
+    """A planner's state file as a JSON object; None when there is none.
+
+    Raises:
+        StateFileError: unreadable, or not a JSON object.
+    """
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(read_text_capped(path))
+    except (OSError, ValueError) as err:
+        raise StateFileError(f"{path}: unreadable planner state ({err})") from None
+    if not isinstance(data, dict):
+        raise StateFileError(f"{path}: unreadable planner state (not a JSON object)")
+    return data
+
+
+def check_progress(path: Path, step: int, phase: str, action: Any, n_actions: int) -> None:
+    """The step, phase and action of a state file (both agents' states share them).
+
+    Raises:
+        StateFileError: naming the bad field.
+    """
+    if phase not in ("start", "acting", "observing", "done"):
+        raise StateFileError(f"{path}: unknown phase {phase!r}")
+    if step < 0:
+        raise StateFileError(f"{path}: negative step {step}")
+    if action is not None and (
+        isinstance(action, bool) or not isinstance(action, int) or not 0 <= action < n_actions
+    ):
+        raise StateFileError(f"{path}: unknown action {action!r}")
+
+
 def model_fingerprint(pomdp: POMDP) -> str:
     """A short hash of the model's reward and initial belief sizes (state file check)."""
     h = hashlib.sha256()
@@ -321,10 +362,7 @@ class PlannerAgent:
 
     def save(self, path: str | Path) -> None:
         """Write the state atomically (a crash mid-write leaves the old file intact)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.state()))
-        os.replace(tmp, path)
+        save_state(path, self.state())
 
     def restore(self, path: str | Path) -> bool:
         """Resume from a state file; False when there is none.
@@ -333,12 +371,10 @@ class PlannerAgent:
             StateFileError: unreadable, or written for another model.
         """
         path = Path(path)
-        if not path.exists():
+        data = read_state(path)
+        if data is None:
             return False
         try:
-            data = json.loads(read_text_capped(path))
-            if not isinstance(data, dict):
-                raise TypeError("not a JSON object")
             belief = np.asarray(data["belief"], float)
             step, phase, action = int(data["step"]), str(data["phase"]), data["action"]
         except (OSError, ValueError, KeyError, TypeError) as err:
@@ -347,18 +383,9 @@ class PlannerAgent:
             raise StateFileError(f"{path}: planner state of another model")
         if belief.shape != (self.pomdp.n_states,) or not np.isclose(belief.sum(), 1.0):
             raise StateFileError(f"{path}: the belief is not a distribution over the states")
-        if phase not in ("start", "acting", "observing", "done"):
-            raise StateFileError(f"{path}: unknown phase {phase!r}")
-        if step < 0:
-            raise StateFileError(f"{path}: negative step {step}")
+        check_progress(path, step, phase, action, self.pomdp.n_actions)
         if not np.all(np.isfinite(belief)) or np.any(belief < 0):
             raise StateFileError(f"{path}: the belief holds negative or non-finite numbers")
-        if action is not None and (
-            isinstance(action, bool)
-            or not isinstance(action, int)
-            or not 0 <= action < self.pomdp.n_actions
-        ):
-            raise StateFileError(f"{path}: unknown action {action!r}")
         values = data.get("values", [])
         if not isinstance(values, list) or not all(
             isinstance(v, int | float) and not isinstance(v, bool) for v in values

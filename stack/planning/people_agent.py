@@ -27,14 +27,20 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stack.config import read_text_capped
-from stack.planning.agent import ObservationError, Observed, StateFileError, parse_cell
+from stack.planning.agent import (
+    ObservationError,
+    Observed,
+    StateFileError,
+    check_progress,
+    parse_cell,
+    read_state,
+    save_state,
+)
 from stack.planning.belief import ZeroProbabilityObservation
 from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.model import direction_index
@@ -206,10 +212,7 @@ class PeopleAgent:
 
     def save(self, path: str | Path) -> None:
         """Write the state atomically."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.state()))
-        os.replace(tmp, path)
+        save_state(path, self.state())
 
     def restore(self, path: str | Path) -> bool:
         """Resume from a state file; False when there is none.
@@ -218,12 +221,10 @@ class PeopleAgent:
             StateFileError: unreadable, or written for another task.
         """
         path = Path(path)
-        if not path.exists():
+        data = read_state(path)
+        if data is None:
             return False
         try:
-            data = json.loads(read_text_capped(path))
-            if not isinstance(data, dict):
-                raise TypeError("not a JSON object")
             persons = np.asarray(data["persons"], float)
             robot, step = int(data["robot"]), int(data["step"])
             phase, action = str(data["phase"]), data["action"]
@@ -239,16 +240,7 @@ class PeopleAgent:
             raise StateFileError(f"{path}: the belief holds negative or non-finite numbers")
         if not 0 <= robot < pm.n_robot:
             raise StateFileError(f"{path}: unknown robot value {robot}")
-        if phase not in ("start", "acting", "observing", "done"):
-            raise StateFileError(f"{path}: unknown phase {phase!r}")
-        if step < 0:
-            raise StateFileError(f"{path}: negative step {step}")
-        if action is not None and (
-            isinstance(action, bool)
-            or not isinstance(action, int)
-            or not 0 <= action < len(ACTIONS)
-        ):
-            raise StateFileError(f"{path}: unknown action {action!r}")
+        check_progress(path, step, phase, action, len(ACTIONS))
         self.belief = PeopleBelief(robot, persons)
         self.step, self.phase, self.values = step, phase, values
         self.action = None if action is None else int(action)

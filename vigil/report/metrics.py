@@ -422,6 +422,20 @@ def step_counts(
 # -- all of it ---------------------------------------------------------------------------
 
 
+def visit_summary(visits: Sequence[Visit]) -> dict[str, Any]:
+    """The visit counts of a run or of one person (JSON-ready)."""
+    delays = [v.delay_s for v in visits if v.delay_s is not None]
+    return {
+        "visits": [v.as_dict() for v in visits],
+        "n_visits": len(visits),
+        "guarded": sum(v.guarded for v in visits),
+        "reachable": sum(bool(v.reachable) for v in visits),
+        "guarded_reachable": sum(v.guarded and bool(v.reachable) for v in visits),
+        "abandoned": sum(v.abandoned for v in visits),
+        "max_delay_s": _round(max(delays)) if delays else None,
+    }
+
+
 def guard_metrics(
     tl: Timeline,
     restricted: Sequence[int],
@@ -437,16 +451,9 @@ def guard_metrics(
     warnings = classify_warnings(tl, restricted, warning_starts)
     trips = false_trips(tl, restricted)
     counts = step_counts(tl, steps)
-    delays = [v.delay_s for v in visits if v.delay_s is not None]
     return {
         "basis": tl.source,
-        "visits": [v.as_dict() for v in visits],
-        "n_visits": len(visits),
-        "guarded": sum(v.guarded for v in visits),
-        "reachable": sum(bool(v.reachable) for v in visits),
-        "guarded_reachable": sum(v.guarded and bool(v.reachable) for v in visits),
-        "abandoned": sum(v.abandoned for v in visits),
-        "max_delay_s": _round(max(delays)) if delays else None,
+        **visit_summary(visits),
         "every_visit_guarded": all(v.guarded for v in visits),
         "warnings": warnings,
         "timely_warnings": sum(w["timely"] for w in warnings),

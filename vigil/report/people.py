@@ -16,9 +16,9 @@ from vigil.report.metrics import (
     MIN_VISIT_S,
     QUIET_S,
     Timeline,
-    _round,
     false_trips,
     find_visits,
+    visit_summary,
 )
 
 
@@ -47,19 +47,7 @@ def people_metrics(
     per = []
     for i, tl in enumerate(timelines):
         visits = find_visits(tl, restricted, min_visit_s, grid)
-        delays = [v.delay_s for v in visits if v.delay_s is not None]
-        per.append(
-            {
-                "person": i + 1,
-                "visits": [v.as_dict() for v in visits],
-                "n_visits": len(visits),
-                "guarded": sum(v.guarded for v in visits),
-                "reachable": sum(bool(v.reachable) for v in visits),
-                "guarded_reachable": sum(v.guarded and bool(v.reachable) for v in visits),
-                "abandoned": sum(v.abandoned for v in visits),
-                "max_delay_s": _round(max(delays)) if delays else None,
-            }
-        )
+        per.append({"person": i + 1, **visit_summary(visits)})
     trips: list[dict[str, Any]] = []
     if timelines:
         first = timelines[0]
