@@ -130,3 +130,17 @@ def test_speech_refuses_a_text_longer_than_the_cap(tmp_path):
     speaker = Speaker(SpeechConfig(max_text_chars=40), tmp_path)
     with pytest.raises(SpeechError, match="max_text_chars"):
         speaker.say("x " * 100, 0.0)
+
+
+def test_person_to_warn_with_one_and_several_people():
+    from stack.nav.speech import person_to_warn
+
+    # one person: the label itself (as before the people slots)
+    assert person_to_warn("1", "1") == 1
+    assert person_to_warn("1", "No person") is None
+    assert person_to_warn("Unknown", "5") == 5
+    # two people: the one in the robot's cell is warned even when slot 0 is elsewhere
+    slots = [{"person": "4", "velocity": "Not moving"}, {"person": "12", "velocity": "x"}]
+    assert person_to_warn("12", "4", slots) == 12
+    assert person_to_warn("1", "4", slots) == 4  # nobody with the robot: the first seen
+    assert person_to_warn("12", "No person", [{"person": "Unseen"}, "junk", {}]) is None

@@ -7,7 +7,9 @@ within ``grace_s``; a warning playing after that is cut short; nothing is queued
 
 Subscribes (names are parameters):
     ``/observations`` std_msgs/String: the observations node's JSON (``robot`` and
-        ``person`` labels: a cell number, or anything else for none).
+        ``person`` labels: a cell number, or anything else for none; with several
+        people also ``people``, one label per person slot: whoever is in the robot's
+        cell is warned, :func:`stack.nav.speech.person_to_warn`).
     ``/speech/say`` std_msgs/String: say this text now (empty: the configured warning).
 
 Publishes:
@@ -33,7 +35,7 @@ from std_msgs.msg import Bool, String
 import stack.topics as topic
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
-from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate
+from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate, person_to_warn
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_params import declare, declare_topics
@@ -106,7 +108,7 @@ class SpeechNode(Node):
             )
             return
         self.robot_cell = int(robot) if robot.isdigit() else None
-        self.person_cell = int(person) if person.isdigit() else None
+        self.person_cell = person_to_warn(robot, person, body.get("people"))
         self.check()
 
     def check(self) -> None:

@@ -397,6 +397,24 @@ class Speaker:
         return Utterance(req.text, req.voice, None, float("nan"), time.perf_counter() - t0)
 
 
+def person_to_warn(robot: str, person: str, people: object = None) -> int | None:
+    """The person cell the warning gate is given, from an observation's labels.
+
+    ``person`` is the one-person label; ``people`` (issue 16, two or more people) the
+    per-slot ``[{"person": label, ...}, ...]``. With several people, whoever stands in
+    the robot's cell is the one to warn; otherwise the first seen person's cell.
+    Labels that are not cell numbers ("No person", "Unseen") are nobody.
+    """
+    labels = [person]
+    if isinstance(people, list):
+        labels += [str(p.get("person", "")) for p in people if isinstance(p, dict)]
+    cells = [int(x) for x in labels if x.isdigit()]
+    here = int(robot) if robot.isdigit() else None
+    if here is not None and here in cells:
+        return here
+    return cells[0] if cells else None
+
+
 class WarningGate:
     """When to speak the warning (thesis 3.2.2, made timely).
 
