@@ -181,7 +181,7 @@ def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
     )
     lines, up = [], set()
     deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and len(up) < 9:
+    while time.monotonic() < deadline and len(up) < 11:
         line = proc.stdout.readline()
         if not line:
             break
@@ -190,6 +190,7 @@ def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
             up.add(line.split("[launch] up: ")[1].strip())
     assert up == {
         "twin_bridge",
+        "localisation",
         "camera_people",
         "legs",
         "observations",
@@ -198,6 +199,7 @@ def test_vigil_launch_shows_each_node_up_and_stops_cleanly_on_ctrl_c(tmp_path):
         "planner",
         "recorder",
         "markers",
+        "bag",
     }, "".join(lines)
     steps = tmp_path / "o" / "steps.jsonl"
     end = time.monotonic() + 120
