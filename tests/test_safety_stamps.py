@@ -116,7 +116,10 @@ def test_a_future_frame_does_not_blind_the_camera_node(ros_ex, tmp_path):
             spin(ros_ex, lambda: False, 0.15)
         assert spin(ros_ex, lambda: len(states) >= 6)
         assert node.stamps.rejected == {FUTURE: 1}
-        after = [s for s in states if s["stamp_s"] > stamps[1]]
+        # the frames' own records: on a loaded machine the frame watchdog may also
+        # report a silence between two frames (its record says "no camera frame")
+        frames = [s for s in states if "no camera frame" not in (s.get("warning") or "")]
+        after = [s for s in frames if s["stamp_s"] > stamps[1]]
         assert len(after) == 4  # every frame after the bad one was processed
         assert not any("frozen" in (s.get("warning") or "") for s in states)
     finally:
