@@ -80,9 +80,10 @@ def test_do_nothing_during_a_move_settles_in_the_current_cell():
 
 def test_bad_inputs_are_refused_with_a_reason():
     ex, _ = setup(1)
-    (log, result) = ex.action("Upwards", 0.0)
-    assert result.body["error_name"] == "INVALID_ACTION"
-    refused = [o for o in ex.action("East", 0.0) if o.kind == "result"]
+    (log, result) = ex.action("Upwards", 0.0, goal_id=8)
+    assert result.body["error_name"] == "INVALID_ACTION" and result.body["goal_id"] == 8
+    refused = [o for o in ex.action("East", 0.0, goal_id=9) if o.kind == "result"]
     assert refused[0].body["error_name"] == "ACTION_LEAVES_MAP"
+    assert refused[0].body["goal_id"] == 9  # each result carries its own goal's id
     assert ex.set_pose(Pose2D(float("nan"), 0.0, 0.0), 1.0)[0].kind == "log"
     assert ex.goal(float("inf"), 1.0, 1.0)[0].kind == "log"

@@ -1,8 +1,10 @@
 """The navigation node: the planner's action (or a goal pose) in, ``/cmd_vel`` out.
 
 Subscribes (names are parameters):
-    ``/nav/action`` std_msgs/String: "North", "South", "East", "West", "Do nothing".
-    ``/nav/action_id`` std_msgs/Int32: the same as :class:`stack.cells.Direction` numbers.
+    ``/nav/action`` vigil_interfaces/NavGoal: the planner's goal, an action ("North",
+        "South", "East", "West", "Do nothing") and its ``goal_id``.
+    ``/nav/action_id`` std_msgs/Int32: an action as a :class:`stack.cells.Direction`
+        number (an operator's; its result has goal id 0).
     ``/goal_pose`` geometry_msgs/PoseStamped: a goal in the map frame (orientation ignored).
     pose: ``/odom`` nav_msgs/Odometry (twin) or ``/amcl_pose``
         geometry_msgs/PoseWithCovarianceStamped (robot), or ``/tf`` and ``/tf_static``
@@ -15,11 +17,11 @@ Subscribes (names are parameters):
 
 Publishes:
     ``/cmd_vel`` geometry_msgs/Twist: body-frame (vx, vy, wz), capped at the limits.
-    ``/nav/progress`` std_msgs/String: JSON {goal_id, state, distance_remaining_m,
-        elapsed_s, replans, cell}.
-    ``/nav/result`` std_msgs/String: JSON {goal_id, result, error_code, error_name, message,
-        action, from_cell, target_cell, cell}; one per action or goal, including Do
-        nothing (succeeded at once) and refused actions.
+    ``/nav/progress`` vigil_interfaces/NavProgress: {goal_id, state,
+        distance_remaining_m, replans, message, cell}.
+    ``/nav/result`` vigil_interfaces/NavResult: {goal_id, result, error_code, error_name,
+        message, action, from_cell, target_cell, cell}; one per action or goal, including
+        Do nothing (succeeded at once) and refused actions; ``goal_id`` is the goal's.
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``follower`` sections),
 ``pose_source`` (odom | amcl | tf), ``tf_timeout_s`` (1.0), ``pose_topic`` (empty: the
@@ -31,13 +33,12 @@ the control loop then runs on simulated clock ticks).
 
 from __future__ import annotations
 
-import json
-
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Bool, Int32, String
+from std_msgs.msg import Bool, Int32
+from vigil_interfaces.msg import NavGoal, NavProgress, NavResult
 
 import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
@@ -48,6 +49,7 @@ from stack.nav.follower import ZERO_TWIST, Twist2D
 from stack.nav.occupancy import MapError, OccupancyMap, from_occupancy_grid, load_map_yaml
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import nav_goal_from_msg, nav_progress_to_msg, nav_result_to_msg
 from stack.ros_params import declare, declare_topics
 from stack.ros_tf import MapPose
 
@@ -134,9 +136,9 @@ class NavigationNode(Node):
 
         ls = self.lockstep = Participant(self, v.lockstep)
         self.cmd_pub = ls.publisher(Twist, topics["cmd_vel"], 10)
-        self.progress_pub = ls.publisher(String, topics["progress"], 10)
-        self.result_pub = ls.publisher(String, topics["result"], 10)
-        ls.subscription(String, topics["action"], self.on_action, 10)
+        self.progress_pub = ls.publisher(NavProgress, topics["progress"], 10)
+        self.result_pub = ls.publisher(NavResult, topics["result"], 10)
+        ls.subscription(NavGoal, topics["action"], self.on_action, 10)
         ls.subscription(Int32, topics["action_id"], self.on_action_id, 10)
         ls.subscription(PoseStamped, topics["goal"], self.on_goal, 10)
         ls.subscription(PoseArray, topics["people"], self.on_people, 10)
@@ -199,8 +201,13 @@ class NavigationNode(Node):
     def on_action_id(self, msg: Int32) -> None:
         self.emit(self.core.action(int(msg.data), self.now_s()))
 
-    def on_action(self, msg: String) -> None:
-        self.emit(self.core.action(msg.data, self.now_s()))
+    def on_action(self, msg: NavGoal) -> None:
+        try:
+            goal_id, action = nav_goal_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warning(f"navigation goal ignored: {err}")
+            return
+        self.emit(self.core.action(action, self.now_s(), goal_id))
 
     def on_goal(self, msg: PoseStamped) -> None:
         frame = msg.header.frame_id
@@ -218,9 +225,9 @@ class NavigationNode(Node):
             if o.kind == "cmd":
                 self.cmd_pub.publish(twist_to_msg(o.cmd))
             elif o.kind == "result":
-                self.result_pub.publish(String(data=json.dumps(o.body)))
+                self.result_pub.publish(nav_result_to_msg(o.body, self.now_s()))
             elif o.kind == "progress":
-                self.progress_pub.publish(String(data=json.dumps(o.body)))
+                self.progress_pub.publish(nav_progress_to_msg(o.body, self.now_s()))
             elif o.kind == "log":
                 self.get_logger().warning(o.text, throttle_duration_sec=1.0)
 
