@@ -23,11 +23,13 @@ of false; readers turn those back into ``None``.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose2D, Vector3
 from vigil_interfaces.msg import (
     Belief,
@@ -596,3 +598,53 @@ def ack_from_msg(msg: Any) -> dict[str, Any]:
         "sent": _counts(msg.sent_topics, msg.sent_counts, "sent"),
         "matched": _counts(msg.matched_topics, msg.matched_counts, "matched"),
     }
+
+
+# -- health (/diagnostics) -----------------------------------------------------------------
+DIAGNOSTIC_LEVELS = {"ok": 0, "warn": 1, "error": 2, "stale": 3}
+
+
+def _diag_value(v: Any) -> str:
+    """A value as diagnostics text: strings as they are, the rest as JSON (true, 0.3)."""
+    return v if isinstance(v, str) else json.dumps(v)
+
+
+def diagnostics_to_msg(
+    name: str,
+    hardware_id: str,
+    level: str,
+    message: str,
+    values: Mapping[str, Any],
+    stamp_msg: Any,
+) -> DiagnosticArray:
+    """One component's health as a diagnostic_msgs/DiagnosticArray with one status
+    (``level``: ok, warn, error or stale; ``values`` shown as key/value text)."""
+    status = DiagnosticStatus(
+        level=DIAGNOSTIC_LEVELS[level].to_bytes(1, "little"),
+        name=str(name),
+        message=str(message),
+        hardware_id=str(hardware_id),
+        values=[KeyValue(key=str(k), value=_diag_value(v)) for k, v in values.items()],
+    )
+    msg = DiagnosticArray(status=[status])
+    msg.header.stamp = stamp_msg
+    return msg
+
+
+def diagnostics_from_msg(msg: Any) -> dict[str, dict[str, Any]]:
+    """DiagnosticArray -> {status name: {"level": 0-3, "message": ..., key: value}}, values
+    read back as JSON where they are JSON (true, 0.3) and as text otherwise."""
+    out: dict[str, dict[str, Any]] = {}
+    for st in msg.status:
+        level = st.level
+        entry: dict[str, Any] = {
+            "level": int.from_bytes(level, "little") if isinstance(level, bytes) else int(level),
+            "message": str(st.message),
+        }
+        for kv in st.values:
+            try:
+                entry[kv.key] = json.loads(kv.value)
+            except ValueError:
+                entry[kv.key] = kv.value
+        out[str(st.name)] = entry
+    return out

@@ -166,3 +166,16 @@ def test_stamps_round_to_the_nanosecond():
     assert (t.sec, t.nanosec) == (3, 0)
     assert rm.stamp_s(rm.stamp(12.345678)) == pytest.approx(12.345678, abs=1e-9)
     assert rm.stamp(math.nan).sec == 0
+
+
+def test_diagnostics_carry_level_message_and_values():
+    from builtin_interfaces.msg import Time
+
+    values = {"armed": True, "reason": "not armed", "max_linear_mps": 0.3, "frames": 12}
+    msg = rm.diagnostics_to_msg("velocity_gate", "", "warn", "not armed", values, Time(sec=3))
+    (status,) = msg.status
+    assert status.name == "velocity_gate" and msg.header.stamp.sec == 3
+    back = rm.diagnostics_from_msg(msg)["velocity_gate"]
+    assert back == {"level": 1, "message": "not armed", **values}
+    with pytest.raises(KeyError):
+        rm.diagnostics_to_msg("x", "", "fine", "", {}, Time())
