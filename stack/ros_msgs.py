@@ -31,6 +31,7 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose2D, Vector3
+from vigil_interfaces.action import NavigateToPose
 from vigil_interfaces.msg import (
     Belief,
     BeliefVariable,
@@ -341,6 +342,67 @@ def nav_result_from_msg(msg: Any) -> dict[str, Any]:
         "target_cell": _cell_in(msg.target_cell, "target_cell"),
         "cell": _cell_in(msg.cell, "cell"),
     }
+
+
+# nav2's error codes in the NavigateToPose result (vigil's own detail: error_msg, result)
+NAV2_NONE, NAV2_UNKNOWN, NAV2_TIMEOUT = 0, 9000, 9003
+
+
+def nav_action_goal_from_msg(goal: Any, map_frame: str = "map") -> dict[str, Any]:
+    """A NavigateToPose goal -> {"goal_id", "action"} (an action's name, vigil's field)
+    or {"goal_id", "x", "y"} (a pose in the map frame, nav2's field; orientation ignored).
+
+    Raises:
+        ValueError: an unknown frame, or a non-finite pose.
+    """
+    goal_id = int(goal.goal_id)
+    if goal.action:
+        return {"goal_id": goal_id, "action": str(goal.action)}
+    frame = goal.pose.header.frame_id
+    if frame and frame != map_frame:
+        raise ValueError(f"goal pose in frame {frame!r}, need {map_frame!r}")
+    x, y = _xy(goal.pose.pose.position, "goal pose")
+    return {"goal_id": goal_id, "x": x, "y": y}
+
+
+def nav_action_result_to_msg(d: Mapping[str, Any]) -> Any:
+    """Navigation's result record -> NavigateToPose.Result (nav2's error code: NONE on
+    success, TIMEOUT for timed_out, UNKNOWN otherwise; vigil's detail in error_msg)."""
+    msg = NavigateToPose.Result()
+    result = _str(d.get("result"))
+    msg.error_code = (
+        NAV2_NONE
+        if result == "succeeded"
+        else NAV2_TIMEOUT
+        if result == "timed_out"
+        else NAV2_UNKNOWN
+    )
+    msg.error_msg = "" if result == "succeeded" else f"{d.get('error_name')}: {d.get('message')}"
+    msg.goal_id = int(d.get("goal_id") or 0)
+    msg.result = result
+    msg.cell = _cell_out(d.get("cell"))
+    return msg
+
+
+def nav_action_feedback_to_msg(
+    d: Mapping[str, Any], pose_xy_yaw: tuple[float, float, float] | None, elapsed_s: float
+) -> Any:
+    """Navigation's progress record, the robot's map pose and the time since the goal
+    began -> NavigateToPose.Feedback."""
+    msg = NavigateToPose.Feedback()
+    if pose_xy_yaw is not None:
+        x, y, yaw = pose_xy_yaw
+        msg.current_pose.header.frame_id = "map"
+        msg.current_pose.pose.position.x, msg.current_pose.pose.position.y = float(x), float(y)
+        msg.current_pose.pose.orientation.z = math.sin(yaw / 2)
+        msg.current_pose.pose.orientation.w = math.cos(yaw / 2)
+    elapsed_ns = max(0, int(round(elapsed_s * 1e9))) if math.isfinite(elapsed_s) else 0
+    msg.navigation_time.sec, msg.navigation_time.nanosec = divmod(elapsed_ns, 1_000_000_000)
+    msg.number_of_recoveries = min(int(d.get("replans") or 0), 2**15 - 1)
+    msg.distance_remaining = _none_nan(d.get("distance_remaining_m"))
+    msg.goal_id = int(d.get("goal_id") or 0)
+    msg.state = _str(d.get("state"))
+    return msg
 
 
 def nav_progress_to_msg(d: Mapping[str, Any], t_s: float = 0.0) -> NavProgress:

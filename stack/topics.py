@@ -38,6 +38,7 @@ NAV_ACTION = "/nav/action"
 NAV_ACTION_ID = "/nav/action_id"
 NAV_PROGRESS = "/nav/progress"
 NAV_RESULT = "/nav/result"
+NAVIGATE_TO_POSE = "navigate_to_pose"  # the NavigateToPose action (nav2's name), navigation
 SPEECH_SAY = "/speech/say"
 SPEECH_DONE = "/speech/done"
 SPEECH_SPEAKING = "/speech/speaking"

@@ -87,3 +87,15 @@ def test_bad_inputs_are_refused_with_a_reason():
     assert refused[0].body["goal_id"] == 9  # each result carries its own goal's id
     assert ex.set_pose(Pose2D(float("nan"), 0.0, 0.0), 1.0)[0].kind == "log"
     assert ex.goal(float("inf"), 1.0, 1.0)[0].kind == "log"
+
+
+def test_cancel_ends_only_the_goal_under_way():
+    ex, base = setup(7)
+    ex.action("East", 0.0, goal_id=5)
+    t, _ = run(ex, base, 0.0, 0.5, stop_on_result=False)
+    assert ex.cancel(4, "not this one") == [] and ex.follower.active
+    out = ex.cancel(5, "client asked")
+    assert out[0].kind == "cmd" and out[0].cmd.vx_mps == 0.0
+    (result,) = [o.body for o in out if o.kind == "result"]
+    assert result["result"] == "canceled" and result["goal_id"] == 5
+    assert not ex.follower.active and ex.cancel(5, "again") == []

@@ -198,3 +198,74 @@ def test_navigation_node_reads_amcl_pose_and_a_map_file(ros, tmp_path):
         nav.destroy_node()
     with pytest.raises(ConfigError, match="pose_source: 'gps' is invalid"):
         NavigationNode(parameter_overrides=[Parameter("pose_source", value="gps")])
+
+
+def test_navigate_to_pose_action_goal_feedback_result_cancel_and_reject(ros):
+    """Issue 14: the navigation node serves a NavigateToPose-shaped action, the nav2
+    way: an action goal drives the robot and ends with its result (also on /nav/result,
+    under the same goal id); a pose goal gives feedback and is canceled; a goal in
+    another frame is rejected."""
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from vigil_interfaces.action import NavigateToPose
+
+    sim = SimBase(GRID.center(3))
+    nav = NavigationNode(parameter_overrides=[Parameter("control_rate_hz", value=20.0)])
+    client = ActionClient(sim, NavigateToPose, "navigate_to_pose")
+    for node in (sim, nav):
+        ros.add_node(node)
+
+    def send(goal, feedback):
+        future = client.send_goal_async(goal, feedback_callback=lambda f: feedback.append(f))
+        assert spin_until(ros, future.done, 5.0), "no answer to the goal"
+        return future.result()
+
+    try:
+        assert spin_until(ros, lambda: nav.pose is not None and client.server_is_ready(), 5.0)
+        handle = send(NavigateToPose.Goal(action="East"), [])  # cell 3 -> cell 1
+        assert handle.accepted
+        result = handle.get_result_async()
+        assert spin_until(ros, result.done, 15.0), "no result for East"
+        r = result.result()
+        assert r.status == GoalStatus.STATUS_SUCCEEDED
+        assert (r.result.result, r.result.error_code, r.result.cell) == ("succeeded", 0, 1)
+        assert r.result.goal_id >= 2**31  # given by the server: never a planner step's
+        assert spin_until(
+            ros, lambda: sim.results and sim.results[-1]["goal_id"] == r.result.goal_id, 2.0
+        )
+        # a pose goal far away: feedback while it drives, then canceled
+        goal = NavigateToPose.Goal()
+        goal.pose.header.frame_id = "map"
+        goal.pose.pose.position.x, goal.pose.pose.position.y = GRID.center(12)
+        feedback: list = []
+        handle = send(goal, feedback)
+        assert handle.accepted
+        assert spin_until(ros, lambda: len(feedback) >= 1, 10.0), "no feedback"
+        fb = feedback[-1].feedback
+        assert fb.state and fb.current_pose.header.frame_id == "map"
+        assert fb.goal_id >= 2**31 and fb.distance_remaining > 0
+        cancel = handle.cancel_goal_async()
+        assert spin_until(ros, cancel.done, 5.0)
+        result = handle.get_result_async()
+        assert spin_until(ros, result.done, 5.0)
+        assert result.result().status == GoalStatus.STATUS_CANCELED
+        assert result.result().result.result == "canceled"
+        assert spin_until(ros, lambda: not nav.follower.active, 2.0)
+        # a goal from the planner's topic while an action goal drives: the action goal
+        # ends "canceled" (superseded), the topic goal goes on under its own id
+        handle = send(goal, [])
+        assert handle.accepted and spin_until(ros, lambda: nav.follower.active, 3.0)
+        result = handle.get_result_async()
+        planner_goal = sim.act("West")
+        assert spin_until(ros, result.done, 5.0)
+        assert result.result().status == GoalStatus.STATUS_ABORTED
+        assert "superseded by goal" in result.result().result.error_msg
+        assert spin_until(ros, lambda: sim.results[-1]["goal_id"] == planner_goal, 15.0)
+        # a goal in another frame: rejected, the node keeps serving
+        goal.pose.header.frame_id = "odom"
+        assert not send(goal, []).accepted
+    finally:
+        client.destroy()
+        for node in (sim, nav):
+            ros.remove_node(node)
+            node.destroy_node()

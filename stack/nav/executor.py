@@ -103,6 +103,13 @@ class ActionExecutor:
                 out += self._report(self.follower.cancel("stop requested"))
         return out
 
+    def cancel(self, goal_id: int, reason: str) -> list[Output]:
+        """Cancel goal ``goal_id`` if it is the one under way (a zero command and its
+        "canceled" result); nothing for another goal or when idle."""
+        if goal_id != self.goal_id or not self.follower.active:
+            return []
+        return [Output("cmd", ZERO_TWIST), *self._report(self.follower.cancel(reason))]
+
     def action(self, raw: str | int, now_s: float, goal_id: int = 0) -> list[Output]:
         """One of the thesis's actions (name or :class:`stack.cells.Direction` number).
 
