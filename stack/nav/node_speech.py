@@ -16,8 +16,10 @@ Publishes:
     ``/speech/done`` vigil_interfaces/SpeechDone: {request_id, kind, text, voice, wav,
         duration_s, error} for every finished, replaced, dropped or failed request.
     ``/speech/speaking`` std_msgs/Bool: true when an utterance starts, false when idle.
-    ``/speech/warning`` vigil_interfaces/Warning: the warning's text, its request id and
-        the warned person's cell, the moment it is decided (the utterance follows).
+    ``/speech/warning`` vigil_interfaces/Warning: the warning's text, the warned
+        person's cell and, as ``request_id``, the warning's number (1, 2, ...: it is
+        published before the speaker gives the utterance its id), the moment it is
+        decided (the utterance follows).
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``speech`` sections),
 ``voice`` (overrides the file: "en", "pt"), ``out_dir`` (the run folder: WAV + log there
