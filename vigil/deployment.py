@@ -292,7 +292,7 @@ def _check_hardware(dep: Deployment) -> None:
         raise ConfigError(
             "ros.interfaces", [], "hardware mode off localhost must list the addresses DDS may use"
         )
-    if dep.topics.cmd_vel in (NAV_CMD_VEL, topic.ARM, topic.SAFETY_STATE):
+    if dep.topics.cmd_vel in (NAV_CMD_VEL, topic.ARM, topic.DIAGNOSTICS):
         raise ConfigError(
             "topics.cmd_vel",
             dep.topics.cmd_vel,

@@ -65,6 +65,7 @@ TOPICS = (
     topic.SPEECH_SPEAKING,
     topic.TWIN_TRUTH,
     topic.MARKERS,
+    topic.DIAGNOSTICS,  # the hardware nodes' health (none in the twin)
 )
 RATE_LIMITED = (topic.CAMERA_IMAGE,)
 
