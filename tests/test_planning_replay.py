@@ -55,12 +55,14 @@ def test_quoted_beliefs_are_close_to_the_thesis(replay):
 
 @pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_the_first_quoted_beliefs(replay):
-    """After step 1 of table 5.1: P(East) = 0.75, P(at 9) = 0.22, P(at 11) = 0.73."""
+    """After step 1 of table 5.1: P(East) = 0.75, P(at 9) = 0.22, P(at 11) = 0.73, each
+    within issue 12's 0.1 (the second fit gives 0.70, 0.26, 0.70: it trades these for
+    the largest errors elsewhere, max 0.208 -> 0.072)."""
     results, _ = replay
     q = {(x.quote.what, x.quote.values): x.ours for x in results[0].quotes if x.quote.step == 1}
-    assert q[("direction", ("East",))] == pytest.approx(0.75, abs=0.05)
-    assert q[("position", (9,))] == pytest.approx(0.22, abs=0.05)
-    assert q[("position", (11,))] == pytest.approx(0.73, abs=0.05)
+    assert q[("direction", ("East",))] == pytest.approx(0.75, abs=0.1)
+    assert q[("position", (9,))] == pytest.approx(0.22, abs=0.1)
+    assert q[("position", (11,))] == pytest.approx(0.73, abs=0.1)
 
 
 @pytest.mark.slow  # solves both tasks (minutes); CI runs it
