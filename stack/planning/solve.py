@@ -239,6 +239,7 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
         progress=progress,
         beliefs=config.beliefs,
         rounds=config.iterations,
+        grow=config.time_limit_s is not None,
     )
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
