@@ -22,7 +22,8 @@ every robot cell; a backup at b updates all cells at once:
   trials, person beliefs sampled from the starts (the person evolves whatever the
   robot does, so these are the beliefs every policy meets) are backed up in rounds,
   deepest first: this raises the lower bound far faster than trials, which SARSOP's
-  target levels stop a few steps from the root;
+  target levels stop a few steps from the root; under a time limit a plateau of the
+  rounds adds a further batch of sampled beliefs (``grow``);
 - **upper bound**: the fast informed bound computed on the factors (a sweep is one
   (X, Y, Y) x (Y, Z) product per action, milliseconds, against a second for the
   flat form), refined by the backups in the tree, and optionally (``sawtooth``) by
