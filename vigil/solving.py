@@ -43,9 +43,9 @@ def solver_config(args: argparse.Namespace):
         relative_gap=getattr(args, "relative_gap", 0.0),
         trials=getattr(args, "trials", None),
         perseus_share=getattr(args, "perseus_share", 0.0),
-        # writing a vector entry as XML text takes ~0.2 us on an idle core, ~1 us
-        # under the load of docs/BENCHMARKS.md; the search stops that much earlier
-        write_s_per_value=1e-6 if getattr(args, "output", None) else 0.0,
+        # writing a vector entry as XML text takes ~0.4 us on an idle core, more under
+        # load (the search measures it and scales this up); it stops that much earlier
+        write_s_per_value=0.5e-6 if getattr(args, "output", None) else 0.0,
     )
 
 

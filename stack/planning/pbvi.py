@@ -94,9 +94,11 @@ def sample_beliefs(
     Q: np.ndarray | None = None,
     explore: float = 0.3,
     horizon: int = 40,
+    deadline: float | None = None,
 ) -> np.ndarray:
     """Reachable beliefs from trajectories of a QMDP policy (random actions with
-    probability ``explore``), as Symbolic Perseus samples them (section 4.3).
+    probability ``explore``), as Symbolic Perseus samples them (section 4.3); fewer
+    when ``time.perf_counter()`` passes ``deadline``.
 
     Returns:
         (N, S) array of distinct beliefs; the start beliefs come first.
@@ -129,6 +131,8 @@ def sample_beliefs(
     while len(out) < n_beliefs and attempts < 50 * n_beliefs and attempts - last_new < 2000:
         b = starts[attempts % len(starts)]
         s = draw(np.arange(S), b, rng)
+        if deadline is not None and time.perf_counter() >= deadline:
+            break
         for _ in range(horizon):
             attempts += 1
             a = int(rng.integers(A)) if rng.random() < explore else int(np.argmax(b @ Q))
@@ -254,6 +258,8 @@ def perseus(
         new_vals = np.full(len(B), -np.inf)
         todo = np.arange(len(B))
         while todo.size:
+            if time_limit_s is not None and time.perf_counter() - start > time_limit_s:
+                break  # mid-iteration: the new vectors join the old (all valid, closed)
             i = int(rng.choice(todo))
             # Gauss-Seidel: back up against the old vectors and those made this iteration,
             # so value travels further than one step per iteration (gamma = 0.99 is slow)
@@ -274,6 +280,10 @@ def perseus(
             new_actions.append(a)
             new_vals = np.maximum(new_vals, B @ alpha)
             todo = np.flatnonzero(new_vals < old - 1e-9)
+        if todo.size:  # stopped mid-iteration: the old vectors still hold where no new one
+            new_alphas = [*alphas, *new_alphas]
+            new_actions = [*actions.tolist(), *new_actions]
+            new_gids = [*gids.tolist(), *new_gids]
         alphas = np.vstack(new_alphas)
         actions = np.asarray(new_actions)
         gids = np.asarray(new_gids, dtype=int)

@@ -155,16 +155,18 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
 
     starts = list(starts) if starts is not None else [pomdp.b0]
     t0 = time.perf_counter() if start is None else start
+    Q = qmdp(pomdp)  # once: the sampler's policy and the search's first upper bound
     if config.perseus_share > 0:
         # Perseus's vectors are backups of valid lower-bound vectors, so they are valid
         # seeds; they lift the lower bound of wide-belief models (Hallway2) quickly
         rng = np.random.default_rng(config.seed)
-        B = sample_beliefs(pomdp, starts, config.beliefs, rng, explore=config.explore)
-        budget = (
-            None
-            if config.time_limit_s is None
-            else config.perseus_share * config.time_limit_s - (time.perf_counter() - t0)
+        until = (
+            None if config.time_limit_s is None else t0 + config.perseus_share * config.time_limit_s
         )
+        B = sample_beliefs(
+            pomdp, starts, config.beliefs, rng, Q, explore=config.explore, deadline=until
+        )
+        budget = None if until is None else until - time.perf_counter()
         iterations = config.iterations if budget is not None else max(1, config.iterations)
         closure: dict = {}
         perseus(
@@ -202,6 +204,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         progress=progress,
         b0=starts[0],
         extra_roots=starts[1:],
+        q_upper=Q,
     )
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
