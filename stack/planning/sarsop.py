@@ -47,6 +47,8 @@ from stack.planning.pomdp import POMDP
 from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12  # successor beliefs less likely than this are not expanded
+_CAT_MAX = 4096  # values of one node's concatenated successors (BeliefTreeSearch._concatenate)
+_CAT_BUDGET = 20_000_000  # ... of all nodes' (160 MB)
 
 
 class SolveError(RuntimeError):
@@ -141,7 +143,7 @@ class _Kids:
 
 
 class _Node:
-    __slots__ = ("idx", "val", "ub", "lb", "kids", "point")
+    __slots__ = ("idx", "val", "ub", "lb", "kids", "point", "cat")
 
     def __init__(self, idx: np.ndarray, val: np.ndarray, ub: float, lb: float):
         self.idx = idx
@@ -150,6 +152,8 @@ class _Node:
         self.lb = lb
         self.kids: list[_Kids] | None = None
         self.point = -1  # index of this belief's upper-bound point, -1 if none
+        # every action's successors side by side (see BeliefTreeSearch._concatenate)
+        self.cat: tuple | None = None
 
 
 @dataclass
@@ -381,6 +385,13 @@ class BeliefTreeSearch(StoppingRules):
             for a in range(A):
                 same = next((b for b in range(a) if pomdp.O[b] is pomdp.O[a]), None)
                 self.O_dense[a] = self.O_dense[same] if same is not None else self.O[a].toarray()
+        # all actions' observation tables as one (A, S, Z) array where small
+        self.O_stack = (
+            np.stack(self.O_dense)  # type: ignore[arg-type]
+            if all(o is not None for o in self.O_dense)
+            and A * S * pomdp.n_observations <= 4_000_000
+            else None
+        )
         # one row slice gives the predictions of every action: T_all[s] = [T_0[s] ... T_A[s]]
         self.T_all = sp.hstack(self.T, format="csr")
         # ... dense where it is small: a row gather is then a numpy slice, not scipy's
@@ -388,6 +399,7 @@ class BeliefTreeSearch(StoppingRules):
         self.T_all_dense = self.T_all.toarray() if S * S * A <= 4_000_000 else None
         self.backups = 0
         self.trials = 0
+        self._cat_values = 0
         self.history: list[SearchStats] = []
         self._last_report = -math.inf
 
@@ -490,6 +502,9 @@ class BeliefTreeSearch(StoppingRules):
         if node.kids is not None:
             return node.kids
         S = self.S
+        if self.T_all_dense is not None and self.O_stack is not None:
+            node.kids = self._expand_dense(node)
+            return node.kids
         if self.T_all_dense is not None:
             pred_all = node.val @ self.T_all_dense[node.idx]
         else:
@@ -522,6 +537,41 @@ class BeliefTreeSearch(StoppingRules):
         node.kids = kids
         return kids
 
+    def _expand_dense(self, node: _Node) -> list[_Kids]:
+        """:meth:`_expand` for a model whose tables are small enough to be dense: every
+        action at once, the successors over the union of the states they cover."""
+        A, S = self.A, self.S
+        assert self.T_all_dense is not None and self.O_stack is not None
+        pred = (node.val @ self.T_all_dense[node.idx]).reshape(A, S)
+        nz = np.flatnonzero(pred.any(axis=0))
+        joint = pred[:, nz, None] * self.O_stack[:, nz, :]  # (A, n, Z)
+        pz = joint.sum(axis=1)  # (A, Z)
+        acts, zs = np.nonzero(pz > _PROB_EPS)  # by action, then observation
+        M = joint[acts, :, zs].T / pz[acts, zs]  # (n, successors)
+        ub = (self.Q_upper[nz].T @ M).max(axis=0)  # the fast informed bound only
+        reward = node.val @ self.R[node.idx]
+        nodes = []
+        for j in range(zs.size):
+            rows = np.flatnonzero(M[:, j] > 0)
+            nodes.append(self._node(nz[rows], M[rows, j], ub=float(ub[j])))
+        bounds = np.searchsorted(acts, np.arange(A + 1))
+        kids = []
+        for a in range(A):
+            lo, hi = bounds[a], bounds[a + 1]
+            rows = np.flatnonzero(pred[a, nz] > 0)  # the action's own states: the sawtooth
+            # reads only the points whose support lies inside them
+            kids.append(
+                _Kids(
+                    float(reward[a]),
+                    zs[lo:hi],
+                    pz[a, zs[lo:hi]],
+                    nodes[lo:hi],
+                    M[rows, lo:hi],
+                    nz[rows],
+                )
+            )
+        return kids
+
     def _refresh_upper(self, kids: _Kids) -> np.ndarray:
         """Upper bounds of the successors, re-interpolated with the latest points."""
         fresh = self.points.values(kids.nz, kids.M)
@@ -547,10 +597,52 @@ class BeliefTreeSearch(StoppingRules):
             q_upper[a] = kids[a].reward + g * (kids[a].pz @ self._refresh_upper(kids[a]))
             fresh[a] = True
 
-    def _backup(self, node: _Node) -> None:
-        """Back up both bounds at ``node``: one alpha vector and one upper point."""
-        kids = self._expand(node)
+    def _concatenate(self, node: _Node, kids: list[_Kids]) -> tuple | None:
+        """Every action's successor beliefs as the columns of one matrix over the union
+        of their states, so one product values every successor of every action (the
+        loop over actions cost more than the products on RockSample). Kept while the
+        cached matrices stay under ``_CAT_BUDGET`` values in all."""
+        if node.cat is not None:
+            return node.cat
+        n = sum(k.zs.size for k in kids)
+        if n == 0:
+            return None
+        nz = np.unique(np.concatenate([k.nz for k in kids]))
+        if nz.size * n > _CAT_MAX or self._cat_values + nz.size * n > _CAT_BUDGET:
+            return None
+        M = np.zeros((nz.size, n))
+        col = 0
+        for k in kids:
+            M[np.searchsorted(nz, k.nz), col : col + k.zs.size] = k.M
+            col += k.zs.size
+        seg = np.repeat(np.arange(self.A), [k.zs.size for k in kids])
+        pz = np.concatenate([k.pz for k in kids])
+        reward = np.array([k.reward for k in kids])
+        starts = np.concatenate([[0], np.cumsum([k.zs.size for k in kids])])
+        children = [c for k in kids for c in k.nodes]
+        leaf = np.array([c.kids is None for c in children])
+        node.cat = (nz, M, seg, pz, reward, starts, children, leaf)
+        self._cat_values += M.size
+        return node.cat
+
+    def _q_lower(self, node: _Node, kids: list[_Kids]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Q_L(b, a) for every action and, per action, the best vector at each successor."""
         g = self.gamma
+        cat = self._concatenate(node, kids)
+        if cat is not None:
+            nz, M, seg, pz, reward, starts, children, leaf = cat
+            G = M.T @ self._AT[nz, : self.K]  # (successors, K)
+            best = G.argmax(axis=1)
+            lbs = G[np.arange(best.size), best]
+            if leaf.any():  # a leaf's bound is just its best vector's value
+                for j in np.flatnonzero(leaf):
+                    c = children[j]
+                    if c.kids is None:
+                        c.lb = min(float(lbs[j]), c.ub)
+                    else:
+                        leaf[j] = False
+            q = reward + g * np.bincount(seg, weights=pz * lbs, minlength=self.A)
+            return q, [best[starts[a] : starts[a + 1]] for a in range(self.A)]
         q_lower = np.empty(self.A)
         choice = []
         for a, k in enumerate(kids):
@@ -563,6 +655,12 @@ class BeliefTreeSearch(StoppingRules):
                     c.lb = min(float(v), c.ub)
             q_lower[a] = k.reward + g * (k.pz @ lbs)
             choice.append(best)
+        return q_lower, choice
+
+    def _backup(self, node: _Node) -> None:
+        """Back up both bounds at ``node``: one alpha vector and one upper point."""
+        kids = self._expand(node)
+        q_lower, choice = self._q_lower(node, kids)
         q_upper = self._q_upper(kids)
         self.backups += 1
         # upper bound: a point at this belief
