@@ -1,12 +1,12 @@
 """The belief-tree search (stack/planning/sarsop.py), SARSOP's policy format and .pomdpx."""
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from stack.planning import sarsop as sarsop_module
 from stack.planning.evaluate import evaluate
 from stack.planning.pbvi import sample_beliefs
 from stack.planning.policy import AlphaPolicy, read_policy_xml, write_policy_xml
@@ -122,7 +122,7 @@ def test_time_limit_is_checked_inside_trials(monkeypatch):
         now[0] += 0.01
         return now[0]
 
-    monkeypatch.setattr(sarsop_module.time, "perf_counter", clock)
+    monkeypatch.setattr(time, "perf_counter", clock)  # the solvers' clock.now() reads it
     r = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=3.0, fib_share=0.0), start=0.0).run()
     assert r.stopped in ("time", "gap")
     assert r.seconds <= 3.0 + 0.2
@@ -325,8 +325,6 @@ def test_a_passed_deadline_stops_every_phase_on_a_large_file(tmp_path):
     """RockSample_5_7 (3,201 states) with its deadline already passed when the solve
     begins: Perseus, the sampler and the search do no work, and a valid policy (the
     blind vectors) is still written and read back."""
-    import time
-
     pomdp = _model("RockSample_5_7.pomdp")
     config = SolverConfig(
         time_limit_s=5.0, perseus_share=0.3, beliefs=1000, iterations=1000, trials=None
@@ -343,7 +341,6 @@ def test_a_passed_deadline_stops_every_phase_on_a_large_file(tmp_path):
 def test_perseus_stops_inside_an_iteration_at_its_limit(monkeypatch):
     """A clock that moves 10 ms per reading: Perseus stops within a few backups of its
     limit, inside an iteration, and keeps a closed, valid set."""
-    from stack.planning import pbvi
     from stack.planning.pbvi import perseus
 
     pomdp = _model("4x3.95.POMDP")
@@ -356,7 +353,7 @@ def test_perseus_stops_inside_an_iteration_at_its_limit(monkeypatch):
         now[0] += 0.01
         return now[0]
 
-    monkeypatch.setattr(pbvi.time, "perf_counter", clock)
+    monkeypatch.setattr(time, "perf_counter", clock)
     closure: dict = {}
     pol, hist = perseus(
         pomdp, B, iterations=50, rng=np.random.default_rng(0), time_limit_s=0.05, closure=closure
@@ -387,3 +384,24 @@ def test_dominated_vectors_are_dropped_and_the_set_stays_closed():
     )
     assert len(a2) <= K
     _closed(pomdp, a2, act2, s2)
+
+
+def test_cpu_time_limit_reads_the_process_clock(tmp_path, capsys, monkeypatch):
+    """--cpu-time: the limit reads time.process_time (a wall clock that races ahead
+    does not stop the search), and the JSON says which clock was read."""
+    if not POMDP_DIR.is_dir():
+        pytest.skip(f"{POMDP_DIR} not present")
+    wall = [0.0]
+
+    def racing():
+        wall[0] += 100.0
+        return wall[0]
+
+    monkeypatch.setattr(time, "perf_counter", racing)
+    rc = vigil(
+        ["solve-pomdp", str(POMDP_DIR / "Tiger.pomdp"), "--time-limit", "30", "--cpu-time"]
+        + ["--json", "--quiet"]
+    )
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["clock"] == "cpu"
+    assert out["stopped"] == "gap"  # converged: the racing wall clock was not read

@@ -69,10 +69,11 @@ def progress_printer(args: argparse.Namespace, stream=sys.stderr, every_s: float
 
 
 def command_start(args: argparse.Namespace) -> float:
-    """When the command's time limit began (``main`` records it)."""
-    import time
+    """When the command's time limit began (``main`` records it), on the solvers' clock."""
+    from stack.planning import clock
 
-    return getattr(args, "start", None) or time.perf_counter()
+    start = getattr(args, "start", None)
+    return clock.now() if start is None else start
 
 
 def solve_task_file(

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 import tokenize
 import xml.etree.ElementTree as ET
 import zipfile
@@ -14,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from stack.planning import clock
 
 
 class PolicyFileError(ValueError):
@@ -220,10 +221,10 @@ def format_vectors(alphas: np.ndarray, actions: np.ndarray, chunk: int = 64):
 def seconds_per_value(sample: np.ndarray) -> float:
     """Measured time to format one value of ``sample`` (a block of vectors) as XML."""
     sample = np.atleast_2d(sample)
-    t = time.perf_counter()
+    t = clock.now()
     for _ in format_vectors(sample, np.zeros(len(sample), dtype=int)):
         pass
-    return (time.perf_counter() - t) / max(1, sample.size)
+    return (clock.now() - t) / max(1, sample.size)
 
 
 def _attr(text: str) -> str:

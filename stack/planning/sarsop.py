@@ -33,13 +33,13 @@ one set of cached per-node arrays; split apart they would pass them back and for
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp, require_discounted
 from stack.planning.controller import prune_closed
 from stack.planning.policy import AlphaPolicy, BoundedResult, seconds_per_value
@@ -61,7 +61,7 @@ class SearchConfig:
 
     Attributes:
         time_limit_s: stop when this much time has passed since ``start`` (wall time,
-            ``time.perf_counter``); None: no limit.
+            ``clock.now``); None: no limit.
         target_gap: stop when V_U(b0) - V_L(b0) is at most this (absolute).
         relative_gap: ... or at most this fraction of max(|V_L(b0)|, |V_U(b0)|).
         trial_improvement: each trial aims to shrink the root's gap to this fraction.
@@ -308,7 +308,7 @@ class StoppingRules:
     def _late(self) -> bool:
         """Past the deadline, less the time writing the vectors will take and the
         share of the limit kept for pruning them (``config.finish_share``)."""
-        return time.perf_counter() >= self.deadline - self._reserve()
+        return clock.now() >= self.deadline - self._reserve()
 
     def _reserve(self) -> float:
         limit = self.config.time_limit_s or 0.0
@@ -345,7 +345,7 @@ class BeliefTreeSearch(StoppingRules):
             set (:func:`stack.planning.controller.close_vectors`). Seeds without one
             are values of plans whose later steps the set need not hold, so the best
             vector's policy may fall short of them.
-        start: time.perf_counter() at which the time limit started (default: now), so
+        start: clock.now() at which the time limit started (default: now), so
             that a command's own set-up counts against its limit exactly once.
         q_upper: the model's QMDP values (S, A) if already computed (an upper bound).
         progress: called with a :class:`SearchStats` at most once per
@@ -366,7 +366,7 @@ class BeliefTreeSearch(StoppingRules):
         require_discounted(pomdp)
         self.pomdp = pomdp
         self.config = config
-        self.start = time.perf_counter() if start is None else start
+        self.start = clock.now() if start is None else start
         self.deadline = (
             math.inf if config.time_limit_s is None else self.start + config.time_limit_s
         )
@@ -405,7 +405,7 @@ class BeliefTreeSearch(StoppingRules):
 
         # -- the upper bound: QMDP, tightened by the fast informed bound ----------------
         Q = qmdp(pomdp) if q_upper is None else q_upper
-        remaining = self.deadline - time.perf_counter()
+        remaining = self.deadline - clock.now()
         fib_budget = (
             30.0 if not math.isfinite(remaining) else max(0.0, remaining) * config.fib_share
         )
@@ -721,6 +721,8 @@ class BeliefTreeSearch(StoppingRules):
         keep = np.zeros(self.K, dtype=bool)
         chunk = max(1, 4_000_000 // max(self.K, 1))
         for lo in range(0, len(nodes), chunk):
+            if self._late():
+                return  # a long pruning (many nodes, many vectors) is abandoned whole
             part = nodes[lo : lo + chunk]
             indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in part])])
             B = sp.csr_matrix(
@@ -849,7 +851,7 @@ class BeliefTreeSearch(StoppingRules):
         self.trials += 1
 
     def _report(self, force: bool = False) -> None:
-        now = time.perf_counter()
+        now = clock.now()
         if not force and now - self._last_report < self.config.progress_every_s:
             return
         self._last_report = now
@@ -886,7 +888,7 @@ class BeliefTreeSearch(StoppingRules):
         alphas, actions, succ = self._closed_policy()
         # pointwise dominated vectors out, in the time kept for it: a smaller file
         # written sooner (the best vector's value is unchanged, the set stays closed)
-        budget = self.deadline - time.perf_counter() - alphas.size * self._write_s_per_value()
+        budget = self.deadline - clock.now() - alphas.size * self._write_s_per_value()
         if budget > 0:
             alphas, actions, succ = prune_closed(alphas, actions, succ, self.K, budget)
         self.successors = succ
@@ -895,7 +897,7 @@ class BeliefTreeSearch(StoppingRules):
             policy=policy,
             lower_bound=self.root.lb,
             upper_bound=self.root.ub,
-            seconds=time.perf_counter() - self.start,
+            seconds=clock.now() - self.start,
             history=self.history,
             trials=self.trials,
             backups=self.backups,

@@ -10,13 +10,13 @@ shows progress at most once a second.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
+from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
 from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
@@ -104,12 +104,12 @@ def solve(
             values are reported.
         seed_alphas: extra (alphas, actions) added to the initial lower bound.
         progress: called at most once a second with the bounds, vectors and time.
-        start: time.perf_counter() when the time limit began (default: now); a
+        start: clock.now() when the time limit began (default: now); a
             command passes its own start so that reading the model counts once.
     """
     if config.algorithm == "sarsop":
         return _solve_search(pomdp, config, starts, seed_alphas, progress, start)
-    t0 = time.perf_counter() if start is None else start
+    t0 = clock.now() if start is None else start
     rng = np.random.default_rng(config.seed)
     starts = list(starts) if starts is not None else [pomdp.b0]
     b0 = starts[0]
@@ -127,7 +127,7 @@ def solve(
 
     def report(stats: IterationStats) -> None:
         stats.upper_b0 = upper
-        stats.elapsed_s = time.perf_counter() - t0
+        stats.elapsed_s = clock.now() - t0
         if progress:
             progress(stats)
 
@@ -139,12 +139,12 @@ def solve(
         initial=initial,
         time_limit_s=None
         if config.time_limit_s is None
-        else config.time_limit_s - (time.perf_counter() - t0),
+        else config.time_limit_s - (clock.now() - t0),
         progress=report,
         b0=b0,
     )
     lower = policy.value(b0)
-    result = SolveResult(policy, lower, upper, time.perf_counter() - t0, history)
+    result = SolveResult(policy, lower, upper, clock.now() - t0, history)
     policy.meta.update({"solver": "perseus", "config": asdict(config), **result.summary()})
     policy.meta["model_sha256"] = pomdp.fingerprint()
     return result
@@ -154,7 +154,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
     from stack.planning.sarsop import BeliefTreeSearch
 
     starts = list(starts) if starts is not None else [pomdp.b0]
-    t0 = time.perf_counter() if start is None else start
+    t0 = clock.now() if start is None else start
     Q = qmdp(pomdp)  # once: the sampler's policy and the search's first upper bound
     if config.perseus_share > 0:
         # Perseus's vectors are backups of valid lower-bound vectors, so they are valid
@@ -166,7 +166,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         B = sample_beliefs(
             pomdp, starts, config.beliefs, rng, Q, explore=config.explore, deadline=until
         )
-        budget = None if until is None else until - time.perf_counter()
+        budget = None if until is None else until - clock.now()
         iterations = config.iterations if budget is not None else max(1, config.iterations)
         closure: dict = {}
         perseus(
@@ -230,7 +230,7 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     """The belief-tree search on the task's mixed-observability form."""
     from stack.planning.momdp import MixedSearch, mixed_from_task
 
-    t0 = time.perf_counter() if start is None else start
+    t0 = clock.now() if start is None else start
     alphas = np.vstack([blind_lower_bound(pomdp), seeds[0]])
     actions = np.concatenate([np.arange(pomdp.n_actions), seeds[1]])
     search = MixedSearch(
