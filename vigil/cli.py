@@ -60,7 +60,8 @@ def _solver_args(
         "--time-limit",
         type=float,
         default=None,
-        help="seconds of wall time for the whole command (start-up, reading, solving, writing)",
+        help="seconds for the whole command (start-up, reading, solving, writing); wall time, "
+        "or CPU time with --cpu-time (solve-pomdp)",
     )
     p.add_argument("--target-gap", type=float, default=1e-3, help="sarsop: stop at this gap")
     p.add_argument(

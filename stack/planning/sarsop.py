@@ -60,8 +60,8 @@ class SearchConfig:
     """Settings of the belief-tree search.
 
     Attributes:
-        time_limit_s: stop when this much time has passed since ``start`` (wall time,
-            ``clock.now``); None: no limit.
+        time_limit_s: stop when this much time has passed since ``start`` on the
+            solvers' clock (``clock.now``: wall time, or CPU time); None: no limit.
         target_gap: stop when V_U(b0) - V_L(b0) is at most this (absolute).
         relative_gap: ... or at most this fraction of max(|V_L(b0)|, |V_U(b0)|).
         trial_improvement: each trial aims to shrink the root's gap to this fraction.

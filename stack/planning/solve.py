@@ -32,16 +32,17 @@ class SolverConfig:
 
     ``algorithm="sarsop"`` is the belief-tree search (target_gap, relative_gap,
     trials); ``"perseus"`` the thesis's Symbolic Perseus settings (section 4.3:
-    beliefs, iterations, explore, seed). The time limit is wall time from ``start``
-    (see :func:`solve`), checked between backups by the search and between
-    iterations by Perseus.
+    beliefs, iterations, explore, seed). The time limit is read on ``clock.now``
+    (wall time, or the process's CPU time after ``clock.use_cpu_time``) from
+    ``start`` (see :func:`solve`), checked before every backup by the search and by
+    Perseus.
     """
 
     # sampled belief points (perseus; sarsop on a task model: person beliefs backed up
     # in rounds before the trials, see stack/planning/momdp.py)
     beliefs: int = 300
     iterations: int = 50  # Perseus iterations; rounds over those beliefs (task, sarsop)
-    time_limit_s: float | None = None  # [s] wall time
+    time_limit_s: float | None = None  # [s] on clock.now (wall, or CPU)
     fib_time_s: float = 0.0  # time for tightening QMDP with the fast informed bound
     explore: float = 0.3  # random-action share when sampling beliefs
     seed: int = 0
