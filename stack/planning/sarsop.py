@@ -298,6 +298,7 @@ class StoppingRules:
     deadline: float
     trials: int
     _write_factor: float = 1.0  # measured writing speed / config.write_s_per_value
+    _prune_s: float = 0.0  # how long the last pruning of the active set took
 
     def _write_s_per_value(self) -> float:
         return self.config.write_s_per_value * self._write_factor
@@ -315,6 +316,7 @@ class StoppingRules:
         return (
             self._values_to_write() * self.config.write_s_per_value
             + self.config.finish_share * limit
+            + 1.5 * self._prune_s  # the final pruning of the active set (it grows)
         )
 
     def _met(self, r) -> bool:
@@ -709,7 +711,7 @@ class BeliefTreeSearch(StoppingRules):
         if self.K > self.config.prune_growth * self._pruned_at + 50:
             self._prune()
 
-    def _prune(self) -> None:
+    def _prune(self, until: float | None = None) -> None:
         """Keep the vectors that are best at some backed-up belief of the tree.
 
         Dominance at the sampled beliefs (SARSOP): a vector that is nowhere the best
@@ -720,8 +722,9 @@ class BeliefTreeSearch(StoppingRules):
         nodes = [n for n in self.nodes.values() if n.kids is not None]
         keep = np.zeros(self.K, dtype=bool)
         chunk = max(1, 4_000_000 // max(self.K, 1))
+        t0 = clock.now()
         for lo in range(0, len(nodes), chunk):
-            if self._late():
+            if self._late() if until is None else clock.now() >= until:
                 return  # a long pruning (many nodes, many vectors) is abandoned whole
             part = nodes[lo : lo + chunk]
             indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in part])])
@@ -745,6 +748,7 @@ class BeliefTreeSearch(StoppingRules):
         self.K = kept.size
         self._measure_writing()
         self._pruned_at = self.K
+        self._prune_s = clock.now() - t0
 
     def _closed_policy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The active vectors and, from the archive, every successor they lead to:
@@ -882,8 +886,9 @@ class BeliefTreeSearch(StoppingRules):
             self._trial()
             self._report()
             stopped = self._done()
-        if not self._late():
-            self._prune()  # over the backed-up beliefs only: cheap
+        # the active set pruned to the vectors best at some backed-up belief, in the
+        # time kept for it (fewer active vectors: fewer archived successors written)
+        self._prune(until=self.deadline - self._values_to_write() * self.config.write_s_per_value)
         self._report(force=True)
         alphas, actions, succ = self._closed_policy()
         # pointwise dominated vectors out, in the time kept for it: a smaller file
