@@ -405,3 +405,18 @@ def test_cpu_time_limit_reads_the_process_clock(tmp_path, capsys, monkeypatch):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["clock"] == "cpu"
     assert out["stopped"] == "gap"  # converged: the racing wall clock was not read
+
+
+def test_written_policy_keeps_the_root_bound_closed_and_smaller():
+    """Only the vectors the policy uses at the tree nodes it reaches, with their
+    successors: still closed, still the root's bound, no more vectors than all."""
+    pomdp = _random_pomdp(4, S=6, A=3, Z=3, discount=0.9)
+    search = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None, max_trials=40))
+    r = search.run()
+    every = BeliefTreeSearch(
+        pomdp, SearchConfig(time_limit_s=None, max_trials=40, reached_only=False)
+    ).run()
+    assert r.lower_bound == every.lower_bound
+    assert r.policy.value(pomdp.b0) >= r.lower_bound - 1e-12
+    assert len(r.policy.alphas) <= len(every.policy.alphas)
+    _closed(pomdp, r.policy.alphas, r.policy.actions, search.successors)

@@ -90,6 +90,9 @@ class SearchConfig:
     # share of the time limit kept for dropping pointwise dominated vectors before the
     # policy is written (controller.prune_closed; Hallway: 6,953 vectors to 3,639)
     finish_share: float = 0.01
+    # write the vectors the policy uses at the tree nodes it reaches from the roots, and
+    # their successors, rather than every active vector (see BeliefTreeSearch._closure)
+    reached_only: bool = True
 
 
 @dataclass
@@ -762,9 +765,36 @@ class BeliefTreeSearch(StoppingRules):
         actions = np.array([self._all_act[k] for k in order], dtype=int)
         return alphas, actions, succ.reshape(len(order), -1)
 
-    def _closure(self) -> list[int]:
-        """Global ids of the active vectors, then of the archived ones they lead to."""
-        order = [int(g) for g in self._gid[: self.K]]
+    def _reached(self) -> list[int]:
+        """Positions in the active set of the best vector at every tree node the best
+        vector's policy reaches from the roots (following its action into the tree)."""
+        AT = self._AT[:, : self.K]
+        used: dict[int, None] = {}
+        seen: set[int] = set()
+        stack = list(self.roots)
+        while stack:
+            n = stack.pop()
+            if id(n) in seen:
+                continue
+            seen.add(id(n))
+            k = int((n.val @ AT[n.idx]).argmax())
+            used[k] = None
+            if n.kids is not None:
+                stack.extend(n.kids[int(self._act[k])].nodes)
+        return list(used)
+
+    def _closure(self, reached: bool = True) -> list[int]:
+        """Global ids of the active vectors, then of the archived ones they lead to.
+
+        With ``config.reached_only``, of the active vectors only those the policy uses
+        at the tree's nodes it reaches from the roots: a closed set holding the roots'
+        best vectors still earns the roots' bounds (controller.py), and it is the part
+        of the policy the search has looked at (RockSample_5_7: a fraction of the file).
+        """
+        use = reached and self.config.reached_only
+        active = self._reached() if use else range(self.K)
+        order = [int(self._gid[k]) for k in active]
+        self._n_first = len(order)
         seen = set(order)
         i = 0
         while i < len(order):
@@ -789,7 +819,7 @@ class BeliefTreeSearch(StoppingRules):
 
     def _measure_writing(self) -> None:
         """How much slower than ``config.write_s_per_value`` writing a value is now."""
-        self._n_archived = len(self._closure()) - self.K
+        self._n_archived = len(self._closure(reached=False)) - self.K  # an upper bound
         if self.config.write_s_per_value <= 0:
             return
         per_value = seconds_per_value(self._AT[:, : min(self.K, 64)].T)
@@ -895,7 +925,7 @@ class BeliefTreeSearch(StoppingRules):
         # written sooner (the best vector's value is unchanged, the set stays closed)
         budget = self.deadline - clock.now() - alphas.size * self._write_s_per_value()
         if budget > 0:
-            alphas, actions, succ = prune_closed(alphas, actions, succ, self.K, budget)
+            alphas, actions, succ = prune_closed(alphas, actions, succ, self._n_first, budget)
         self.successors = succ
         policy = AlphaPolicy(alphas, actions, meta={"solver": "sarsop"})
         result = SearchResult(
