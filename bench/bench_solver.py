@@ -13,6 +13,9 @@ own simulator also reads each policy we wrote (``--sim-num`` runs, one-step look
     nice -n 5 .venv/bin/python bench/bench_solver.py --limits 10 60 --episodes 1000 \
         --pomdpsim ../sarsop-build/sarsop/src/pomdpsim --keep /tmp/policies
 
+Limits in CPU seconds (SARSOP's measure; the result no longer depends on the load):
+``--solver-args "--perseus-share 0.3 --beliefs 1000 --iterations 1000 --cpu-time"``.
+
 Progress: one line per run on stderr.
 """
 
