@@ -6,9 +6,15 @@ For every file in ../shared/pomdp/ with a discount below 1, and every time limit
     vigil evaluate FILE --policy OUT.policy --episodes N --horizon 100 --json
 
 (the time limit covers the whole command: start-up, reading, solving, writing), and
-prints a Markdown table beside SARSOP's 60 s figures from ../shared/pomdp/README.md.
+prints a Markdown table beside SARSOP's 60 s figures from ../shared/pomdp/README.md,
+with the load average (1 min) before each command. With ``--pomdpsim PATH`` SARSOP's
+own simulator also reads each policy we wrote (``--sim-num`` runs, one-step lookahead).
 
-    nice -n 5 .venv/bin/python bench/bench_solver.py --limits 10 60 --episodes 1000
+    nice -n 5 .venv/bin/python bench/bench_solver.py --limits 10 60 --episodes 1000 \
+        --pomdpsim ../sarsop-build/sarsop/src/pomdpsim --keep /tmp/policies
+
+Limits in CPU seconds (SARSOP's measure; the result no longer depends on the load):
+``--solver-args "--perseus-share 0.3 --beliefs 1000 --iterations 1000 --cpu-time"``.
 
 Progress: one line per run on stderr.
 """
@@ -17,6 +23,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -45,6 +53,23 @@ def run(cmd: list[str]) -> dict:
     return json.loads(out.stdout)
 
 
+def pomdpsim(binary: str, model: Path, policy: Path, runs: int, timeout_s: float) -> str:
+    """SARSOP's simulator on our policy: "mean (low, high)" or why not."""
+    cmd = [binary, str(model), "--policy-file", str(policy), "--simLen", "100"]
+    cmd += ["--simNum", str(runs), "--srand", "1"]
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except subprocess.TimeoutExpired:
+        return f"(over {timeout_s:g} s)"
+    # its last table row: runs, mean discounted reward, (CI low, CI high)
+    num = r"([-\d.e+]+)"
+    rows = re.findall(rf"^\s*(\d+)\s+{num}\s+\(\s*{num},\s*{num}\)", out.stdout, re.M)
+    if not rows:
+        return "(no result)"
+    _, mean, lo, hi = rows[-1]
+    return f"{float(mean):.3f} ({float(lo):.3f}, {float(hi):.3f}), {runs} runs"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--limits", type=float, nargs="+", default=[10.0, 60.0])
@@ -56,13 +81,20 @@ def main() -> None:
         help="extra solve-pomdp arguments (default: Perseus first for 30 %% of the limit, "
         "its vectors seeding the search; '' for the search alone)",
     )
+    ap.add_argument("--pomdpsim", help="SARSOP's pomdpsim binary (optional)")
+    ap.add_argument("--sim-num", type=int, default=1000, help="pomdpsim runs")
+    ap.add_argument("--sim-timeout", type=float, default=600.0, help="[s] per pomdpsim run")
+    ap.add_argument("--keep", help="directory to keep the policies in (default: a temporary one)")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        keep = Path(args.keep or tmp)
+        keep.mkdir(parents=True, exist_ok=True)
         for name in args.files:
             path = SHARED / name
             for limit in args.limits:
-                out = Path(tmp) / f"{path.stem}-{limit:g}.policy"
+                out = keep / f"{path.stem}-{limit:g}.policy"
+                load = os.getloadavg()[0]
                 t0 = time.perf_counter()
                 s = run(
                     VIGIL
@@ -76,22 +108,28 @@ def main() -> None:
                     + ["evaluate", str(path), "--policy", str(out), "--episodes"]
                     + [str(args.episodes), "--horizon", "100", "--seed", "1", "--json"]
                 )
-                rows.append((name, limit, s, wall, ev))
+                sim = (
+                    pomdpsim(args.pomdpsim, path, out, args.sim_num, args.sim_timeout)
+                    if args.pomdpsim
+                    else ""
+                )
+                rows.append((name, limit, s, wall, ev, sim, load, out.stat().st_size))
                 print(
                     f"{name} {limit:g} s: LB {s['lower_bound']:.4f} UB {s['upper_bound']:.4f} "
-                    f"simulated {ev['mean']:.3f} ± {ev['ci95']:.3f}, command {wall:.1f} s",
+                    f"simulated {ev['mean']:.3f} ± {ev['ci95']:.3f}, command {wall:.1f} s, "
+                    f"pomdpsim {sim}, load {load:.1f}",
                     file=sys.stderr,
                     flush=True,
                 )
-    print("| file | limit | vigil LB / UB | simulated (95 % CI) | vectors | solve s | command s "
-          "| SARSOP 60 s LB / UB | SARSOP simulated |")  # fmt: skip
-    print("|---|---:|---|---|---:|---:|---:|---|---|")
-    for name, limit, s, wall, ev in rows:
-        ref, sim = SARSOP_60S.get(name, ("", ""))
+    print("| file | limit | vigil LB / UB | vigil evaluate (95 % CI) | pomdpsim on ours | vectors "
+          "| MB | command s | load | SARSOP 60 s LB / UB | SARSOP simulated |")  # fmt: skip
+    print("|---|---:|---|---|---|---:|---:|---:|---:|---|---|")
+    for name, limit, s, wall, ev, sim, load, size in rows:
+        ref, ref_sim = SARSOP_60S.get(name, ("", ""))
         print(
             f"| {name} | {limit:g} s | {s['lower_bound']:.4f} / {s['upper_bound']:.4f} | "
-            f"{ev['mean']:.3f} ± {ev['ci95']:.3f} | {s['alpha_vectors']} | {s['seconds']:.2f} | "
-            f"{wall:.2f} | {ref} | {sim} |"
+            f"{ev['mean']:.3f} ± {ev['ci95']:.3f} | {sim} | {s['alpha_vectors']} | "
+            f"{size / 1e6:.1f} | {wall:.2f} | {load:.1f} | {ref} | {ref_sim} |"
         )
 
 

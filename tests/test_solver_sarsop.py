@@ -1,12 +1,12 @@
 """The belief-tree search (stack/planning/sarsop.py), SARSOP's policy format and .pomdpx."""
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from stack.planning import sarsop as sarsop_module
 from stack.planning.evaluate import evaluate
 from stack.planning.pbvi import sample_beliefs
 from stack.planning.policy import AlphaPolicy, read_policy_xml, write_policy_xml
@@ -122,7 +122,7 @@ def test_time_limit_is_checked_inside_trials(monkeypatch):
         now[0] += 0.01
         return now[0]
 
-    monkeypatch.setattr(sarsop_module.time, "perf_counter", clock)
+    monkeypatch.setattr(time, "perf_counter", clock)  # the solvers' clock.now() reads it
     r = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=3.0, fib_share=0.0), start=0.0).run()
     assert r.stopped in ("time", "gap")
     assert r.seconds <= 3.0 + 0.2
@@ -149,7 +149,9 @@ def test_policy_xml_round_trip(tmp_path):
     r = _search(pomdp, max_trials=10)
     path = write_policy_xml(r.policy, tmp_path / "h.policy", model="Hallway.pomdp")
     back = read_policy_xml(path, n_states=pomdp.n_states)
-    np.testing.assert_allclose(back.alphas, r.policy.alphas, rtol=1e-15)
+    # 12 significant digits, rounded down: never above the solved values
+    np.testing.assert_allclose(back.alphas, r.policy.alphas, rtol=2e-11)
+    assert (back.alphas <= r.policy.alphas).all()
     rng = np.random.default_rng(0)
     for b in rng.dirichlet(np.ones(pomdp.n_states), size=20):
         assert back.action(b) == r.policy.action(b)
@@ -315,4 +317,106 @@ def test_search_keeps_its_vector_set_closed_through_pruning():
     )
     r = search.run()
     assert search.backups > 60  # vectors were added, and pruned (prune_growth 1)
+    _closed(pomdp, r.policy.alphas, r.policy.actions, search.successors)
+
+
+@needs_shared
+def test_a_passed_deadline_stops_every_phase_on_a_large_file(tmp_path):
+    """RockSample_5_7 (3,201 states) with its deadline already passed when the solve
+    begins: Perseus, the sampler and the search do no work, and a valid policy (the
+    blind vectors) is still written and read back."""
+    pomdp = _model("RockSample_5_7.pomdp")
+    config = SolverConfig(
+        time_limit_s=5.0, perseus_share=0.3, beliefs=1000, iterations=1000, trials=None
+    )
+    r = solve(pomdp, config, start=time.perf_counter() - 100.0)
+    assert r.policy.meta["stopped"] == "time" and r.policy.meta["trials"] == 0
+    assert r.lower_bound <= r.upper_bound
+    path = r.policy.save(tmp_path / "rs.policy")
+    back = read_policy_xml(path, n_states=pomdp.n_states)
+    assert back.alphas.shape == r.policy.alphas.shape
+    assert (back.alphas <= r.policy.alphas).all()  # written at most the solved values
+
+
+def test_perseus_stops_inside_an_iteration_at_its_limit(monkeypatch):
+    """A clock that moves 10 ms per reading: Perseus stops within a few backups of its
+    limit, inside an iteration, and keeps a closed, valid set."""
+    from stack.planning.pbvi import perseus
+
+    pomdp = _model("4x3.95.POMDP")
+    B = sample_beliefs(pomdp, [pomdp.b0], 300, np.random.default_rng(0))
+    _, free = perseus(pomdp, B, iterations=2, rng=np.random.default_rng(0))
+    assert free[-1].backups > 10  # two whole iterations
+    now = [0.0]
+
+    def clock():
+        now[0] += 0.01
+        return now[0]
+
+    monkeypatch.setattr(time, "perf_counter", clock)
+    closure: dict = {}
+    pol, hist = perseus(
+        pomdp, B, iterations=50, rng=np.random.default_rng(0), time_limit_s=0.05, closure=closure
+    )
+    assert hist[-1].backups <= 6  # a clock reading per backup, not per iteration
+    _closed(pomdp, closure["alphas"], closure["actions"], closure["successors"])
+
+
+def test_dominated_vectors_are_dropped_and_the_set_stays_closed():
+    from stack.planning.controller import pointwise_dominators, prune_closed
+
+    pomdp = _random_pomdp(3, S=6, A=3, Z=3, discount=0.9)
+    search = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None, max_trials=40))
+    r = search.run()
+    alphas, actions, succ = r.policy.alphas, r.policy.actions, search.successors
+    K = len(alphas)
+    # a copy of every vector lowered at one state: each copy is dominated by its original
+    low = alphas - np.eye(pomdp.n_states)[np.arange(K) % pomdp.n_states]
+    dom = pointwise_dominators(np.vstack([low, alphas]))
+    assert (dom[:K] >= 0).all() and (np.vstack([low, alphas])[dom[:K]] >= low).all()
+    # the copies active and their successors the copies too: pruned, the originals
+    # stand in for them and the set stays closed
+    a2, act2, s2 = prune_closed(
+        np.vstack([low, alphas]),
+        np.concatenate([actions, actions]),
+        np.vstack([succ, succ]),
+        n_active=K,
+    )
+    assert len(a2) <= K
+    _closed(pomdp, a2, act2, s2)
+
+
+def test_cpu_time_limit_reads_the_process_clock(tmp_path, capsys, monkeypatch):
+    """--cpu-time: the limit reads time.process_time (a wall clock that races ahead
+    does not stop the search), and the JSON says which clock was read."""
+    if not POMDP_DIR.is_dir():
+        pytest.skip(f"{POMDP_DIR} not present")
+    wall = [0.0]
+
+    def racing():
+        wall[0] += 100.0
+        return wall[0]
+
+    monkeypatch.setattr(time, "perf_counter", racing)
+    rc = vigil(
+        ["solve-pomdp", str(POMDP_DIR / "Tiger.pomdp"), "--time-limit", "30", "--cpu-time"]
+        + ["--json", "--quiet"]
+    )
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["clock"] == "cpu"
+    assert out["stopped"] == "gap"  # converged: the racing wall clock was not read
+
+
+def test_written_policy_keeps_the_root_bound_closed_and_smaller():
+    """Only the vectors the policy uses at the tree nodes it reaches, with their
+    successors: still closed, still the root's bound, no more vectors than all."""
+    pomdp = _random_pomdp(4, S=6, A=3, Z=3, discount=0.9)
+    search = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None, max_trials=40))
+    r = search.run()
+    every = BeliefTreeSearch(
+        pomdp, SearchConfig(time_limit_s=None, max_trials=40, reached_only=False)
+    ).run()
+    assert r.lower_bound == every.lower_bound
+    assert r.policy.value(pomdp.b0) >= r.lower_bound - 1e-12
+    assert len(r.policy.alphas) <= len(every.policy.alphas)
     _closed(pomdp, r.policy.alphas, r.policy.actions, search.successors)

@@ -60,7 +60,8 @@ def _solver_args(
         "--time-limit",
         type=float,
         default=None,
-        help="seconds of wall time for the whole command (start-up, reading, solving, writing)",
+        help="seconds for the whole command (start-up, reading, solving, writing); wall time, "
+        "or CPU time with --cpu-time (solve-pomdp)",
     )
     p.add_argument("--target-gap", type=float, default=1e-3, help="sarsop: stop at this gap")
     p.add_argument(
@@ -129,7 +130,11 @@ def cmd_solve_pomdp(args: argparse.Namespace) -> int:
     } | result.summary()
     if args.output:
         out["policy"] = str(result.policy.save(args.output))
-    out["command_seconds"] = time.perf_counter() - start
+    from stack.planning import clock
+
+    out["command_seconds"] = clock.now() - start
+    out["clock"] = "cpu" if clock.cpu_time() else "wall"
+    out["stopped"] = result.policy.meta.get("stopped", "")  # gap, time or trials (sarsop)
     print(json.dumps(out, indent=2) if args.json else bounds_line(out))
     if args.time_limit is not None and getattr(args, "standalone", False):
         # the search tree (10^5 nodes) takes the interpreter a second or more to free
@@ -276,6 +281,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     _solver_args(p, iterations=1000)
+    p.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="--time-limit counts this process's CPU seconds (as SARSOP's figures), not wall",
+    )
     p.set_defaults(func=cmd_solve_pomdp)
 
     p = _command(sub, "evaluate", "mean discounted return of a policy, by simulation")
@@ -489,15 +499,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     from stack.perception.errors import CalibrationError
-    from stack.planning.clock import process_start
+    from stack.planning import clock
 
-    start = process_start() if argv is None else None  # in-process calls: from here
-    if start is None:
-        import time
-
-        start = time.perf_counter()
+    wall_start = clock.process_start() if argv is None else time.perf_counter()
     args = build_parser().parse_args(argv)
-    args.start = start
+    clock.use_cpu_time(bool(getattr(args, "cpu_time", False)))
+    if clock.cpu_time():  # CPU seconds of this process: a process of its own starts at 0
+        args.start = 0.0 if argv is None else clock.now()
+    else:  # in-process calls: from here
+        args.start = wall_start
     args.standalone = argv is None  # a process of its own, not a call from Python
     try:
         return args.func(args)
@@ -505,6 +515,8 @@ def main(argv: list[str] | None = None) -> int:
         text = " ".join(str(exc).split())  # one line, whatever the message holds
         print(f"vigil {args.command}: error: {text}", file=sys.stderr)
         return 2
+    finally:
+        clock.use_cpu_time(False)  # an in-process call leaves the solvers on wall time
 
 
 if __name__ == "__main__":

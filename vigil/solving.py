@@ -43,9 +43,9 @@ def solver_config(args: argparse.Namespace):
         relative_gap=getattr(args, "relative_gap", 0.0),
         trials=getattr(args, "trials", None),
         perseus_share=getattr(args, "perseus_share", 0.0),
-        # writing a vector entry as XML text takes ~0.2 us on an idle core, ~1 us
-        # under the load of docs/BENCHMARKS.md; the search stops that much earlier
-        write_s_per_value=1e-6 if getattr(args, "output", None) else 0.0,
+        # writing a vector entry as XML text takes ~0.4 us on an idle core, more under
+        # load (the search measures it and scales this up); it stops that much earlier
+        write_s_per_value=0.5e-6 if getattr(args, "output", None) else 0.0,
     )
 
 
@@ -69,10 +69,11 @@ def progress_printer(args: argparse.Namespace, stream=sys.stderr, every_s: float
 
 
 def command_start(args: argparse.Namespace) -> float:
-    """When the command's time limit began (``main`` records it)."""
-    import time
+    """When the command's time limit began (``main`` records it), on the solvers' clock."""
+    from stack.planning import clock
 
-    return getattr(args, "start", None) or time.perf_counter()
+    start = getattr(args, "start", None)
+    return clock.now() if start is None else start
 
 
 def solve_task_file(

@@ -76,13 +76,17 @@ def _evaluate(pomdp, policy, episodes, horizon, seed, b0) -> Evaluation:
     T = [pomdp.T[a].tocsr() for a in range(pomdp.n_actions)]
     O = [pomdp.O[a].tocsr() for a in range(pomdp.n_actions)]
     OT = [pomdp.OT(a) for a in range(pomdp.n_actions)]  # rows: P(z | s') for one z
+    # the vectors by state: a belief over few states (RockSample's rocks, the robot's
+    # cell known) reads only their rows, K x |support| instead of K x S a step
+    AT = np.ascontiguousarray(policy.alphas.T)
     returns = []
     for _ in range(episodes):
         b = b0
         s = draw(np.arange(pomdp.n_states), b0, rng)
         total, g = 0.0, 1.0
         for _t in range(horizon):
-            a = policy.action(b)
+            nz = np.flatnonzero(b)
+            a = int(policy.actions[int(np.argmax(b[nz] @ AT[nz]))])
             total += g * pomdp.R[s, a]
             g *= pomdp.discount
             s = draw_row(T[a], s, rng)

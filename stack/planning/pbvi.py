@@ -14,13 +14,13 @@ every belief's value has improved (or stayed), which keeps few alpha vectors.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from stack.planning import belief as belief_ops
+from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, qmdp, require_discounted
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
@@ -94,9 +94,11 @@ def sample_beliefs(
     Q: np.ndarray | None = None,
     explore: float = 0.3,
     horizon: int = 40,
+    deadline: float | None = None,
 ) -> np.ndarray:
     """Reachable beliefs from trajectories of a QMDP policy (random actions with
-    probability ``explore``), as Symbolic Perseus samples them (section 4.3).
+    probability ``explore``), as Symbolic Perseus samples them (section 4.3); fewer
+    when ``clock.now()`` passes ``deadline``.
 
     Returns:
         (N, S) array of distinct beliefs; the start beliefs come first.
@@ -129,6 +131,8 @@ def sample_beliefs(
     while len(out) < n_beliefs and attempts < 50 * n_beliefs and attempts - last_new < 2000:
         b = starts[attempts % len(starts)]
         s = draw(np.arange(S), b, rng)
+        if deadline is not None and clock.now() >= deadline:
+            break
         for _ in range(horizon):
             attempts += 1
             a = int(rng.integers(A)) if rng.random() < explore else int(np.argmax(b @ Q))
@@ -243,7 +247,7 @@ def perseus(
     arch_act = [int(a) for a in actions]
     arch_succ = [np.full(Z, i if initial is None else -1, dtype=int) for i in range(len(alphas))]
     gids = np.arange(len(alphas))
-    start = time.perf_counter()
+    start = clock.now()
     history: list[IterationStats] = []
     n_backups = 0
     for it in range(1, iterations + 1):
@@ -254,6 +258,8 @@ def perseus(
         new_vals = np.full(len(B), -np.inf)
         todo = np.arange(len(B))
         while todo.size:
+            if time_limit_s is not None and clock.now() - start > time_limit_s:
+                break  # mid-iteration: the new vectors join the old (all valid, closed)
             i = int(rng.choice(todo))
             # Gauss-Seidel: back up against the old vectors and those made this iteration,
             # so value travels further than one step per iteration (gamma = 0.99 is slow)
@@ -274,6 +280,10 @@ def perseus(
             new_actions.append(a)
             new_vals = np.maximum(new_vals, B @ alpha)
             todo = np.flatnonzero(new_vals < old - 1e-9)
+        if todo.size:  # stopped mid-iteration: the old vectors still hold where no new one
+            new_alphas = [*alphas, *new_alphas]
+            new_actions = [*actions.tolist(), *new_actions]
+            new_gids = [*gids.tolist(), *new_gids]
         alphas = np.vstack(new_alphas)
         actions = np.asarray(new_actions)
         gids = np.asarray(new_gids, dtype=int)
@@ -282,7 +292,7 @@ def perseus(
             value_b0=float((alphas @ b0).max()),
             n_alphas=len(alphas),
             backups=n_backups,
-            elapsed_s=time.perf_counter() - start,
+            elapsed_s=clock.now() - start,
         )
         history.append(stats)
         if progress:

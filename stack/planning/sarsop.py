@@ -33,19 +33,22 @@ one set of cached per-node arrays; split apart they would pass them back and for
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp, require_discounted
-from stack.planning.policy import AlphaPolicy, BoundedResult
+from stack.planning.controller import prune_closed
+from stack.planning.policy import AlphaPolicy, BoundedResult, seconds_per_value
 from stack.planning.pomdp import POMDP
 from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12  # successor beliefs less likely than this are not expanded
+_CAT_MAX = 4096  # values of one node's concatenated successors (BeliefTreeSearch._concatenate)
+_CAT_BUDGET = 20_000_000  # ... of all nodes' (160 MB)
 
 
 class SolveError(RuntimeError):
@@ -57,8 +60,8 @@ class SearchConfig:
     """Settings of the belief-tree search.
 
     Attributes:
-        time_limit_s: stop when this much time has passed since ``start`` (wall time,
-            ``time.perf_counter``); None: no limit.
+        time_limit_s: stop when this much time has passed since ``start`` on the
+            solvers' clock (``clock.now``: wall time, or CPU time); None: no limit.
         target_gap: stop when V_U(b0) - V_L(b0) is at most this (absolute).
         relative_gap: ... or at most this fraction of max(|V_L(b0)|, |V_U(b0)|).
         trial_improvement: each trial aims to shrink the root's gap to this fraction.
@@ -84,6 +87,12 @@ class SearchConfig:
     # [s] per vector entry kept from the time limit for writing the policy afterwards
     write_s_per_value: float = 0.0
     blas_threads: int = 1  # see stack/planning/threads.py: one thread is faster here
+    # share of the time limit kept for dropping pointwise dominated vectors before the
+    # policy is written (controller.prune_closed; Hallway: 6,953 vectors to 3,639)
+    finish_share: float = 0.01
+    # write the vectors the policy uses at the tree nodes it reaches from the roots, and
+    # their successors, rather than every active vector (see BeliefTreeSearch._closure)
+    reached_only: bool = True
 
 
 @dataclass
@@ -137,7 +146,7 @@ class _Kids:
 
 
 class _Node:
-    __slots__ = ("idx", "val", "ub", "lb", "kids", "point")
+    __slots__ = ("idx", "val", "ub", "lb", "kids", "point", "cat")
 
     def __init__(self, idx: np.ndarray, val: np.ndarray, ub: float, lb: float):
         self.idx = idx
@@ -146,6 +155,8 @@ class _Node:
         self.lb = lb
         self.kids: list[_Kids] | None = None
         self.point = -1  # index of this belief's upper-bound point, -1 if none
+        # every action's successors side by side (see BeliefTreeSearch._concatenate)
+        self.cat: tuple | None = None
 
 
 @dataclass
@@ -289,14 +300,27 @@ class StoppingRules:
     roots: list
     deadline: float
     trials: int
+    _write_factor: float = 1.0  # measured writing speed / config.write_s_per_value
+    _prune_s: float = 0.0  # how long the last pruning of the active set took
+
+    def _write_s_per_value(self) -> float:
+        return self.config.write_s_per_value * self._write_factor
 
     def _values_to_write(self) -> int:
         raise NotImplementedError
 
     def _late(self) -> bool:
-        """Past the deadline, less the time writing the vectors will take."""
-        reserve = self._values_to_write() * self.config.write_s_per_value
-        return time.perf_counter() >= self.deadline - reserve
+        """Past the deadline, less the time writing the vectors will take and the
+        share of the limit kept for pruning them (``config.finish_share``)."""
+        return clock.now() >= self.deadline - self._reserve()
+
+    def _reserve(self) -> float:
+        limit = self.config.time_limit_s or 0.0
+        return (
+            self._values_to_write() * self.config.write_s_per_value
+            + self.config.finish_share * limit
+            + 1.5 * self._prune_s  # the final pruning of the active set (it grows)
+        )
 
     def _met(self, r) -> bool:
         gap = r.ub - r.lb
@@ -326,8 +350,9 @@ class BeliefTreeSearch(StoppingRules):
             set (:func:`stack.planning.controller.close_vectors`). Seeds without one
             are values of plans whose later steps the set need not hold, so the best
             vector's policy may fall short of them.
-        start: time.perf_counter() at which the time limit started (default: now), so
+        start: clock.now() at which the time limit started (default: now), so
             that a command's own set-up counts against its limit exactly once.
+        q_upper: the model's QMDP values (S, A) if already computed (an upper bound).
         progress: called with a :class:`SearchStats` at most once per
             ``config.progress_every_s``.
     """
@@ -341,11 +366,12 @@ class BeliefTreeSearch(StoppingRules):
         progress: Callable[[SearchStats], None] | None = None,
         b0: np.ndarray | None = None,
         extra_roots: list[np.ndarray] | None = None,
+        q_upper: np.ndarray | None = None,
     ):
         require_discounted(pomdp)
         self.pomdp = pomdp
         self.config = config
-        self.start = time.perf_counter() if start is None else start
+        self.start = clock.now() if start is None else start
         self.deadline = (
             math.inf if config.time_limit_s is None else self.start + config.time_limit_s
         )
@@ -364,6 +390,13 @@ class BeliefTreeSearch(StoppingRules):
             for a in range(A):
                 same = next((b for b in range(a) if pomdp.O[b] is pomdp.O[a]), None)
                 self.O_dense[a] = self.O_dense[same] if same is not None else self.O[a].toarray()
+        # all actions' observation tables as one (A, S, Z) array where small
+        self.O_stack = (
+            np.stack(self.O_dense)  # type: ignore[arg-type]
+            if all(o is not None for o in self.O_dense)
+            and A * S * pomdp.n_observations <= 4_000_000
+            else None
+        )
         # one row slice gives the predictions of every action: T_all[s] = [T_0[s] ... T_A[s]]
         self.T_all = sp.hstack(self.T, format="csr")
         # ... dense where it is small: a row gather is then a numpy slice, not scipy's
@@ -371,12 +404,13 @@ class BeliefTreeSearch(StoppingRules):
         self.T_all_dense = self.T_all.toarray() if S * S * A <= 4_000_000 else None
         self.backups = 0
         self.trials = 0
+        self._cat_values = 0
         self.history: list[SearchStats] = []
         self._last_report = -math.inf
 
         # -- the upper bound: QMDP, tightened by the fast informed bound ----------------
-        Q = qmdp(pomdp)
-        remaining = self.deadline - time.perf_counter()
+        Q = qmdp(pomdp) if q_upper is None else q_upper
+        remaining = self.deadline - clock.now()
         fib_budget = (
             30.0 if not math.isfinite(remaining) else max(0.0, remaining) * config.fib_share
         )
@@ -473,6 +507,9 @@ class BeliefTreeSearch(StoppingRules):
         if node.kids is not None:
             return node.kids
         S = self.S
+        if self.T_all_dense is not None and self.O_stack is not None:
+            node.kids = self._expand_dense(node)
+            return node.kids
         if self.T_all_dense is not None:
             pred_all = node.val @ self.T_all_dense[node.idx]
         else:
@@ -505,6 +542,41 @@ class BeliefTreeSearch(StoppingRules):
         node.kids = kids
         return kids
 
+    def _expand_dense(self, node: _Node) -> list[_Kids]:
+        """:meth:`_expand` for a model whose tables are small enough to be dense: every
+        action at once, the successors over the union of the states they cover."""
+        A, S = self.A, self.S
+        assert self.T_all_dense is not None and self.O_stack is not None
+        pred = (node.val @ self.T_all_dense[node.idx]).reshape(A, S)
+        nz = np.flatnonzero(pred.any(axis=0))
+        joint = pred[:, nz, None] * self.O_stack[:, nz, :]  # (A, n, Z)
+        pz = joint.sum(axis=1)  # (A, Z)
+        acts, zs = np.nonzero(pz > _PROB_EPS)  # by action, then observation
+        M = joint[acts, :, zs].T / pz[acts, zs]  # (n, successors)
+        ub = (self.Q_upper[nz].T @ M).max(axis=0)  # the fast informed bound only
+        reward = node.val @ self.R[node.idx]
+        nodes = []
+        for j in range(zs.size):
+            rows = np.flatnonzero(M[:, j] > 0)
+            nodes.append(self._node(nz[rows], M[rows, j], ub=float(ub[j])))
+        bounds = np.searchsorted(acts, np.arange(A + 1))
+        kids = []
+        for a in range(A):
+            lo, hi = bounds[a], bounds[a + 1]
+            rows = np.flatnonzero(pred[a, nz] > 0)  # the action's own states: the sawtooth
+            # reads only the points whose support lies inside them
+            kids.append(
+                _Kids(
+                    float(reward[a]),
+                    zs[lo:hi],
+                    pz[a, zs[lo:hi]],
+                    nodes[lo:hi],
+                    M[rows, lo:hi],
+                    nz[rows],
+                )
+            )
+        return kids
+
     def _refresh_upper(self, kids: _Kids) -> np.ndarray:
         """Upper bounds of the successors, re-interpolated with the latest points."""
         fresh = self.points.values(kids.nz, kids.M)
@@ -530,10 +602,52 @@ class BeliefTreeSearch(StoppingRules):
             q_upper[a] = kids[a].reward + g * (kids[a].pz @ self._refresh_upper(kids[a]))
             fresh[a] = True
 
-    def _backup(self, node: _Node) -> None:
-        """Back up both bounds at ``node``: one alpha vector and one upper point."""
-        kids = self._expand(node)
+    def _concatenate(self, node: _Node, kids: list[_Kids]) -> tuple | None:
+        """Every action's successor beliefs as the columns of one matrix over the union
+        of their states, so one product values every successor of every action (the
+        loop over actions cost more than the products on RockSample). Kept while the
+        cached matrices stay under ``_CAT_BUDGET`` values in all."""
+        if node.cat is not None:
+            return node.cat
+        n = sum(k.zs.size for k in kids)
+        if n == 0:
+            return None
+        nz = np.unique(np.concatenate([k.nz for k in kids]))
+        if nz.size * n > _CAT_MAX or self._cat_values + nz.size * n > _CAT_BUDGET:
+            return None
+        M = np.zeros((nz.size, n))
+        col = 0
+        for k in kids:
+            M[np.searchsorted(nz, k.nz), col : col + k.zs.size] = k.M
+            col += k.zs.size
+        seg = np.repeat(np.arange(self.A), [k.zs.size for k in kids])
+        pz = np.concatenate([k.pz for k in kids])
+        reward = np.array([k.reward for k in kids])
+        starts = np.concatenate([[0], np.cumsum([k.zs.size for k in kids])])
+        children = [c for k in kids for c in k.nodes]
+        leaf = np.array([c.kids is None for c in children])
+        node.cat = (nz, M, seg, pz, reward, starts, children, leaf)
+        self._cat_values += M.size
+        return node.cat
+
+    def _q_lower(self, node: _Node, kids: list[_Kids]) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Q_L(b, a) for every action and, per action, the best vector at each successor."""
         g = self.gamma
+        cat = self._concatenate(node, kids)
+        if cat is not None:
+            nz, M, seg, pz, reward, starts, children, leaf = cat
+            G = M.T @ self._AT[nz, : self.K]  # (successors, K)
+            best = G.argmax(axis=1)
+            lbs = G[np.arange(best.size), best]
+            if leaf.any():  # a leaf's bound is just its best vector's value
+                for j in np.flatnonzero(leaf):
+                    c = children[j]
+                    if c.kids is None:
+                        c.lb = min(float(lbs[j]), c.ub)
+                    else:
+                        leaf[j] = False
+            q = reward + g * np.bincount(seg, weights=pz * lbs, minlength=self.A)
+            return q, [best[starts[a] : starts[a + 1]] for a in range(self.A)]
         q_lower = np.empty(self.A)
         choice = []
         for a, k in enumerate(kids):
@@ -546,6 +660,12 @@ class BeliefTreeSearch(StoppingRules):
                     c.lb = min(float(v), c.ub)
             q_lower[a] = k.reward + g * (k.pz @ lbs)
             choice.append(best)
+        return q_lower, choice
+
+    def _backup(self, node: _Node) -> None:
+        """Back up both bounds at ``node``: one alpha vector and one upper point."""
+        kids = self._expand(node)
+        q_lower, choice = self._q_lower(node, kids)
         q_upper = self._q_upper(kids)
         self.backups += 1
         # upper bound: a point at this belief
@@ -594,7 +714,7 @@ class BeliefTreeSearch(StoppingRules):
         if self.K > self.config.prune_growth * self._pruned_at + 50:
             self._prune()
 
-    def _prune(self) -> None:
+    def _prune(self, until: float | None = None) -> None:
         """Keep the vectors that are best at some backed-up belief of the tree.
 
         Dominance at the sampled beliefs (SARSOP): a vector that is nowhere the best
@@ -605,7 +725,10 @@ class BeliefTreeSearch(StoppingRules):
         nodes = [n for n in self.nodes.values() if n.kids is not None]
         keep = np.zeros(self.K, dtype=bool)
         chunk = max(1, 4_000_000 // max(self.K, 1))
+        t0 = clock.now()
         for lo in range(0, len(nodes), chunk):
+            if self._late() if until is None else clock.now() >= until:
+                return  # a long pruning (many nodes, many vectors) is abandoned whole
             part = nodes[lo : lo + chunk]
             indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in part])])
             B = sp.csr_matrix(
@@ -628,6 +751,7 @@ class BeliefTreeSearch(StoppingRules):
         self.K = kept.size
         self._measure_writing()
         self._pruned_at = self.K
+        self._prune_s = clock.now() - t0
 
     def _closed_policy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The active vectors and, from the archive, every successor they lead to:
@@ -641,9 +765,36 @@ class BeliefTreeSearch(StoppingRules):
         actions = np.array([self._all_act[k] for k in order], dtype=int)
         return alphas, actions, succ.reshape(len(order), -1)
 
-    def _closure(self) -> list[int]:
-        """Global ids of the active vectors, then of the archived ones they lead to."""
-        order = [int(g) for g in self._gid[: self.K]]
+    def _reached(self) -> list[int]:
+        """Positions in the active set of the best vector at every tree node the best
+        vector's policy reaches from the roots (following its action into the tree)."""
+        AT = self._AT[:, : self.K]
+        used: dict[int, None] = {}
+        seen: set[int] = set()
+        stack = list(self.roots)
+        while stack:
+            n = stack.pop()
+            if id(n) in seen:
+                continue
+            seen.add(id(n))
+            k = int((n.val @ AT[n.idx]).argmax())
+            used[k] = None
+            if n.kids is not None:
+                stack.extend(n.kids[int(self._act[k])].nodes)
+        return list(used)
+
+    def _closure(self, reached: bool = True) -> list[int]:
+        """Global ids of the active vectors, then of the archived ones they lead to.
+
+        With ``config.reached_only``, of the active vectors only those the policy uses
+        at the tree's nodes it reaches from the roots: a closed set holding the roots'
+        best vectors still earns the roots' bounds (controller.py), and it is the part
+        of the policy the search has looked at (RockSample_5_7: a fraction of the file).
+        """
+        use = reached and self.config.reached_only
+        active = self._reached() if use else range(self.K)
+        order = [int(self._gid[k]) for k in active]
+        self._n_first = len(order)
         seen = set(order)
         i = 0
         while i < len(order):
@@ -656,6 +807,9 @@ class BeliefTreeSearch(StoppingRules):
         return order
 
     # -- the search -----------------------------------------------------------------
+    def _write_s_per_value(self) -> float:
+        return self.config.write_s_per_value * self._write_factor
+
     def _values_to_write(self) -> int:
         # the archived successors written with the active set, as counted at the last
         # pruning (RockSample_5_7: 2,027 vectors written for ~800 active), scaled by
@@ -665,13 +819,10 @@ class BeliefTreeSearch(StoppingRules):
 
     def _measure_writing(self) -> None:
         """How much slower than ``config.write_s_per_value`` writing a value is now."""
-        self._n_archived = len(self._closure()) - self.K
+        self._n_archived = len(self._closure(reached=False)) - self.K  # an upper bound
         if self.config.write_s_per_value <= 0:
             return
-        block = self._AT[: min(self.S, 200), : min(self.K, 50)]
-        t = time.perf_counter()
-        " ".join(map(repr, block.ravel().tolist()))  # what write_policy_xml does
-        per_value = (time.perf_counter() - t) / max(1, block.size)
+        per_value = seconds_per_value(self._AT[:, : min(self.K, 64)].T)
         self._write_factor = max(1.0, per_value / self.config.write_s_per_value)
 
     def _trial(self) -> None:
@@ -734,7 +885,7 @@ class BeliefTreeSearch(StoppingRules):
         self.trials += 1
 
     def _report(self, force: bool = False) -> None:
-        now = time.perf_counter()
+        now = clock.now()
         if not force and now - self._last_report < self.config.progress_every_s:
             return
         self._last_report = now
@@ -765,16 +916,23 @@ class BeliefTreeSearch(StoppingRules):
             self._trial()
             self._report()
             stopped = self._done()
-        if not self._late():
-            self._prune()  # over the backed-up beliefs only: cheap
+        # the active set pruned to the vectors best at some backed-up belief, in the
+        # time kept for it (fewer active vectors: fewer archived successors written)
+        self._prune(until=self.deadline - self._values_to_write() * self.config.write_s_per_value)
         self._report(force=True)
-        alphas, actions, self.successors = self._closed_policy()
+        alphas, actions, succ = self._closed_policy()
+        # pointwise dominated vectors out, in the time kept for it: a smaller file
+        # written sooner (the best vector's value is unchanged, the set stays closed)
+        budget = self.deadline - clock.now() - alphas.size * self._write_s_per_value()
+        if budget > 0:
+            alphas, actions, succ = prune_closed(alphas, actions, succ, self._n_first, budget)
+        self.successors = succ
         policy = AlphaPolicy(alphas, actions, meta={"solver": "sarsop"})
         result = SearchResult(
             policy=policy,
             lower_bound=self.root.lb,
             upper_bound=self.root.ub,
-            seconds=time.perf_counter() - self.start,
+            seconds=clock.now() - self.start,
             history=self.history,
             trials=self.trials,
             backups=self.backups,

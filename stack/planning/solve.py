@@ -10,13 +10,13 @@ shows progress at most once a second.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
+from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
 from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
@@ -32,16 +32,17 @@ class SolverConfig:
 
     ``algorithm="sarsop"`` is the belief-tree search (target_gap, relative_gap,
     trials); ``"perseus"`` the thesis's Symbolic Perseus settings (section 4.3:
-    beliefs, iterations, explore, seed). The time limit is wall time from ``start``
-    (see :func:`solve`), checked between backups by the search and between
-    iterations by Perseus.
+    beliefs, iterations, explore, seed). The time limit is read on ``clock.now``
+    (wall time, or the process's CPU time after ``clock.use_cpu_time``) from
+    ``start`` (see :func:`solve`), checked before every backup by the search and by
+    Perseus.
     """
 
     # sampled belief points (perseus; sarsop on a task model: person beliefs backed up
     # in rounds before the trials, see stack/planning/momdp.py)
     beliefs: int = 300
     iterations: int = 50  # Perseus iterations; rounds over those beliefs (task, sarsop)
-    time_limit_s: float | None = None  # [s] wall time
+    time_limit_s: float | None = None  # [s] on clock.now (wall, or CPU)
     fib_time_s: float = 0.0  # time for tightening QMDP with the fast informed bound
     explore: float = 0.3  # random-action share when sampling beliefs
     seed: int = 0
@@ -104,12 +105,12 @@ def solve(
             values are reported.
         seed_alphas: extra (alphas, actions) added to the initial lower bound.
         progress: called at most once a second with the bounds, vectors and time.
-        start: time.perf_counter() when the time limit began (default: now); a
+        start: clock.now() when the time limit began (default: now); a
             command passes its own start so that reading the model counts once.
     """
     if config.algorithm == "sarsop":
         return _solve_search(pomdp, config, starts, seed_alphas, progress, start)
-    t0 = time.perf_counter() if start is None else start
+    t0 = clock.now() if start is None else start
     rng = np.random.default_rng(config.seed)
     starts = list(starts) if starts is not None else [pomdp.b0]
     b0 = starts[0]
@@ -127,7 +128,7 @@ def solve(
 
     def report(stats: IterationStats) -> None:
         stats.upper_b0 = upper
-        stats.elapsed_s = time.perf_counter() - t0
+        stats.elapsed_s = clock.now() - t0
         if progress:
             progress(stats)
 
@@ -139,12 +140,12 @@ def solve(
         initial=initial,
         time_limit_s=None
         if config.time_limit_s is None
-        else config.time_limit_s - (time.perf_counter() - t0),
+        else config.time_limit_s - (clock.now() - t0),
         progress=report,
         b0=b0,
     )
     lower = policy.value(b0)
-    result = SolveResult(policy, lower, upper, time.perf_counter() - t0, history)
+    result = SolveResult(policy, lower, upper, clock.now() - t0, history)
     policy.meta.update({"solver": "perseus", "config": asdict(config), **result.summary()})
     policy.meta["model_sha256"] = pomdp.fingerprint()
     return result
@@ -154,17 +155,19 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
     from stack.planning.sarsop import BeliefTreeSearch
 
     starts = list(starts) if starts is not None else [pomdp.b0]
-    t0 = time.perf_counter() if start is None else start
+    t0 = clock.now() if start is None else start
+    Q = qmdp(pomdp)  # once: the sampler's policy and the search's first upper bound
     if config.perseus_share > 0:
         # Perseus's vectors are backups of valid lower-bound vectors, so they are valid
         # seeds; they lift the lower bound of wide-belief models (Hallway2) quickly
         rng = np.random.default_rng(config.seed)
-        B = sample_beliefs(pomdp, starts, config.beliefs, rng, explore=config.explore)
-        budget = (
-            None
-            if config.time_limit_s is None
-            else config.perseus_share * config.time_limit_s - (time.perf_counter() - t0)
+        until = (
+            None if config.time_limit_s is None else t0 + config.perseus_share * config.time_limit_s
         )
+        B = sample_beliefs(
+            pomdp, starts, config.beliefs, rng, Q, explore=config.explore, deadline=until
+        )
+        budget = None if until is None else until - clock.now()
         iterations = config.iterations if budget is not None else max(1, config.iterations)
         closure: dict = {}
         perseus(
@@ -202,6 +205,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         progress=progress,
         b0=starts[0],
         extra_roots=starts[1:],
+        q_upper=Q,
     )
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
@@ -227,7 +231,7 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     """The belief-tree search on the task's mixed-observability form."""
     from stack.planning.momdp import MixedSearch, mixed_from_task
 
-    t0 = time.perf_counter() if start is None else start
+    t0 = clock.now() if start is None else start
     alphas = np.vstack([blind_lower_bound(pomdp), seeds[0]])
     actions = np.concatenate([np.arange(pomdp.n_actions), seeds[1]])
     search = MixedSearch(
