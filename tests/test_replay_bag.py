@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -197,10 +198,8 @@ def test_replay_bag_reproduces_the_step_table_and_a_tampered_bag_does_not(tmp_pa
     assert [s["observation"] for s in replayed] == [s["observation"] for s in steps]
 
     # the camera's person messages dropped after the first step: the person is not seen
-    tampered = tmp_path / "tampered"
-    tampered.mkdir()
-    for name in ("params.yaml", "steps.jsonl"):
-        (tampered / name).write_text((run / name).read_text())
+    tampered = tmp_path / "tampered"  # a copy of the run folder: its paths follow it
+    shutil.copytree(run, tampered, ignore=shutil.ignore_patterns("bag", "replay*", "*.mp4"))
     after_ns = int(steps[0]["stamp_s"] * 1e9)
     assert _tamper(run / "bag", tampered / "bag", topic.PERSON, after_ns) > 0
     assert main(["replay-bag", str(tampered), "--out", str(tmp_path / "replay-t")]) == 1

@@ -23,7 +23,7 @@ import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -90,15 +90,19 @@ class BagWriter:
     Args:
         path: the bag's folder (created here).
         store: the typestore holding every type to be written (:func:`typestore`).
+        compress: zstd-compress the MCAP's chunks (MCAP's own chunk compression, which
+            Foxglove, ``rosbags`` and ``ros2 bag`` read; the messages stay CDR).
     """
 
-    def __init__(self, path: Path, store: Typestore | None = None):
+    def __init__(self, path: Path, store: Typestore | None = None, compress: bool = True):
         path = Path(path)
         if path.exists():
             raise FileExistsError(f"bag {path} already exists: not overwriting it")
         self.path = path
         self.store = store if store is not None else typestore()
         self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        if compress:
+            self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self.writer.open()
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}

@@ -142,6 +142,7 @@ def play(
     ledger = node.ledger
     state = {"alive_s": time.monotonic(), "shown_s": time.monotonic(), "t_ns": 0}
     total_t = recording.ticks[-1].t_ns
+    started: list[bool] = []  # empty until the nodes are up and matched
 
     def wait(done: Callable[[], bool], what: Callable[[], str]) -> None:
         while not done():
@@ -155,10 +156,13 @@ def play(
                 raise ReplayError(f"replay stalled for {stall_s:.0f} s: {what()}")
             if now - state["shown_s"] >= PROGRESS_S:
                 state["shown_s"] = now
-                say(
-                    f"[replay-bag] t={state['t_ns'] / 1e9:.2f}/{total_t / 1e9:.2f} s, "
-                    f"step {node.steps()}/{steps}, {sum(node.fed.values())} messages fed"
-                )
+                if not started:
+                    say(f"[replay-bag] starting: {what()}")
+                else:
+                    say(
+                        f"[replay-bag] t={state['t_ns'] / 1e9:.2f}/{total_t / 1e9:.2f} s, "
+                        f"step {node.steps()}/{steps}, {sum(node.fed.values())} messages fed"
+                    )
 
     def quiet() -> None:
         wait(ledger.quiescent, lambda: "waiting for " + ", ".join(ledger.pending()))
@@ -166,7 +170,7 @@ def play(
     try:
         wait(
             lambda: not ledger.missing(),
-            lambda: "nodes not up: " + ", ".join(ledger.missing()),
+            lambda: "waiting for the nodes " + ", ".join(ledger.missing()),
         )
         inputs = node.inputs()
         absent = [t for t in inputs if t not in recording.types]
@@ -180,8 +184,11 @@ def play(
         )
         wait(
             lambda: not ledger.unmatched(node.own_matched()) and ledger.quiescent(),
-            lambda: "matching " + ", ".join(ledger.unmatched(node.own_matched())),
+            lambda: (
+                "matching " + ", ".join(ledger.unmatched(node.own_matched()) + ledger.pending())
+            ),
         )
+        started.append(True)
         for name, cdr in recording.before:
             if name in node.pubs:
                 node.send(name, cdr)

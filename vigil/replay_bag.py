@@ -267,6 +267,11 @@ def replay_run(
             stall_s=stall_s,
             say=say,
         )
+    except ReplayError as err:
+        launcher.poll()
+        if launcher.failures:
+            raise ReplayError(f"{err}: {'; '.join(launcher.failures)}") from err
+        raise
     finally:
         launcher.stop(5.0)
         claim.release()
