@@ -21,6 +21,7 @@ from vigil.replay_bag import (
     find_bag,
     read_recording,
     replay_params,
+    restart_note,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -110,6 +111,13 @@ def test_step_tables_are_compared_step_by_step():
     assert not short.matches and short.rows[1][3] == "not replayed"
     later = compare_steps(run, [run[0], {**run[1], "stamp_s": 6.35}])
     assert later.rows[1][3] == "time"
+
+
+def test_a_restarted_planner_is_noted():
+    run = [_step(1, "South", "No person", 3.8), _step(2, "Do nothing", "9", 6.3)]
+    assert restart_note(run) == ""
+    run[1]["resumed"] = True
+    assert "resumed at step 2" in restart_note(run)
 
 
 def test_replay_params_follow_a_moved_run_folder(tmp_path):

@@ -443,6 +443,8 @@ def cmd_replay_bag(args: argparse.Namespace) -> int:
         print(f"vigil replay-bag: error: {err}", file=sys.stderr)
         return 2
     print(comparison_markdown(result.comparison), end="")
+    if result.note:
+        print(f"note: {result.note}")
     print(f"[replay-bag] {result.out_dir}/replay.md ({result.wall_s:.0f} s)")
     return 0 if result.comparison.matches else 1
 

@@ -159,6 +159,18 @@ def comparison_markdown(cmp: Comparison) -> str:
     return "\n".join(lines) + f"\n\n{verdict}\n"
 
 
+def restart_note(recorded: list[dict]) -> str:
+    """Why the replay may differ from the run: its planner was restarted ("" if not)."""
+    first = next((r for r in recorded if r.get("resumed")), None)
+    if first is None:
+        return ""
+    return (
+        f"the run's planner was restarted and resumed at step {first.get('step')}; the "
+        "replay runs it straight through (its timers keep their first phase), so steps "
+        "from there may differ"
+    )
+
+
 # -- the nodes' parameters ---------------------------------------------------------------
 def replay_params(run_dir: Path, out_dir: Path) -> dict[str, dict[str, Any]]:
     """The replayed nodes' parameters: the run's, with lock-step on, the planner's files
@@ -200,6 +212,7 @@ class ReplayResult:
     comparison: Comparison
     fed: dict[str, int]  # topic -> messages published into the nodes
     wall_s: float
+    note: str = ""  # why steps may differ (a restarted planner), or ""
 
 
 def replay_run(
@@ -226,6 +239,9 @@ def replay_run(
     recorded = read_steps(run_dir / "steps.jsonl")
     if not recorded:
         raise ReplayError(f"{run_dir} has no step records (steps.jsonl): nothing to compare")
+    note = restart_note(recorded)
+    if note:
+        say(f"[replay-bag] note: {note}")
     t0 = time.monotonic()
     recording = read_recording(bag)
     n_msgs = sum(len(t.messages) for t in recording.ticks)
@@ -284,6 +300,8 @@ def replay_run(
         raise ReplayError("a replayed node failed: " + "; ".join(launcher.failures))
     cmp = compare_steps(recorded, read_steps(out_dir / "steps.jsonl"))
     (out_dir / "replay.md").write_text(
-        f"# Replay of {run_dir.name} from its bag\n\n" + comparison_markdown(cmp)
+        f"# Replay of {run_dir.name} from its bag\n\n"
+        + (f"Note: {note}\n\n" if note else "")
+        + comparison_markdown(cmp)
     )
-    return ReplayResult(out_dir, cmp, fed, time.monotonic() - t0)
+    return ReplayResult(out_dir, cmp, fed, time.monotonic() - t0, note)
