@@ -147,6 +147,29 @@ def test_replay_params_follow_a_moved_run_folder(tmp_path):
         replay_params(run, tmp_path / "out")
 
 
+@pytest.mark.ros
+def test_the_player_refuses_a_recorded_type_the_nodes_do_not_read(ros):
+    import rclpy
+    from rostest import spin_until
+    from std_msgs.msg import Int32
+
+    from vigil.node_bag_player import BagPlayer
+
+    name = "/replay_bag_test/person"  # a topic of this test's own
+    reader = rclpy.create_node("replayed_reader")  # stands in for a replayed node
+    reader.create_subscription(Int32, name, lambda _m: None, 10)
+    player = BagPlayer("test-run", ("replayed_reader",))
+    ros.add_node(reader)
+    ros.add_node(player)
+    assert spin_until(ros, lambda: player.get_subscriptions_info_by_topic(name), 10.0)
+    with pytest.raises(ReplayError, match="std_msgs/msg/String but node replayed_reader reads"):
+        player.add_input(name, STRING)
+    player.add_input(name, "std_msgs/msg/Int32")  # the type the node reads: a publisher
+    assert spin_until(ros, lambda: player.own_matched().get(name) == 1, 10.0)
+    player.destroy_node()
+    reader.destroy_node()
+
+
 # -- the whole replay ---------------------------------------------------------------------
 SHORT = {
     "name": "replay",
