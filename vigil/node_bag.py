@@ -12,18 +12,20 @@ Log time: with lock-step, see below; else with ``sim_clock``, the latest ``/cloc
 (simulated time, 0 before the first), so the bag plays in the run's own time; without it
 (hardware) the wall clock until a ``/clock`` arrives.
 
-Lock-step (the twin, ``lockstep: true``): the bag is a participant, so that the bag holds
-every message in the lock-step phase it was sent in, whatever the machine's load (what
-``vigil replay-bag`` needs to re-enact the run). It waits until every other participant
-(``participants``) has been heard on ``/lockstep/ack``, subscribes to every wanted topic
-that has a publisher then, and only then acknowledges (the twin waits for it before its
-first tick, so no counted message is missed). Its log time is the lock-step clock, made
-strictly increasing by one nanosecond per message, so the bag's order is the order the
-bag received the messages in; every ``/lockstep/tick`` is written (a ``rosgraph_msgs/Clock``)
-before the messages of that tick. A counted topic that appears after the start, and
-``/vigil/markers`` (not counted), are recorded without being acknowledged. Without
-lock-step (a robot) the bag sends no acks: a slow disk cannot slow the run (it may only
-fall behind). Camera frames are kept to one per ``camera_period_s`` of log time.
+Lock-step (the twin, ``lockstep: true``): the bag is a participant, so that the bag
+holds every message in the lock-step phase it was sent in, whatever the machine's load
+(what ``vigil replay-bag`` needs to re-enact the run). It waits until every other
+participant (``participants``) has been heard on ``/lockstep/ack`` and the graph shows
+the publishers of the topics they publish (their acks list them) and of ``/clock``,
+subscribes to every wanted topic that has a publisher then, and only then acknowledges
+(the twin waits for it before its first tick, so no counted message is missed). Its log
+time is the lock-step clock, made strictly increasing by one nanosecond per message, so
+the bag's order is the order the bag received the messages in; every ``/lockstep/tick``
+is written (a ``rosgraph_msgs/Clock``) before the messages of that tick. A counted topic
+that appears after the start, and ``/vigil/markers`` (not counted), are recorded without
+being acknowledged. Without lock-step (a robot) the bag sends no acks: a slow disk cannot
+slow the run (it may only fall behind). Camera frames are kept to one per
+``camera_period_s`` of log time.
 SIGINT (the launcher's stop) closes the bag cleanly (:func:`stack.ros_main.spin_node`
 destroys the node); a SIGKILLed recorder leaves an MCAP without its summary and no
 ``metadata.yaml``.
@@ -109,6 +111,7 @@ class BagNode(Node):
         # lock-step: a participant once the others are up (None until then)
         self.lockstep: Participant | None = None
         self.waiting_for = {n for n in v.participants if n and n != self.get_name()}
+        self.announced: set[str] = set()  # wanted topics the participants say they publish
         self.last_ns = -1
         self.started = False  # lock-step: subscribed and acknowledged
         if v.lockstep:
@@ -124,9 +127,11 @@ class BagNode(Node):
 
     def on_ack(self, msg: String) -> None:
         try:
-            self.waiting_for.discard(Ack.from_json(msg.data).node)
+            ack = Ack.from_json(msg.data)
         except ValueError:
-            pass
+            return
+        self.waiting_for.discard(ack.node)
+        self.announced |= set(ack.matched) & set(TOPICS)
 
     def now_ns(self) -> int:
         if self.lockstep is not None:  # the lock-step clock, strictly increasing
@@ -145,11 +150,20 @@ class BagNode(Node):
     def discover(self) -> None:
         """Subscribe to the wanted topics that have appeared since the last look.
 
-        Lock-step: nothing until every other participant has been heard; then one pass
-        subscribes to every wanted topic with a publisher and the bag joins the lock-step.
+        Lock-step: nothing until every other participant has been heard and the publishers
+        of the wanted topics they announce (their acks' ``matched``) and of ``/clock`` are
+        in the graph; then one pass subscribes to every wanted topic with a publisher and
+        the bag joins the lock-step.
         """
         if self.want_lockstep and self.lockstep is None:
-            if self.waiting_for:
+            # every participant heard, and every topic they publish (and the
+            # coordinator's clock) seen in the graph: then one pass finds them all
+            unseen = [
+                t
+                for t in sorted(self.announced) + [topic.CLOCK]
+                if not self.get_publishers_info_by_topic(t)
+            ]
+            if self.waiting_for or unseen:
                 return
             self.lockstep = Participant(self, True)
             self.bag.add_topic(topic.LOCKSTEP_TICK, TICK_TYPE)
