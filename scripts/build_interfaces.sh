@@ -52,6 +52,12 @@ rm -f "$stamp"
 for pkg in "${PACKAGES[@]}"; do
   echo "setup:   $pkg"
   log="$build/$pkg.log"
+  # a build folder configured from another checkout sharing this venv (a git worktree):
+  # CMake refuses another source for its cache, so start that package's build afresh
+  cache="$build/$pkg/CMakeCache.txt"
+  if [ -f "$cache" ] && ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$PWD/interfaces/$pkg" "$cache"; then
+    rm -rf "${build:?}/$pkg"
+  fi
   mkdir -p "$build/$pkg"
   if ! {
     cmake -S "interfaces/$pkg" -B "$build/$pkg" \

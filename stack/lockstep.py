@@ -91,9 +91,18 @@ class Ack:
         Raises:
             ValueError: not JSON, or a field of the wrong type.
         """
-        data = json.loads(text)
+        return cls.from_dict(json.loads(text))
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Ack:
+        """An acknowledgement from its fields (the JSON object, or the typed message's
+        fields as :func:`stack.ros_msgs.ack_from_msg` gives them).
+
+        Raises:
+            ValueError: no node name, or a field of the wrong type.
+        """
         if not isinstance(data, dict) or not isinstance(data.get("node"), str):
-            raise ValueError(f"lock-step ack without a node name: {text[:80]!r}")
+            raise ValueError(f"lock-step ack without a node name: {str(data)[:80]!r}")
         out = cls(str(data["node"]), str(data.get("incarnation", "")), run=str(data.get("run", "")))
         for name in ("recv", "sent", "matched"):
             counts = data.get(name, {})
@@ -331,10 +340,12 @@ class Coordinator:
         self._last_warn = now_s
         self._foreign_seen = 0
 
-    def ack(self, text: str, now_s: float) -> None:
-        """Record one acknowledgement (JSON); a malformed one is logged and ignored."""
+    def ack(self, message: str | dict, now_s: float) -> None:
+        """Record one acknowledgement (JSON text, or its fields as a dict); a malformed
+        one is logged and ignored."""
         try:
-            ours = self.ledger.update(Ack.from_json(text), now_s)
+            ack = Ack.from_json(message) if isinstance(message, str) else Ack.from_dict(message)
+            ours = self.ledger.update(ack, now_s)
         except ValueError as err:
             self.log.append(("throttled", f"lock-step ack ignored: {err}"))
             ours = True

@@ -12,8 +12,8 @@ callback reads the same time whatever the machine's speed. Timers (:meth:`timer`
 once every participant has processed the ``/clock``::
 
     self.lockstep = Participant(self, enabled=declare(self, lockstep=False).lockstep)
-    self.pub = self.lockstep.publisher(String, "/out", 10)
-    self.lockstep.subscription(String, "/in", self.on_in, 10)
+    self.pub = self.lockstep.publisher(Bool, "/out", 10)
+    self.lockstep.subscription(Bool, "/in", self.on_in, 10)
     ... self.lockstep.now_s() ...
 """
 
@@ -29,10 +29,11 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from std_msgs.msg import String
+from vigil_interfaces.msg import LockstepAck
 
 from stack import topics
-from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC, Ack
+from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC
+from stack.ros_msgs import ack_to_msg
 
 HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
 
@@ -90,7 +91,7 @@ class Participant:
         self._deferred: list[tuple[Callable[[Any], None], Any]] = []
         if not self.enabled:
             return
-        self._ack_pub = node.create_publisher(String, ACK_TOPIC, 50)
+        self._ack_pub = node.create_publisher(LockstepAck, ACK_TOPIC, 50)
         self.subscription(ClockMsg, clock_topic, self._clock_cb, 10, internal=True)
         self.subscription(ClockMsg, TICK_TOPIC, self._tick_cb, 10, internal=True)
         wall = Clock(clock_type=ClockType.STEADY_TIME)
@@ -196,15 +197,15 @@ class Participant:
         if not self.enabled:
             return
         try:
-            ack = Ack(
+            ack = ack_to_msg(
                 self.node.get_name(),
                 self.incarnation,
-                dict(self.recv),
-                dict(self.sent),
+                self.run_id,
+                self.recv,
+                self.sent,
                 {p.topic_name: p.get_subscription_count() for p in self._publishers},
-                run=self.run_id,
             )
-            self._ack_pub.publish(String(data=ack.to_json()))
+            self._ack_pub.publish(ack)
         except Exception:  # a callback finishing while Ctrl-C shuts the context down
             if self.node.context.ok():
                 raise

@@ -5,6 +5,8 @@
   imports ``twin`` or ``vigil``, ``twin`` never imports ``vigil``;
 - algorithm modules never import rclpy: in ``stack`` and ``twin`` only ``node_*.py``,
   ``ros_*.py`` and the twin's bridge talk ROS (``vigil``, the application, may);
+- algorithm modules import no message package either (``*_msgs``, ``*_interfaces``):
+  typed messages are converted in ``stack/ros_msgs.py`` (issue 14) and the nodes;
 - a module over 500 lines says why in its docstring;
 - ROS topic names are written only in ``stack/topics.py``: anywhere else a string literal
   that looks like a topic name (``"/nav/result"``) fails.
@@ -104,6 +106,25 @@ def test_only_nodes_import_rclpy():
             if any(n == "rclpy" or n.startswith("rclpy.") for n in names):
                 bad.append(m)
     assert not bad, f"algorithm modules importing rclpy: {sorted(set(bad))}"
+
+
+def test_only_nodes_and_the_codec_import_message_packages():
+    """Issue 14: domain types <-> messages only in stack/ros_msgs.py and node files."""
+    bad = []
+    for m, path in modules().items():
+        stem = path.stem
+        if stem.startswith(("node_", "ros_")) or m == "twin.bridge_node" or m.startswith("vigil."):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                names = [node.module or ""]
+            top = {n.split(".")[0] for n in names}
+            if any(t.endswith(("_msgs", "_interfaces")) for t in top):
+                bad.append(m)
+    assert not bad, f"algorithm modules importing message packages: {sorted(set(bad))}"
 
 
 def test_long_modules_say_why():

@@ -97,8 +97,12 @@ def test_a_twin_run_writes_a_readable_bag(tmp_path):
     assert (bag / "metadata.yaml").exists(), "the bag was not closed cleanly"
     frames: set[tuple[str, str]] = set()
     counts: dict[str, int] = {}
+    decisions = []
     with Reader(bag) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
         for conn, _, raw in reader.messages():
+            if conn.topic == "/planner/step":
+                decisions.append(STORE.deserialize_cdr(raw, conn.msgtype))
             counts[conn.topic] = counts.get(conn.topic, 0) + 1
             if conn.topic == "/tf":
                 msg = STORE.deserialize_cdr(raw, conn.msgtype)
@@ -107,3 +111,19 @@ def test_a_twin_run_writes_a_readable_bag(tmp_path):
     assert counts.get("/scan", 0) > 0 and counts.get("/observations", 0) > 0, counts
     # camera frames at one per simulated second at most, not the camera's full rate
     assert 0 < counts.get("/camera/image_raw", 0) < counts["/scan"], counts
+    # issue 14: typed messages for observations, belief, decisions and navigation; no
+    # std_msgs/String at all (docs/INTERFACES.md allows two, each with a reason)
+    expect = {
+        "/observations": "vigil_interfaces/msg/PersonObservation",
+        "/perception/person": "vigil_interfaces/msg/CameraPerson",
+        "/perception/legs": "vigil_interfaces/msg/LegTracks",
+        "/planner/belief": "vigil_interfaces/msg/Belief",
+        "/planner/step": "vigil_interfaces/msg/Decision",
+        "/nav/action": "vigil_interfaces/msg/NavGoal",
+        "/nav/result": "vigil_interfaces/msg/NavResult",
+        "/twin/truth": "vigil_interfaces/msg/TwinTruth",
+    }
+    assert {t: types.get(t) for t in expect} == expect
+    assert [t for t, ty in types.items() if ty == "std_msgs/msg/String"] == []
+    # each decision says which goal its action went out as: the step's number
+    assert decisions and [d.goal_id for d in decisions] == [d.step for d in decisions]

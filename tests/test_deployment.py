@@ -296,3 +296,32 @@ def test_hardware_refuses_odometry_as_the_map_pose(tmp_path):
     data["navigation"] = {**data.get("navigation", {}), "pose_source": "odom"}
     with pytest.raises(ConfigError, match="navigation.pose_source.*amcl or tf"):
         parse_deployment(data, tmp_path / "hardware.yaml")
+
+
+def test_hardware_camera_info_reaches_the_camera_node_and_a_bad_one_stops_the_deployment(
+    tmp_path,
+):
+    from vigil.system import prepare
+
+    (tmp_path / "cal.yaml").write_text("unused: true\n")
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "hardware.yaml").read_text())
+    data.update(
+        task=str(CONFIG / "task-r2.yaml"),
+        policy=str(tmp_path / "policy.npz"),
+        perception={"calibration": str(tmp_path / "cal.yaml")},
+    )
+    data["hardware"]["camera_info"] = "intrinsics.yaml"  # relative to the deployment file
+    (tmp_path / "intrinsics.yaml").write_text(
+        "width: 640\nheight: 400\nK: [500, 0, 319.5, 0, 500, 199.5, 0, 0, 1]\n"
+    )
+    dep = parse_deployment(data, tmp_path / "hardware.yaml")
+    system = prepare(dep, tmp_path / "run", say=lambda s: None)
+    assert system.params["camera_stream"]["camera_info_file"] == str(tmp_path / "intrinsics.yaml")
+    (tmp_path / "intrinsics.yaml").write_text("width: 640\nheight: 400\n")  # no K
+    with pytest.raises(ConfigError) as err:
+        parse_deployment(data, tmp_path / "hardware.yaml")
+    assert err.value.key == "hardware.camera_info"
+    data["hardware"]["camera_info"] = 3
+    with pytest.raises(ConfigError, match="must be a path"):
+        parse_deployment(data, tmp_path / "hardware.yaml")

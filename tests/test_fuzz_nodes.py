@@ -1,6 +1,12 @@
 """Fuzz every node's subscriptions (issue 13): random and adversarial messages (NaN,
-inf, huge, empty, wrong frame, future and past stamps, hostile JSON) for a fixed,
+inf, huge, empty, wrong frame, future and past stamps, hostile strings) for a fixed,
 seeded budget; no node may die.
+
+The typed topics (issue 14) get, most of the time, a well-formed message (built from a
+template record with :mod:`stack.ros_msgs`, as its producer would) with one field made
+hostile, at any depth (a track's speed, a belief's probability, a box count that is
+not a multiple of five, a cell of -7, a goal id of 0...); otherwise every field random,
+sequences of nested messages included.
 
 Each node is built in this process with the parameters ``vigil.system.prepare`` gives
 a twin run (the gate with hardware-mode ones), and each message goes straight into
@@ -62,8 +68,66 @@ TEMPLATES = {
     "/speech/done": {"request_id": 1, "kind": "finished", "text": "hi", "voice": "en",
                      "wav": None, "duration_s": 1.0, "error": None},
     "/twin/truth": {"t": 1.0, "robot": [1.0, 1.0, 0.0], "robot_cell": 7, "person": [2.0, 1.0],
-                    "person_cell": 5, "person_velocity": [0.5, 0.0]},
+                    "person_cell": 5, "person_velocity": [0.5, 0.0],
+                    "people": [{"position": [2.0, 1.0], "cell": 5, "velocity": [0.5, 0.0]}]},
+    "/planner/belief": {"person": {"5": 0.9, "No person": 0.1}, "robot": {"7": 1.0}},
+    "/nav/action": {"goal_id": 3, "action": "East"},
 }  # fmt: skip
+
+
+def typed_template(topic: str):
+    """The template of a typed topic as its producer would send it (None: no template)."""
+    from stack import ros_msgs as rm
+
+    body = TEMPLATES.get(topic)
+    if body is None:
+        return None
+    writers = {
+        "/perception/legs": rm.legs_to_msg,
+        "/perception/person": rm.camera_to_msg,
+        "/nav/result": rm.nav_result_to_msg,
+        "/observations": rm.observation_to_msg,
+        "/speech/done": lambda b: rm.speech_done_to_msg(b, 1.0),
+        "/twin/truth": rm.truth_to_msg,
+        "/planner/belief": lambda b: rm.belief_to_msg(b, 1, 1.0),
+        "/nav/action": lambda b: rm.nav_goal_to_msg(b["goal_id"], b["action"], 1.0),
+    }
+    return writers[topic](body) if topic in writers else None
+
+
+def leaves(msg, path=()):
+    """(path, field type) of every scalar or sequence-of-scalars field, at any depth."""
+    out = []
+    for name, kind in msg.get_fields_and_field_types().items():
+        value = getattr(msg, name)
+        if hasattr(value, "get_fields_and_field_types"):
+            out += leaves(value, (*path, name))
+        elif isinstance(value, list) and value and hasattr(value[0], "get_fields_and_field_types"):
+            for i, item in enumerate(value):
+                out += leaves(item, (*path, name, i))
+        else:
+            out.append(((*path, name), kind))
+    return out
+
+
+def mutate_msg(msg, rng: random.Random, now_s: float):
+    """``msg`` with one leaf field set to a hostile value of its type."""
+    path, kind = rng.choice(leaves(msg))
+    holder = msg
+    for k in path[:-1]:
+        holder = holder[k] if isinstance(k, int) else getattr(holder, k)
+    seq = re.match(r"sequence<([\w/]+)(?:, \d+)?>$", kind)
+    try:
+        if seq:  # a sequence of scalars: another length, hostile values
+            n = rng.choice([0, 1, 2, 4, 7])
+            setattr(
+                holder, path[-1], [scalar(seq.group(1), rng, path[-1], now_s) for _ in range(n)]
+            )
+        else:
+            setattr(holder, path[-1], scalar(kind, rng, path[-1], now_s))
+    except (KeyError, TypeError, ValueError, AssertionError):
+        pass  # a value the type refuses: DDS could not carry it either
+    return msg
 
 
 def mutate_template(body, rng: random.Random):
@@ -139,6 +203,14 @@ def _unused(kind):
     raise KeyError(kind)
 
 
+def _message_class(kind: str):
+    """``pkg/Name`` (a nested message's field type) -> its class."""
+    import importlib
+
+    pkg, name = kind.split("/")[0], kind.split("/")[-1]
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
 def fill(msg, rng: random.Random, now_s: float, depth: int = 0):
     """Set every field of a ROS message to something adversarial (recursively)."""
     for name, kind in msg.get_fields_and_field_types().items():
@@ -147,9 +219,14 @@ def fill(msg, rng: random.Random, now_s: float, depth: int = 0):
         inner = seq.group(1) if seq else arr.group(1) if arr else kind
         try:
             if "/" in inner:  # nested message
-                if seq:
-                    cls = type(msg).__dict__  # noqa: F841 - typesupport gives the class below
-                    continue  # sequences of messages: left empty or as they are
+                if seq:  # a few random elements (a typed message's tracks, people, ...)
+                    if depth < 2 and inner.split("/")[0] != "builtin_interfaces":
+                        cls = _message_class(inner)
+                        items = [cls() for _ in range(rng.choice([0, 1, 3]))]
+                        for item in items:
+                            fill(item, rng, now_s, depth + 1)
+                        setattr(msg, name, items)
+                    continue
                 if arr:
                     for item in getattr(msg, name):
                         fill(item, rng, now_s, depth + 1)
@@ -193,13 +270,23 @@ def node_params(tmp: Path) -> dict[str, dict]:
     )
     params = {name: {**p, "lockstep": False} for name, p in system.params.items()}
     params["velocity_gate"] = {"require_arming": False}
+    params["markers"] = {"task_file": str(REPO / "config" / "task-r1.yaml"), "rate_hz": 2.0}
     # the map pose through TF (the hardware default): /tf and /tf_static fuzzed too
     params["legs_tf"] = {**params["legs"], "pose_source": "tf"}
     params["navigation_tf"] = {**params["navigation"], "pose_source": "tf"}
     return params
 
 
+def _typed_classes() -> tuple[type, ...]:
+    import vigil_interfaces.msg as vi
+
+    return tuple(getattr(vi, n) for n in dir(vi) if n[:1].isupper())
+
+
+TYPED = _typed_classes()
+
 NODES = {
+    "markers": "vigil.node_markers:MarkersNode",
     "camera_people": "stack.perception.node_camera_people:CameraPeopleNode",
     "legs": "stack.perception.node_legs:LegsNode",
     "observations": "stack.perception.node_observations:ObservationsNode",
@@ -241,7 +328,10 @@ def test_no_single_message_kills_a_node(name, params):
                 continue
             for i in range(MESSAGES_PER_TOPIC):
                 msg = sub.msg_type()
-                if i:  # the first one as constructed: all zeros, empty strings
+                template = typed_template(topic) if isinstance(msg, TYPED) else None
+                if i and template is not None and rng.random() < 0.7:
+                    msg = mutate_msg(template, rng, now_s)  # well-formed but one field
+                elif i:  # the first one as constructed: all zeros, empty strings
                     fill(msg, rng, now_s)
                     text = string_for(topic, rng)
                     if text is not None and hasattr(msg, "data"):

@@ -1,6 +1,5 @@
 """The hardware side: the velocity gate and the camera stream, pure and through rclpy."""
 
-import json
 import math
 
 import cv2
@@ -372,14 +371,16 @@ def test_calibration_files_in_both_layouts_and_scaling(tmp_path):
 
 try:
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import CameraInfo, Image
-    from std_msgs.msg import Bool, String
+    from std_msgs.msg import Bool
 
     from stack.hardware.node_camera_stream import CameraStreamNode
     from stack.hardware.node_velocity_gate import VelocityGateNode
+    from stack.ros_msgs import diagnostics_from_msg
 except ImportError:  # the pure tests above still run
     rclpy = None
     Node = object
@@ -400,22 +401,27 @@ class Probe(Node):
         self.images: list[Image] = []
         self.infos: list[CameraInfo] = []
         self.status: list[dict] = []
+        self.levels: list[int] = []
         self.nav_pub = self.create_publisher(Twist, "/nav/cmd_vel", 10)
         self.arm_pub = self.create_publisher(Bool, "/arm", 10)
         self.create_subscription(Twist, "/cmd_vel", self.on_cmd, 10)
-        self.create_subscription(String, "/safety/state", self.on_state, 10)
+        # health on /diagnostics (issue 14): one status per node, keyed by its name
+        self.create_subscription(DiagnosticArray, "/diagnostics", self.on_diagnostics, 10)
         self.create_subscription(Image, "/camera/image_raw", self.images.append, 10)
         self.create_subscription(CameraInfo, "/camera/camera_info", self.infos.append, 10)
-        self.create_subscription(String, "/camera/status", self.on_status, 10)
 
     def on_cmd(self, msg):
         self.out.append((msg.linear.x, msg.linear.y, msg.angular.z))
 
-    def on_state(self, msg):
-        self.states.append(json.loads(msg.data))
-
-    def on_status(self, msg):
-        self.status.append(json.loads(msg.data))
+    def on_diagnostics(self, msg):
+        for name, entry in diagnostics_from_msg(msg).items():
+            level = entry.pop("level")
+            if name == "velocity_gate":
+                entry.pop("message")
+                self.states.append(entry)
+                self.levels.append(level)
+            elif name == "camera_stream":
+                self.status.append(entry)
 
     def send(self, vx, vy, wz):
         msg = Twist()
@@ -445,7 +451,7 @@ def test_velocity_gate_node_holds_until_armed_then_caps_and_times_out(ros, tmp_p
         assert spin_until(ros, lambda: len(probe.out) >= 1, 2.0)
         assert all(o == (0.0, 0.0, 0.0) for o in probe.out)
         assert probe.states and probe.states[-1]["armed"] is False
-        assert probe.states[-1]["reason"] == "not armed"
+        assert probe.states[-1]["reason"] == "not armed" and probe.levels[-1] == 1  # WARN
         # arm through /arm: capped commands go through; the parameter follows
         probe.arm_pub.publish(Bool(data=True))
         assert spin_until(ros, lambda: gate.gate.armed, 3.0), "/arm true did not arm"

@@ -80,9 +80,22 @@ def test_do_nothing_during_a_move_settles_in_the_current_cell():
 
 def test_bad_inputs_are_refused_with_a_reason():
     ex, _ = setup(1)
-    (log, result) = ex.action("Upwards", 0.0)
-    assert result.body["error_name"] == "INVALID_ACTION"
-    refused = [o for o in ex.action("East", 0.0) if o.kind == "result"]
+    (log, result) = ex.action("Upwards", 0.0, goal_id=8)
+    assert result.body["error_name"] == "INVALID_ACTION" and result.body["goal_id"] == 8
+    refused = [o for o in ex.action("East", 0.0, goal_id=9) if o.kind == "result"]
     assert refused[0].body["error_name"] == "ACTION_LEAVES_MAP"
+    assert refused[0].body["goal_id"] == 9  # each result carries its own goal's id
     assert ex.set_pose(Pose2D(float("nan"), 0.0, 0.0), 1.0)[0].kind == "log"
     assert ex.goal(float("inf"), 1.0, 1.0)[0].kind == "log"
+
+
+def test_cancel_ends_only_the_goal_under_way():
+    ex, base = setup(7)
+    ex.action("East", 0.0, goal_id=5)
+    t, _ = run(ex, base, 0.0, 0.5, stop_on_result=False)
+    assert ex.cancel(4, "not this one") == [] and ex.follower.active
+    out = ex.cancel(5, "client asked")
+    assert out[0].kind == "cmd" and out[0].cmd.vx_mps == 0.0
+    (result,) = [o.body for o in out if o.kind == "result"]
+    assert result["result"] == "canceled" and result["goal_id"] == 5
+    assert not ex.follower.active and ex.cancel(5, "again") == []

@@ -4,7 +4,6 @@ A small simulator node stands in for the twin: it integrates /cmd_vel with the
 kinematic base model and publishes /odom.
 """
 
-import json
 import math
 import shutil
 
@@ -16,13 +15,20 @@ from geometry_msgs.msg import Twist  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from std_msgs.msg import Bool, String  # noqa: E402
+from std_msgs.msg import Bool  # noqa: E402
+from vigil_interfaces.msg import NavGoal, NavResult, PersonObservation, SpeechDone  # noqa: E402
 
 from stack.cells import CellGrid  # noqa: E402
 from stack.nav.base_model import KinematicBase  # noqa: E402
 from stack.nav.follower import Pose2D, Twist2D  # noqa: E402
 from stack.nav.node_navigation import NavigationNode  # noqa: E402
 from stack.nav.node_speech import SpeechNode  # noqa: E402
+from stack.ros_msgs import (  # noqa: E402
+    nav_goal_to_msg,
+    nav_result_from_msg,
+    observation_to_msg,
+    speech_done_from_msg,
+)
 
 pytestmark = pytest.mark.ros
 GRID = CellGrid()
@@ -40,26 +46,29 @@ class SimBase(Node):
         self.speech: list[dict] = []
         self.publish_odom = True
         self.odom_pub = self.create_publisher(Odometry, "/odom", 10)
-        self.action_pub = self.create_publisher(String, "/nav/action", 10)
+        self.action_pub = self.create_publisher(NavGoal, "/nav/action", 10)
+        self.goal_id = 0
         self.stop_pub = self.create_publisher(Bool, "/stop", 10)
-        self.person_cell_pub = self.create_publisher(String, "/perception/person_cell", 10)
         self.create_subscription(Twist, "/cmd_vel", self.on_cmd, 10)
-        self.create_subscription(String, "/nav/result", self.on_result, 10)
-        self.create_subscription(String, "/speech/done", self.on_speech, 10)
+        self.create_subscription(NavResult, "/nav/result", self.on_result, 10)
+        self.create_subscription(SpeechDone, "/speech/done", self.on_speech, 10)
         self.create_timer(0.05, self.on_timer)
 
     def on_cmd(self, msg: Twist) -> None:
         self.cmds.append(msg)
         self.cmd = Twist2D(msg.linear.x, msg.linear.y, msg.angular.z)
 
-    def on_result(self, msg: String) -> None:
-        try:
-            self.results.append(json.loads(msg.data))
-        except ValueError:  # the speech test sends a malformed result on purpose
-            pass
+    def act(self, action: str) -> int:
+        """Send a goal with the next id (as the planner does); returns the id."""
+        self.goal_id += 1
+        self.action_pub.publish(nav_goal_to_msg(self.goal_id, action, 0.0))
+        return self.goal_id
 
-    def on_speech(self, msg: String) -> None:
-        self.speech.append(json.loads(msg.data))
+    def on_result(self, msg: NavResult) -> None:
+        self.results.append(nav_result_from_msg(msg))
+
+    def on_speech(self, msg: SpeechDone) -> None:
+        self.speech.append(speech_done_from_msg(msg))
 
     def on_timer(self) -> None:
         pose = self.base.step(self.cmd, 0.05)
@@ -86,15 +95,15 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
     try:
         assert spin_until(ros, lambda: nav.pose is not None, 5.0), "no odometry reached the node"
         # a bad action: warned about, reported, and the node keeps working
-        sim.action_pub.publish(String(data="Upwards"))
+        first = sim.act("Upwards")
         assert spin_until(ros, lambda: len(sim.results) == 1, 3.0)
-        assert sim.results[0]["result"] == "refused"
+        assert sim.results[0]["result"] == "refused" and sim.results[0]["goal_id"] == first
         assert sim.results[0]["error_name"] == "INVALID_ACTION"
         # East from cell 3 is cell 1; East again leaves the map and is refused
-        sim.action_pub.publish(String(data="East"))
+        east = sim.act("East")
         assert spin_until(ros, lambda: len(sim.results) == 2, 15.0), "no result for East"
         result = sim.results[1]
-        assert result["result"] == "succeeded", result
+        assert result["result"] == "succeeded" and result["goal_id"] == east, result
         assert (result["from_cell"], result["target_cell"], result["cell"]) == (3, 1, 1)
         # reported on entering the cell; the robot goes on to settle on its waypoint
         assert result["message"] == "in the target cell"
@@ -104,7 +113,7 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
         assert len(sim.results) == 2  # one result per action
         spin_until(ros, lambda: False, 0.2)
         n_cmds = len(sim.cmds)
-        sim.action_pub.publish(String(data="East"))
+        sim.act("East")
         assert spin_until(ros, lambda: len(sim.results) == 3, 3.0)
         assert sim.results[2]["result"] == "refused"
         assert sim.results[2]["error_name"] == "ACTION_LEAVES_MAP"
@@ -115,7 +124,7 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
         assert max(abs(c.linear.y) for c in sim.cmds) <= cfg.max_vy_mps + 1e-9
         # stale pose: odometry stops, so the node commands zero while the task continues
         sim.publish_odom = False
-        sim.action_pub.publish(String(data="North"))
+        sim.act("North")
         spin_until(ros, lambda: False, 1.5)
         assert sim.cmds and sim.cmds[-1].linear.x == 0.0 and sim.cmds[-1].linear.y == 0.0
         # /stop cancels it with a result
@@ -132,12 +141,12 @@ def test_navigation_node_moves_the_base_to_the_next_cell(ros, tmp_path):
 def test_speech_node_warns_a_person_in_the_restricted_cell_with_the_robot(ros, tmp_path):
     sim = SimBase(GRID.center(1))
     speech = SpeechNode(parameter_overrides=[Parameter("out_dir", value=str(tmp_path))])
-    obs_pub = sim.create_publisher(String, "/observations", 10)
+    obs_pub = sim.create_publisher(PersonObservation, "/observations", 10)
     for node in (sim, speech):
         ros.add_node(node)
 
     def observe(robot, person):
-        obs_pub.publish(String(data=json.dumps({"robot": robot, "person": person})))
+        obs_pub.publish(observation_to_msg({"robot": robot, "person": person, "velocity": ""}))
 
     try:
         spin_until(ros, lambda: False, 0.3)  # discovery
@@ -145,7 +154,9 @@ def test_speech_node_warns_a_person_in_the_restricted_cell_with_the_robot(ros, t
         # (only near): silence; a malformed message is skipped
         observe("7", "7")
         observe("1", "3")
-        obs_pub.publish(String(data="not json"))
+        bad = observation_to_msg({"robot": "1", "person": "1", "velocity": ""})
+        bad.hidden_cells = [4]  # no fraction for it: malformed, skipped
+        obs_pub.publish(bad)
         assert spin_until(ros, lambda: speech.person_cell == 3, 3.0)
         spin_until(ros, lambda: False, 0.3)
         assert sim.speech == []
@@ -187,3 +198,74 @@ def test_navigation_node_reads_amcl_pose_and_a_map_file(ros, tmp_path):
         nav.destroy_node()
     with pytest.raises(ConfigError, match="pose_source: 'gps' is invalid"):
         NavigationNode(parameter_overrides=[Parameter("pose_source", value="gps")])
+
+
+def test_navigate_to_pose_action_goal_feedback_result_cancel_and_reject(ros):
+    """Issue 14: the navigation node serves a NavigateToPose-shaped action, the nav2
+    way: an action goal drives the robot and ends with its result (also on /nav/result,
+    under the same goal id); a pose goal gives feedback and is canceled; a goal in
+    another frame is rejected."""
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from vigil_interfaces.action import NavigateToPose
+
+    sim = SimBase(GRID.center(3))
+    nav = NavigationNode(parameter_overrides=[Parameter("control_rate_hz", value=20.0)])
+    client = ActionClient(sim, NavigateToPose, "navigate_to_pose")
+    for node in (sim, nav):
+        ros.add_node(node)
+
+    def send(goal, feedback):
+        future = client.send_goal_async(goal, feedback_callback=lambda f: feedback.append(f))
+        assert spin_until(ros, future.done, 5.0), "no answer to the goal"
+        return future.result()
+
+    try:
+        assert spin_until(ros, lambda: nav.pose is not None and client.server_is_ready(), 5.0)
+        handle = send(NavigateToPose.Goal(action="East"), [])  # cell 3 -> cell 1
+        assert handle.accepted
+        result = handle.get_result_async()
+        assert spin_until(ros, result.done, 15.0), "no result for East"
+        r = result.result()
+        assert r.status == GoalStatus.STATUS_SUCCEEDED
+        assert (r.result.result, r.result.error_code, r.result.cell) == ("succeeded", 0, 1)
+        assert r.result.goal_id >= 2**31  # given by the server: never a planner step's
+        assert spin_until(
+            ros, lambda: sim.results and sim.results[-1]["goal_id"] == r.result.goal_id, 2.0
+        )
+        # a pose goal far away: feedback while it drives, then canceled
+        goal = NavigateToPose.Goal()
+        goal.pose.header.frame_id = "map"
+        goal.pose.pose.position.x, goal.pose.pose.position.y = GRID.center(12)
+        feedback: list = []
+        handle = send(goal, feedback)
+        assert handle.accepted
+        assert spin_until(ros, lambda: len(feedback) >= 1, 10.0), "no feedback"
+        fb = feedback[-1].feedback
+        assert fb.state and fb.current_pose.header.frame_id == "map"
+        assert fb.goal_id >= 2**31 and fb.distance_remaining > 0
+        cancel = handle.cancel_goal_async()
+        assert spin_until(ros, cancel.done, 5.0)
+        result = handle.get_result_async()
+        assert spin_until(ros, result.done, 5.0)
+        assert result.result().status == GoalStatus.STATUS_CANCELED
+        assert result.result().result.result == "canceled"
+        assert spin_until(ros, lambda: not nav.follower.active, 2.0)
+        # a goal from the planner's topic while an action goal drives: the action goal
+        # ends "canceled" (superseded), the topic goal goes on under its own id
+        handle = send(goal, [])
+        assert handle.accepted and spin_until(ros, lambda: nav.follower.active, 3.0)
+        result = handle.get_result_async()
+        planner_goal = sim.act("West")
+        assert spin_until(ros, result.done, 5.0)
+        assert result.result().status == GoalStatus.STATUS_ABORTED
+        assert "superseded by goal" in result.result().result.error_msg
+        assert spin_until(ros, lambda: sim.results[-1]["goal_id"] == planner_goal, 15.0)
+        # a goal in another frame: rejected, the node keeps serving
+        goal.pose.header.frame_id = "odom"
+        assert not send(goal, []).accepted
+    finally:
+        client.destroy()
+        for node in (sim, nav):
+            ros.remove_node(node)
+            node.destroy_node()

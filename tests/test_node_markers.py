@@ -1,6 +1,5 @@
 """The markers node publishes the grid, the belief and the people (issue 14)."""
 
-import json
 import math
 from pathlib import Path
 
@@ -9,10 +8,11 @@ import pytest
 pytest.importorskip("visualization_msgs")
 from geometry_msgs.msg import Pose, PoseArray  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from vigil_interfaces.msg import Belief  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from stack import topics as topic  # noqa: E402
+from stack.ros_msgs import belief_to_msg  # noqa: E402
 from vigil.node_markers import MarkersNode  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,14 +30,16 @@ def test_markers_follow_the_belief_and_people_and_survive_junk(ros):
     probe = rclpy.create_node("probe")
     got: list[MarkerArray] = []
     probe.create_subscription(MarkerArray, topic.MARKERS, got.append, 10)
-    belief = probe.create_publisher(String, topic.PLANNER_BELIEF, 10)
+    belief = probe.create_publisher(Belief, topic.PLANNER_BELIEF, 10)
     legs = probe.create_publisher(PoseArray, topic.LEG_PEOPLE, 10)
     ros.add_node(node)
     ros.add_node(probe)
     try:
-        belief.publish(String(data="{not json"))  # ignored, the node keeps running
-        belief.publish(String(data=json.dumps({"person": {"5": 0.9, "No person": 0.1},
-                                               "robot": {"7": 1.0}})))  # fmt: skip
+        junk = belief_to_msg({"person": {"5": 0.9}}, 1, 0.0)
+        junk.variables[0].probabilities = [float("nan"), 0.5]  # ignored, the node keeps running
+        belief.publish(junk)
+        marginals = {"person": {"5": 0.9, "No person": 0.1}, "robot": {"7": 1.0}}
+        belief.publish(belief_to_msg(marginals, 1, 0.0))
         pose = Pose()
         pose.position.x, pose.position.y = 2.5, 0.7
         legs.publish(PoseArray(poses=[pose]))

@@ -8,7 +8,6 @@ the person's cell, "East higher" and the robot's cell. Bad messages in between
 
 from __future__ import annotations
 
-import json
 import math
 import time
 
@@ -20,7 +19,8 @@ from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Image, LaserScan  # noqa: E402
-from std_msgs.msg import Empty, String  # noqa: E402
+from std_msgs.msg import Empty  # noqa: E402
+from vigil_interfaces.msg import CameraPerson, PersonObservation  # noqa: E402
 
 from stack.cells import CellGrid  # noqa: E402
 from stack.perception.homography import calibrate, save_calibration  # noqa: E402
@@ -36,6 +36,7 @@ from stack.perception.synthetic import (  # noqa: E402
     simulate_scan,
     walking_legs,
 )
+from stack.ros_msgs import camera_from_msg, observation_from_msg  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -98,8 +99,11 @@ def test_nodes_publish_the_planner_observation(ros, tmp_path):
     pub_req = probe.create_publisher(Empty, "/observations/request", 10)
     persons: list[dict] = []
     observations: list[dict] = []
-    for topic, sink in (("/perception/person", persons), ("/observations", observations)):
-        probe.create_subscription(String, topic, lambda m, s=sink: s.append(json.loads(m.data)), 10)
+    for topic, cls, read, sink in (
+        ("/perception/person", CameraPerson, camera_from_msg, persons),
+        ("/observations", PersonObservation, observation_from_msg, observations),
+    ):
+        probe.create_subscription(cls, topic, lambda m, s=sink, f=read: s.append(f(m)), 10)
     executor = SingleThreadedExecutor()
     for node in (camera, legs, obs_node, probe):
         executor.add_node(node)

@@ -108,3 +108,23 @@ def test_max_steps_ends_the_run(parts):
     m.on_nav_result(2.0, {"result": "succeeded", "action": "East"})
     cmds = m.on_observation(2.1, obs())
     assert kinds(cmds) == ["record", "done"] and m.agent.phase == "done"
+
+
+def test_each_step_sends_its_own_goal_id_and_a_late_result_is_not_taken(parts):
+    """Issue 14: step 1's goal times out; its result arrives during step 2 (same action
+    name even): it must not end step 2; step 2's own result does."""
+    m = machine(parts, nav_timeout_s=5.0)
+    (act,) = m.tick(1.0)
+    assert act.kind == "act" and act.goal_id == 1
+    m.tick(6.5)  # no result: the step reads the observations anyway
+    cmds = m.on_observation(6.6, obs())
+    assert kinds(cmds) == ["record", "act"]
+    assert cmds[0].record["goal_id"] == 1 and cmds[0].record["nav"] == {"result": "timeout"}
+    second = cmds[1]
+    assert second.goal_id == 2 and m.waiting == "nav"
+    late = {"goal_id": 1, "result": "succeeded", "action": second.action}
+    assert m.on_nav_result(7.0, late) == [] and m.waiting == "nav" and m.last_nav is None
+    assert m.on_nav_result(7.1, {**late, "goal_id": 0}) == []  # an operator's goal
+    own = {**late, "goal_id": 2}
+    m.on_nav_result(7.2, own)
+    assert m.last_nav == own and m.waiting in ("obs", "hold")

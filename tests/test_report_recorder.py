@@ -17,8 +17,8 @@ def test_recorder_writes_raw_records(tmp_path):
     import rclpy
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import Image
-    from std_msgs.msg import String
 
+    from stack.ros_msgs import camera_to_msg, truth_to_msg, warning_to_msg
     from vigil.node_recorder import TRUTH_GAP_S, RecorderNode
 
     rclpy.init()
@@ -28,7 +28,7 @@ def test_recorder_writes_raw_records(tmp_path):
         def truth(t):
             body = {"t": t, "robot": [2.5, 0.7, 0.0], "robot_cell": 7, "person": [5.5, 0.7],
                     "person_cell": 1, "person_velocity": [0.0, 0.0]}  # fmt: skip
-            node.on_truth(String(data=json.dumps(body)))
+            node.on_truth(truth_to_msg(body))
 
         def image(t):
             msg = Image(height=4, width=6, encoding="bgr8", step=18)
@@ -41,9 +41,9 @@ def test_recorder_writes_raw_records(tmp_path):
             truth(t)
             if k % 10 == 0 and t < 1.0:
                 node.on_image(image(t))
-                node.on_warning(String(data="first"))
-                node.on_warning(String(data="second"))
-                node.on_person(String(data=json.dumps({"stamp_s": t, "status": "person"})))
+                node.on_warning(warning_to_msg("first", 1, None, t))
+                node.on_warning(warning_to_msg("second", 2, None, t))
+                node.on_person(camera_to_msg({"stamp_s": t, "status": "person"}))
         node.destroy_node()
     finally:
         rclpy.shutdown()

@@ -112,12 +112,11 @@ def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
     """With ``pose_source: tf`` (the hardware default) legs, observations and navigation
     put the robot where map -> odom -> base_link says, while /odom (offset from the map,
     as on a robot whose odometry drifted) would put it in another cell."""
-    import json
-
     from nav_msgs.msg import Odometry
     from rclpy.parameter import Parameter
-    from std_msgs.msg import Empty, String
+    from std_msgs.msg import Empty
     from tf2_msgs.msg import TFMessage
+    from vigil_interfaces.msg import PersonObservation
 
     from stack.nav.node_navigation import NavigationNode
     from stack.perception._config import load_config_file
@@ -142,7 +141,7 @@ def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
     pub_request = probe.create_publisher(Empty, "/observations/request", 10)
     labels: list[str] = []
     probe.create_subscription(
-        String, "/observations", lambda m: labels.append(json.loads(m.data)["robot"]), 10
+        PersonObservation, "/observations", lambda m: labels.append(m.robot), 10
     )
     nodes = (legs, obs, nav, probe)
     for n in nodes:

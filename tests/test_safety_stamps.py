@@ -4,7 +4,6 @@ the messages after it."""
 
 from __future__ import annotations
 
-import json
 import math
 import time
 
@@ -20,7 +19,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Image, LaserScan  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from vigil_interfaces.msg import CameraPerson, LegTracks  # noqa: E402
 
 from stack.cells import CellGrid  # noqa: E402
 from stack.perception.homography import calibrate, save_calibration  # noqa: E402
@@ -33,6 +32,7 @@ from stack.perception.synthetic import (  # noqa: E402
     simulate_scan,
     walking_legs,
 )
+from stack.ros_msgs import camera_from_msg, legs_from_msg  # noqa: E402
 
 GRID = CellGrid()
 CAMERA = PinholeCamera.mount_a(GRID)
@@ -90,7 +90,7 @@ def test_a_future_frame_does_not_blind_the_camera_node(ros_ex, tmp_path):
     pub = probe.create_publisher(Image, "/camera/image_raw", 10)
     states: list[dict] = []
     probe.create_subscription(
-        String, "/perception/person", lambda m: states.append(json.loads(m.data)), 50
+        CameraPerson, "/perception/person", lambda m: states.append(camera_from_msg(m)), 50
     )
     for n in (node, probe):
         ros_ex.add_node(n)
@@ -138,7 +138,7 @@ def test_a_future_scan_and_pose_do_not_blind_the_legs_node(ros_ex):
     pub_odom = probe.create_publisher(Odometry, "/odom", 10)
     legs: list[dict] = []
     probe.create_subscription(
-        String, "/perception/legs", lambda m: legs.append(json.loads(m.data)), 50
+        LegTracks, "/perception/legs", lambda m: legs.append(legs_from_msg(m)), 50
     )
     for n in (node, probe):
         ros_ex.add_node(n)

@@ -20,9 +20,9 @@ Time, three modes:
     real time (``realtime`` true): one tick per control period of wall-clock time.
     free-running (both false): ticks as fast as the executor allows.
 
-Ground truth for evaluation also goes out as one JSON record per sensor tick on
-``/twin/truth`` (std_msgs/String): {t, robot [x, y, yaw], robot_cell, person [x, y] |
-null, person_cell, person_velocity [vx, vy] | null}.
+Ground truth for evaluation also goes out as one record per sensor tick on
+``/twin/truth`` (vigil_interfaces/TwinTruth): the robot's pose and cell, the first
+person's position, cell and velocity, and every walker's (several people).
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
-from std_msgs.msg import Int32, String
+from std_msgs.msg import Int32
 from tf2_msgs.msg import TFMessage
+from vigil_interfaces.msg import LockstepAck, TwinTruth
 
 import stack.topics as topic
 from stack import tf
@@ -60,6 +61,7 @@ from stack.lockstep import (
     Ledger,
 )
 from stack.ros_main import spin_node
+from stack.ros_msgs import ack_from_msg, truth_to_msg
 from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
 from twin.config import TwinConfig, load_twin_config
@@ -246,7 +248,7 @@ class TwinBridge(Node):
         self.pub_map = self.create_publisher(OccupancyGrid, topic.MAP, latched)
         self.pub_clock = self.create_publisher(Clock, topic.CLOCK, 10)
         self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
-        self.pub_truth = self.create_publisher(String, topic.TWIN_TRUTH, 10)
+        self.pub_truth = self.create_publisher(TwinTruth, topic.TWIN_TRUTH, 10)
         self.pub_robot = self.create_publisher(PoseStamped, topic.TWIN_ROBOT_POSE, 10)
         self.pub_person = self.create_publisher(PoseStamped, topic.TWIN_PERSON_POSE, 10)
         self.pub_person_vel = self.create_publisher(TwistStamped, topic.TWIN_PERSON_VELOCITY, 10)
@@ -257,7 +259,7 @@ class TwinBridge(Node):
         self.create_subscription(Twist, topic.CMD_VEL, self._on_cmd_vel, 10)
         if self.lockstep:
             self.ledger.subscribe(topic.CMD_VEL)
-            self.create_subscription(String, ACK_TOPIC, self._on_ack, 200)
+            self.create_subscription(LockstepAck, ACK_TOPIC, self._on_ack, 200)
         self._publish(self.pub_map, map_msg(twin.occupancy_map(), twin.time_s))
         laser = tf.Transform(twin.lidar_mount_m())
         self._publish(
@@ -282,8 +284,13 @@ class TwinBridge(Node):
         if self.lockstep:
             self.ledger.received(topic.CMD_VEL)
 
-    def _on_ack(self, msg: String) -> None:
-        self.coordinator.ack(msg.data, self._wall_s())
+    def _on_ack(self, msg: LockstepAck) -> None:
+        try:
+            fields = ack_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warning(f"lock-step ack ignored: {err}", throttle_duration_sec=5.0)
+            return
+        self.coordinator.ack(fields, self._wall_s())
         self._log_coordinator()
 
     def _log_coordinator(self) -> None:
@@ -373,7 +380,7 @@ class TwinBridge(Node):
 
     def _publish_truth(self, gt: GroundTruth) -> None:
         t = gt.time_s
-        self._publish(self.pub_truth, String(data=json.dumps(truth_record(gt))))
+        self._publish(self.pub_truth, truth_to_msg(truth_record(gt)))
         # counted: the localisation stand-in (a participant) reads it
         self._publish(self.pub_robot, pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
         self.pub_robot_cell.publish(Int32(data=gt.robot_cell or -1))

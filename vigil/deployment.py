@@ -21,7 +21,8 @@ Sections (all optional except ``mode`` and ``task``)::
     planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
     nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
     topics: {scan: /scan, odom: /odom, cmd_vel: /cmd_vel}
-    hardware: {camera_stream: {...}, velocity_gate: {...}, armed: false}
+    hardware: {camera_stream: {...}, velocity_gate: {...}, armed: false,
+               camera_info: axis-intrinsics.yaml}   # optional: /camera/camera_info
 """
 
 from __future__ import annotations
@@ -256,7 +257,7 @@ def _check_hardware(dep: Deployment) -> None:
     from stack.hardware.camera_stream import StreamConfig
     from stack.hardware.velocity_gate import GateConfig
 
-    known = {"camera_stream", "velocity_gate", "armed"}
+    known = {"camera_stream", "velocity_gate", "armed", "camera_info"}
     for k in dep.hardware:
         if k not in known:
             raise ConfigError(
@@ -266,6 +267,16 @@ def _check_hardware(dep: Deployment) -> None:
     GateConfig.from_dict(dep.hardware.get("velocity_gate"), "hardware.velocity_gate")
     if not isinstance(dep.hardware.get("armed", False), bool):
         raise ConfigError("hardware.armed", dep.hardware["armed"], "must be true or false")
+    info = dep.hardware.get("camera_info", "")
+    if not isinstance(info, str):
+        raise ConfigError("hardware.camera_info", info, "must be a path (or empty: no CameraInfo)")
+    if info:
+        from stack.hardware.camera_stream import load_calibration
+
+        try:  # read now: a bad intrinsics file stops the deployment, not the camera node
+            load_calibration(dep.resolve(info))
+        except ConfigError as err:
+            raise ConfigError("hardware.camera_info", info, str(err)) from None
     if not dep.perception.calibration:
         raise ConfigError(
             "perception.calibration", "", "hardware mode needs the camera's calibration file"
@@ -281,7 +292,7 @@ def _check_hardware(dep: Deployment) -> None:
         raise ConfigError(
             "ros.interfaces", [], "hardware mode off localhost must list the addresses DDS may use"
         )
-    if dep.topics.cmd_vel in (NAV_CMD_VEL, topic.ARM, topic.SAFETY_STATE):
+    if dep.topics.cmd_vel in (NAV_CMD_VEL, topic.ARM, topic.DIAGNOSTICS):
         raise ConfigError(
             "topics.cmd_vel",
             dep.topics.cmd_vel,

@@ -452,8 +452,9 @@ class InProcessSystem:
     def nav_on_pose(self, msg: tuple[float, Pose2D]) -> None:
         self._emit_nav(self.nav.set_pose(msg[1], self.now_s))
 
-    def nav_on_action(self, action: str) -> None:
-        self._emit_nav(self.nav.action(action, self.now_s))
+    def nav_on_action(self, goal: tuple[int, str]) -> None:
+        goal_id, action = goal
+        self._emit_nav(self.nav.action(action, self.now_s, goal_id))
 
     def _emit_nav(self, outputs) -> None:
         for o in outputs:
@@ -509,7 +510,7 @@ class InProcessSystem:
     def _planner_run(self, commands) -> None:
         for c in commands:
             if c.kind == "act":
-                self.publish(topic.NAV_ACTION, c.action)
+                self.publish(topic.NAV_ACTION, (c.goal_id, c.action))
             elif c.kind == "request":
                 self.publish(topic.OBSERVATIONS_REQUEST, None)
             elif c.kind == "record" and c.record is not None:

@@ -43,13 +43,14 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from vigil_interfaces.msg import LockstepAck
 
 import stack.topics as topic
 from stack.cells import ConfigError
 from stack.lockstep import Ack
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import ack_from_msg
 from stack.ros_params import declare
 from vigil.bag import BagError, BagWriter, RateLimit, fresh_path, message_class
 
@@ -80,6 +81,7 @@ TOPICS = (
     topic.SPEECH_SPEAKING,
     topic.TWIN_TRUTH,
     topic.MARKERS,
+    topic.DIAGNOSTICS,  # the hardware nodes' health (none in the twin)
 )
 RATE_LIMITED = (topic.CAMERA_IMAGE,)
 UNCOUNTED = (topic.MARKERS,)  # published by a node outside the lock-step
@@ -115,7 +117,7 @@ class BagNode(Node):
         self.last_ns = -1
         self.started = False  # lock-step: subscribed and acknowledged
         if v.lockstep:
-            self.create_subscription(String, topic.LOCKSTEP_ACK, self.on_ack, 50)
+            self.create_subscription(LockstepAck, topic.LOCKSTEP_ACK, self.on_ack, 50)
         else:
             self.create_subscription(Clock, topic.CLOCK, self.on_clock, 10)
         self.want_lockstep = bool(v.lockstep)
@@ -125,9 +127,9 @@ class BagNode(Node):
     def on_clock(self, msg: Clock) -> None:
         self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
 
-    def on_ack(self, msg: String) -> None:
+    def on_ack(self, msg: LockstepAck) -> None:
         try:
-            ack = Ack.from_json(msg.data)
+            ack = Ack.from_dict(ack_from_msg(msg))
         except ValueError:
             return
         self.waiting_for.discard(ack.node)

@@ -26,10 +26,11 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from vigil_interfaces.msg import LockstepAck
 
 import stack.topics as topic
 from stack.lockstep import ACK_TOPIC, TICK_TOPIC, Ack, Ledger
+from stack.ros_msgs import ack_from_msg
 from vigil.bag import Recording, ReplayError, message_class
 
 PROGRESS_S = 1.0
@@ -49,15 +50,15 @@ class BagPlayer(Node):
         super().__init__("bag_player", **kwargs)
         self.ledger = Ledger(expected, run_id=run_id)
         self.heard_s = time.monotonic()
-        self.create_subscription(String, ACK_TOPIC, self.on_ack, 100)
+        self.create_subscription(LockstepAck, ACK_TOPIC, self.on_ack, 100)
         self.pub_clock = self.create_publisher(Clock, topic.CLOCK, 10)
         self.pub_tick = self.create_publisher(Clock, TICK_TOPIC, 10)
         self.pubs: dict[str, object] = {}
         self.fed: dict[str, int] = {}
 
-    def on_ack(self, msg: String) -> None:
+    def on_ack(self, msg: LockstepAck) -> None:
         try:
-            ack = Ack.from_json(msg.data)
+            ack = Ack.from_dict(ack_from_msg(msg))
         except ValueError as err:
             self.get_logger().warning(f"ack ignored: {err}", throttle_duration_sec=5.0)
             return

@@ -5,10 +5,11 @@ the grid, the restricted cells and cell numbers, the planner's belief (cells sha
 P(person there), P(no person)), the robot's likely cell and the people the camera and
 the laser see (:mod:`stack.visualization` makes the markers; this node only adapts).
 
-Subscribes: ``/planner/belief`` (the planner's marginals, JSON),
-``/perception/person`` (the camera's person, JSON with ``position_m``) and
+Subscribes: ``/planner/belief`` (the planner's marginals, vigil_interfaces/Belief),
+``/perception/person`` (the camera's people, vigil_interfaces/CameraPerson) and
 ``/perception/leg_people`` (the laser's people, ``geometry_msgs/PoseArray``). Messages
-that do not parse are logged and ignored; the last good ones are drawn.
+that do not convert (:mod:`stack.ros_msgs`) are logged and ignored; the last good
+ones are drawn.
 
 Parameters: ``task_file`` (the grid and the restricted cells), ``rate_hz`` (2.0).
 ``config/foxglove-layout.json`` is a Foxglove layout showing these markers over the
@@ -17,18 +18,18 @@ map, the scan and the camera image.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import Point, PoseArray
 from rclpy.node import Node
-from std_msgs.msg import String
+from vigil_interfaces.msg import Belief, CameraPerson
 from visualization_msgs.msg import Marker, MarkerArray
 
 from stack import topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.ros_main import spin_node
+from stack.ros_msgs import belief_from_msg, camera_from_msg
 from stack.ros_params import declare
 from stack.visualization import MarkerSpec, scene_markers
 
@@ -85,27 +86,28 @@ class MarkersNode(Node):
         self.camera_people: list[tuple[float, float]] = []
         self.leg_people: list[tuple[float, float]] = []
         self.pub = self.create_publisher(MarkerArray, topic.MARKERS, 2)
-        self.create_subscription(String, topic.PLANNER_BELIEF, self.on_belief, 10)
-        self.create_subscription(String, topic.PERSON, self.on_person, 10)
+        self.create_subscription(Belief, topic.PLANNER_BELIEF, self.on_belief, 10)
+        self.create_subscription(CameraPerson, topic.PERSON, self.on_person, 10)
         self.create_subscription(PoseArray, topic.LEG_PEOPLE, self.on_legs, 10)
         self.create_timer(1.0 / rate_hz, self.publish)
 
-    def _json(self, msg: String, what: str) -> Any:
+    def _ignored(self, what: str, err: Exception) -> None:
+        self.get_logger().warning(f"{what} ignored: {err}", throttle_duration_sec=10.0)
+
+    def on_belief(self, msg: Belief) -> None:
         try:
-            return json.loads(msg.data)
-        except (ValueError, RecursionError) as err:
-            self.get_logger().warning(f"{what} ignored: {err}", throttle_duration_sec=10.0)
-            return None
+            self.belief = belief_from_msg(msg)
+        except ValueError as err:
+            self._ignored("belief", err)
 
-    def on_belief(self, msg: String) -> None:
-        data = self._json(msg, "belief")
-        if isinstance(data, dict) and all(isinstance(v, dict) for v in data.values()):
-            self.belief = data
-
-    def on_person(self, msg: String) -> None:
-        data = self._json(msg, "camera person")
-        if data is not None:
-            self.camera_people = _positions(data)
+    def on_person(self, msg: CameraPerson) -> None:
+        try:
+            data = camera_from_msg(msg)
+        except ValueError as err:
+            self._ignored("camera person", err)
+            return
+        people = [{"position_m": q} for q in data["people_m"]]  # several people: all
+        self.camera_people = _positions(people or data)
 
     def on_legs(self, msg: PoseArray) -> None:
         self.leg_people = _positions(

@@ -10,8 +10,10 @@ since the last record) and the camera frame, JPEG-encoded, to ``camera_frames.bi
 :func:`vigil.report.write_report` composes the tables, figures and the video from the
 folder after the nodes have stopped, outside the lock-step.
 
-Subscribes: ``/camera/image_raw``, ``/perception/person``, ``/perception/legs``,
-``/twin/truth``, ``/odom``, ``/speech/warning``, ``/speech/done``.
+Subscribes: ``/camera/image_raw``, ``/perception/person`` (CameraPerson),
+``/perception/legs`` (LegTracks), ``/twin/truth`` (TwinTruth), ``/odom``,
+``/speech/warning`` (Warning), ``/speech/done`` (SpeechDone); the typed messages are
+read back into the records the trace has always held (:mod:`stack.ros_msgs`).
 
 Parameters: ``out_dir``, ``task_file`` and ``config_file`` (accepted, unused: the
 report reads the task), ``video`` (false: no frames), ``jpeg_quality``, ``lockstep``.
@@ -27,13 +29,14 @@ from pathlib import Path
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import Image
-from std_msgs.msg import String
+from vigil_interfaces.msg import CameraPerson, LegTracks, SpeechDone, TwinTruth, Warning
 
 import stack.topics as topic
 from stack.perception.errors import BadFrameError
 from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import camera_from_msg, legs_from_msg, speech_done_from_msg, truth_from_msg
 from stack.ros_params import declare
 from vigil.frames import FRAMES_FILE, FrameWriter
 
@@ -83,12 +86,12 @@ class RecorderNode(Node):
         self.last_t = 0.0  # the last trace record's time
         ls = self.lockstep = Participant(self, v.lockstep)
         ls.subscription(Image, topic.CAMERA_IMAGE, self.on_image, 5)
-        ls.subscription(String, topic.PERSON, self.on_person, 10)
-        ls.subscription(String, topic.LEGS, self.on_legs, 10)
-        ls.subscription(String, topic.TWIN_TRUTH, self.on_truth, 10)
+        ls.subscription(CameraPerson, topic.PERSON, self.on_person, 10)
+        ls.subscription(LegTracks, topic.LEGS, self.on_legs, 10)
+        ls.subscription(TwinTruth, topic.TWIN_TRUTH, self.on_truth, 10)
         ls.subscription(Odometry, topic.ODOM, self.on_odom, 10)
-        ls.subscription(String, topic.SPEECH_WARNING, self.on_warning, 10)
-        ls.subscription(String, topic.SPEECH_DONE, self.on_speech_done, 10)
+        ls.subscription(Warning, topic.SPEECH_WARNING, self.on_warning, 10)
+        ls.subscription(SpeechDone, topic.SPEECH_DONE, self.on_speech_done, 10)
         self.get_logger().info(f"recording into {out_dir}")
 
     def on_image(self, msg: Image) -> None:
@@ -98,8 +101,8 @@ class RecorderNode(Node):
             del self.images[min(self.images)]
 
     @_skips_bad_messages
-    def on_truth(self, msg: String) -> None:
-        self.truth = _json(msg.data)
+    def on_truth(self, msg: TwinTruth) -> None:
+        self.truth = truth_from_msg(msg)
         t = (self.truth or {}).get("t")
         if isinstance(t, int | float) and t - self.last_t >= TRUTH_GAP_S - 1e-9:
             self.write(float(t), None, None)  # the camera is silent (outage)
@@ -112,27 +115,25 @@ class RecorderNode(Node):
             self.odom = None
 
     @_skips_bad_messages
-    def on_legs(self, msg: String) -> None:
-        data = _json(msg.data) or {}
+    def on_legs(self, msg: LegTracks) -> None:
+        data = legs_from_msg(msg)
         tracks = data.get("tracks", [])
         self.legs = [t["position_m"] for t in tracks if t.get("confirmed") and "position_m" in t]
 
-    def on_warning(self, msg: String) -> None:
-        self.speech.append(msg.data or "warning")  # every one: two may come between records
+    def on_warning(self, msg: Warning) -> None:
+        self.speech.append(msg.text or "warning")  # every one: two may come between records
 
     @_skips_bad_messages
-    def on_speech_done(self, msg: String) -> None:
+    def on_speech_done(self, msg: SpeechDone) -> None:
         # an utterance's end comes on wall-clock time (espeak-ng): logged, not traced,
         # so that the trace of a lock-step run is the same on every machine
-        data = _json(msg.data) or {}
+        data = speech_done_from_msg(msg)
         if data.get("kind") == "failed":
             self.get_logger().warning(f"speech failed: {data.get('error')}")
 
     @_skips_bad_messages
-    def on_person(self, msg: String) -> None:
-        camera = _json(msg.data)
-        if camera is None:
-            return
+    def on_person(self, msg: CameraPerson) -> None:
+        camera = camera_from_msg(msg)
         stamp = round(float(camera.get("stamp_s") or 0.0), 6)
         truth = self.truth or {}
         self.write(
@@ -183,15 +184,6 @@ class RecorderNode(Node):
         os.fsync(self.trace.fileno())
         self.trace.close()
         super().destroy_node()
-
-
-def _json(text: str) -> dict | None:
-    """A JSON object, or None for anything else (malformed, or not an object)."""
-    try:
-        data = json.loads(text)
-    except ValueError:
-        return None
-    return data if isinstance(data, dict) else None
 
 
 def main(args=None) -> None:

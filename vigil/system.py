@@ -168,6 +168,9 @@ def prepare(
         hw_file = run_dir / "hardware.yaml"
         hw_file.write_text(yaml.safe_dump(dep.hardware, sort_keys=True))
         params["camera_stream"] = {"config_file": str(hw_file)}
+        info = dep.resolve(dep.hardware.get("camera_info", ""))
+        if info is not None:  # the camera's intrinsics: /camera/camera_info beside the images
+            params["camera_stream"]["camera_info_file"] = str(info)
         params["velocity_gate"] = {
             "config_file": str(hw_file),
             "armed": bool(dep.hardware.get("armed", False)),

@@ -12,7 +12,8 @@ Publishes (names are parameters):
     ``/camera/camera_info`` sensor_msgs/CameraInfo with the same header, only when
         ``camera_info_file`` is given (K and P scaled when the images have another size
         than the calibration).
-    ``/camera/status`` std_msgs/String: JSON {ok, kind, message, frames, url} (the URL
+    ``/diagnostics`` diagnostic_msgs/DiagnosticArray: status ``camera_stream`` (level
+        OK while streaming, ERROR otherwise; message; values ok, kind, frames, url: the URL
         without credentials); on every change and once a second.
 
 Parameters: ``config_file`` (YAML with a ``camera_stream:`` section, keys as
@@ -20,17 +21,16 @@ Parameters: ``config_file`` (YAML with a ``camera_stream:`` section, keys as
 ``rate_hz``, ``width_px``, ``height_px``, ``reconnect_s``, ``frozen_after_frames``,
 ``open_timeout_s``) whose value overrides the file's; ``frame_id``
 (``camera_optical_frame``, the optical frame of :mod:`stack.tf`), ``camera_info_file``,
-``image_topic``, ``info_topic``, ``status_topic``.
+``image_topic``, ``info_topic``, ``diagnostics_topic``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import String
 
 import stack.topics as topic
 from stack import tf
@@ -45,6 +45,7 @@ from stack.hardware.camera_stream import (
     redact_url,
 )
 from stack.ros_main import spin_node
+from stack.ros_msgs import diagnostics_to_msg
 from stack.ros_params import declare, declare_topics
 from stack.ros_qos import FRAME_QOS  # one QoS for frames, both ends
 
@@ -72,9 +73,13 @@ class CameraStreamNode(Node):
         self.config = StreamConfig.from_dict(values, "camera_stream")
         self.frame_id, info_file = v.frame_id, v.camera_info_file
         topics = declare_topics(
-            self, image=topic.CAMERA_IMAGE, info=topic.CAMERA_INFO, status=topic.CAMERA_STATUS
+            self, image=topic.CAMERA_IMAGE, info=topic.CAMERA_INFO, diagnostics=topic.DIAGNOSTICS
         )
-        image_topic, info_topic, status_topic = topics["image"], topics["info"], topics["status"]
+        image_topic, info_topic, status_topic = (
+            topics["image"],
+            topics["info"],
+            topics["diagnostics"],
+        )
 
         self.calibration: CameraCalibration | None = (
             load_calibration(info_file) if info_file else None
@@ -86,7 +91,7 @@ class CameraStreamNode(Node):
 
         self.image_pub = self.create_publisher(Image, image_topic, FRAME_QOS)
         self.info_pub = self.create_publisher(CameraInfo, info_topic, 10) if info_file else None
-        self.status_pub = self.create_publisher(String, status_topic, 10)
+        self.status_pub = self.create_publisher(DiagnosticArray, status_topic, 10)
         self._last_status: tuple | None = None
         self._last_status_s = -1e9
         self.timer = self.create_timer(1.0 / self.config.rate_hz, self.on_timer)
@@ -146,14 +151,12 @@ class CameraStreamNode(Node):
         if key == self._last_status and now - self._last_status_s < STATUS_PERIOD_S:
             return
         self._last_status, self._last_status_s = key, now
-        body = {
-            "ok": ok,
-            "kind": kind,
-            "message": message,
-            "frames": self.stream.frames,
-            "url": self.url,
-        }
-        self.status_pub.publish(String(data=json.dumps(body)))
+        values = {"ok": ok, "kind": kind, "frames": self.stream.frames, "url": self.url}
+        level = "ok" if ok else "error"
+        stamp = self.get_clock().now().to_msg()
+        self.status_pub.publish(
+            diagnostics_to_msg(self.get_name(), self.url, level, message, values, stamp)
+        )
 
     def destroy_node(self) -> None:
         self.stream.close()

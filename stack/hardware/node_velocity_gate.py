@@ -17,9 +17,10 @@ Publishes:
     ``/cmd_vel`` geometry_msgs/Twist (``output_topic``): each accepted command (capped) as
         it arrives; zeros at once when disarmed, on a non-finite command and when
         commands go stale, then zeros at 2 Hz while not armed or stale.
-    ``/safety/state`` std_msgs/String (``state_topic``): JSON {armed, reason,
-        max_linear_mps, max_angular_radps}; on every change of armed or of moving/zero,
-        and at 2 Hz.
+    ``/diagnostics`` diagnostic_msgs/DiagnosticArray (``diagnostics_topic``): status
+        ``velocity_gate``, level OK when armed and passing commands (capped or not), WARN
+        otherwise, message the reason, values {armed, reason, max_linear_mps,
+        max_angular_radps}; on every change of armed or of moving/zero, and at 2 Hz.
 
 Timing (the stale timeout, the acceleration limit, the 2 Hz repeats) runs on the
 monotonic clock, whatever ``use_sim_time`` says. On SIGINT/SIGTERM the node publishes
@@ -35,22 +36,23 @@ false), ``rate_hz`` (20, the stale check), the topics above.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from std_msgs.msg import Bool, String
+from std_msgs.msg import Bool
 
 import stack.topics as topic
 from stack.cells import ConfigError
 from stack.config import read_section
 from stack.hardware.velocity_gate import CAPPED, OK, ZERO, GateConfig, VelocityGate
 from stack.ros_main import spin_node
+from stack.ros_msgs import diagnostics_to_msg
 from stack.ros_params import declare, declare_topics
 
 REPEAT_PERIOD_S = 0.5  # zeros and state while idle: 2 Hz
@@ -85,7 +87,7 @@ class VelocityGateNode(Node):
             input=topic.NAV_CMD_VEL,
             output=topic.CMD_VEL,
             arm=topic.ARM,
-            state=topic.SAFETY_STATE,
+            diagnostics=topic.DIAGNOSTICS,
         )
         if topics["input"] == topics["output"]:
             raise ConfigError(
@@ -94,7 +96,7 @@ class VelocityGateNode(Node):
         self.gate = VelocityGate(self.config)
         armed = p("armed", self.gate.armed).value
         self.cmd_pub = self.create_publisher(Twist, topics["output"], 10)
-        self.state_pub = self.create_publisher(String, topics["state"], 10)
+        self.state_pub = self.create_publisher(DiagnosticArray, topics["diagnostics"], 10)
         self._moving = False  # the last output published was a forwarded command
         self._last_zero_s = -1e9
         self._last_state: tuple | None = None
@@ -189,13 +191,17 @@ class VelocityGateNode(Node):
             return
         self._last_state = (state.armed, state.reason)
         self._last_state_s = now
-        body = {
+        values = {
             "armed": state.armed,
             "reason": state.reason,
             "max_linear_mps": self.config.max_linear_mps,
             "max_angular_radps": self.config.max_angular_radps,
         }
-        self.state_pub.publish(String(data=json.dumps(body)))
+        level = "ok" if state.armed and state.reason in (OK, CAPPED) else "warn"
+        stamp = self.get_clock().now().to_msg()
+        self.state_pub.publish(
+            diagnostics_to_msg(self.get_name(), "", level, state.reason, values, stamp)
+        )
 
 
 FINAL_ZERO_WAIT_S = 0.5  # how long the last zero may take to be acknowledged

@@ -103,10 +103,21 @@ class ActionExecutor:
                 out += self._report(self.follower.cancel("stop requested"))
         return out
 
-    def action(self, raw: str | int, now_s: float) -> list[Output]:
-        """One of the thesis's actions (name or :class:`stack.cells.Direction` number)."""
+    def cancel(self, goal_id: int, reason: str) -> list[Output]:
+        """Cancel goal ``goal_id`` if it is the one under way (a zero command and its
+        "canceled" result); nothing for another goal or when idle."""
+        if goal_id != self.goal_id or not self.follower.active:
+            return []
+        return [Output("cmd", ZERO_TWIST), *self._report(self.follower.cancel(reason))]
+
+    def action(self, raw: str | int, now_s: float, goal_id: int = 0) -> list[Output]:
+        """One of the thesis's actions (name or :class:`stack.cells.Direction` number).
+
+        ``goal_id``: the sender's id for it, carried by its result and progress (0: the
+        sender gave none, e.g. ``/nav/action_id``; the planner's ids start at 1).
+        """
         previous_target = self.task.get("target_cell") if self.follower.active else None
-        self.goal_id += 1
+        self.goal_id = int(goal_id)
         try:
             action = parse_action(raw)
         except ValueError as exc:
@@ -146,11 +157,11 @@ class ActionExecutor:
             out += self._begin(waypoint, now_s, target.cell)
         return out
 
-    def goal(self, x: float, y: float, now_s: float) -> list[Output]:
-        """A goal point in the map frame."""
+    def goal(self, x: float, y: float, now_s: float, goal_id: int = 0) -> list[Output]:
+        """A goal point in the map frame (``goal_id`` as in :meth:`action`)."""
         if not (math.isfinite(x) and math.isfinite(y)):
             return [Output("log", text=f"ignoring a non-finite goal ({x}, {y})")]
-        self.goal_id += 1
+        self.goal_id = int(goal_id)
         self.task = {"action": "goal_pose", "target_cell": self.grid.cell_at(x, y)}
         return self._begin((x, y), now_s)
 

@@ -6,18 +6,20 @@ cells (the observations node's fused view) are the same restricted cell, or were
 within ``grace_s``; a warning playing after that is cut short; nothing is queued.
 
 Subscribes (names are parameters):
-    ``/observations`` std_msgs/String: the observations node's JSON (``robot`` and
-        ``person`` labels: a cell number, or anything else for none; with several
+    ``/observations`` vigil_interfaces/PersonObservation: the observations node's
+        (``robot`` and ``person`` labels: a cell number, or anything else for none; with several
         people also ``people``, one label per person slot: whoever is in the robot's
         cell is warned, :func:`stack.nav.speech.person_to_warn`).
     ``/speech/say`` std_msgs/String: say this text now (empty: the configured warning).
 
 Publishes:
-    ``/speech/done`` std_msgs/String: JSON {request_id, kind, text, voice, wav,
+    ``/speech/done`` vigil_interfaces/SpeechDone: {request_id, kind, text, voice, wav,
         duration_s, error} for every finished, replaced, dropped or failed request.
     ``/speech/speaking`` std_msgs/Bool: true when an utterance starts, false when idle.
-    ``/speech/warning`` std_msgs/String: the warning's text, the moment it is decided
-        (the utterance itself follows).
+    ``/speech/warning`` vigil_interfaces/Warning: the warning's text, the warned
+        person's cell and, as ``request_id``, the warning's number (1, 2, ...: it is
+        published before the speaker gives the utterance its id), the moment it is
+        decided (the utterance follows).
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``speech`` sections),
 ``voice`` (overrides the file: "en", "pt"), ``out_dir`` (the run folder: WAV + log there
@@ -26,11 +28,11 @@ instead of the sound card), ``poll_rate_hz``, ``lockstep`` (see :mod:`stack.ros_
 
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
+from vigil_interfaces.msg import PersonObservation, SpeechDone, Warning
 
 import stack.topics as topic
 from stack.cells import CellGrid
@@ -38,6 +40,7 @@ from stack.nav.config import SpeechConfig, read_node_config
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate, person_to_warn
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import observation_from_msg, speech_done_to_msg, warning_to_msg
 from stack.ros_params import declare, declare_topics
 
 
@@ -83,10 +86,11 @@ class SpeechNode(Node):
             self.get_logger().error(f"speech disabled: {exc}")
         self._failed_id = 0
         ls = self.lockstep = Participant(self, v.lockstep)
-        self.done_pub = ls.publisher(String, topics["done"], 10)
+        self.done_pub = ls.publisher(SpeechDone, topics["done"], 10)
         self.speaking_pub = ls.publisher(Bool, topics["speaking"], 10)
-        self.warning_pub = ls.publisher(String, topics["warning"], 10)
-        ls.subscription(String, topics["observations"], self.on_observation, 10)
+        self.warning_pub = ls.publisher(Warning, topics["warning"], 10)
+        self._warnings = 0
+        ls.subscription(PersonObservation, topics["observations"], self.on_observation, 10)
         ls.subscription(String, topics["say"], self.on_say, 10)
         ls.timer(1.0 / rate_hz, self.on_timer)  # the lock-step clock, like every node
         self.get_logger().info(
@@ -97,14 +101,13 @@ class SpeechNode(Node):
     def now_s(self) -> float:
         return self.lockstep.now_s()
 
-    def on_observation(self, msg: String) -> None:
+    def on_observation(self, msg: PersonObservation) -> None:
         try:
-            body = json.loads(msg.data)
-            robot, person = str(body["robot"]), str(body["person"])
-        except (ValueError, TypeError, KeyError) as exc:
+            body = observation_from_msg(msg)
+            robot, person = body["robot"], body["person"]
+        except ValueError as exc:
             self.get_logger().warning(
-                f"ignoring a malformed observation {msg.data[:80]!r}: {exc}",
-                throttle_duration_sec=5.0,
+                f"ignoring a malformed observation: {exc}", throttle_duration_sec=5.0
             )
             return
         self.robot_cell = int(robot) if robot.isdigit() else None
@@ -119,7 +122,10 @@ class SpeechNode(Node):
         decision = self.gate.update(self.now_s(), self.robot_cell, self.person_cell, speaking)
         if decision == "say":
             self.get_logger().info(f"person in restricted cell {self.robot_cell} with the robot")
-            self.warning_pub.publish(String(data=self.config.warning))
+            self._warnings += 1
+            self.warning_pub.publish(
+                warning_to_msg(self.config.warning, self._warnings, self.person_cell, self.now_s())
+            )
             self.say(None)
         elif decision == "stop" and self.speaker is not None:
             self.get_logger().info("the person has left: warning cut short")
@@ -169,7 +175,7 @@ class SpeechNode(Node):
             "duration_s": utt.duration_s if utt and utt.duration_s == utt.duration_s else None,
             "error": event.error,
         }
-        self.done_pub.publish(String(data=json.dumps(body)))
+        self.done_pub.publish(speech_done_to_msg(body, self.now_s()))
         if self.speaker is not None and not self.speaker.speaking:
             self.speaking_pub.publish(Bool(data=False))
 

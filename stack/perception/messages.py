@@ -162,6 +162,18 @@ def camera_state_from_json(text: str, now_s: float) -> CameraPersonState:
     """
     try:
         d = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as err:
+        raise ValueError(f"malformed person message: {err!r}") from err
+    return camera_state_from_dict(d, now_s)
+
+
+def camera_state_from_dict(d: Any, now_s: float) -> CameraPersonState:
+    """A camera state from a :meth:`CameraPersonState.to_dict` record, stamped ``now_s``.
+
+    Raises:
+        ValueError: malformed fields.
+    """
+    try:
         status = PersonStatus(d["status"])
         directions = {x.label: x for x in Direction}
         pos = d.get("position_m")

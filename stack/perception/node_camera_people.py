@@ -4,17 +4,18 @@ Subscribes (names are parameters):
     ``/camera/image_raw`` sensor_msgs/Image (bgr8, rgb8, mono8, bgra8, rgba8).
 
 Publishes:
-    ``/perception/person`` std_msgs/String: JSON of :class:`CameraPersonState` per frame
-        {stamp_s, status ("person" | "no person" | "unknown"), position_m, cell,
-        direction, foot_px, boxes [[x, y, w, h, weight]], missed_frames, warning}; also
-        published by a watchdog as "unknown" when frames stop arriving.
+    ``/perception/person`` vigil_interfaces/CameraPerson: :class:`CameraPersonState` per
+        frame {status ("person" | "no person" | "unknown"), position, cell, direction,
+        foot point, boxes (x, y, w, h, weight each), missed_frames, warning, people};
+        also published by a watchdog as "unknown" when frames stop arriving.
     ``/perception/person_position`` geometry_msgs/PointStamped: the person's map
         position (frame ``map_frame``), only while a person is seen.
-    ``/perception/person_cell`` std_msgs/String: the cell number or "No person".
-    ``/perception/person_direction`` std_msgs/String: "North" ... "Not moving".
+    with ``label_topics`` (off by default; the thesis's topics, the typed message
+    carries the same): ``/perception/person_cell`` std_msgs/String: the cell number or
+    "No person"; ``/perception/person_direction`` std_msgs/String: "North" ... "Not moving".
 
 Parameters: ``config_file`` (YAML with optional ``grid`` and ``camera`` sections),
-``lockstep`` (see :mod:`stack.ros_lockstep`), ``calibration_file`` (see
+``lockstep`` (see :mod:`stack.ros_lockstep`), ``label_topics`` (false), ``calibration_file`` (see
 :mod:`stack.perception.homography`; missing: every state is
 "unknown" and a warning is logged), ``image_topic``, ``map_frame``,
 ``frame_timeout_s``, ``max_future_stamp_s`` (1.0) and ``max_past_stamp_s`` (0: no limit): a frame
@@ -25,13 +26,13 @@ QoS: frames are subscribed reliable, keep-last 2 (:data:`stack.ros_qos.FRAME_QOS
 
 from __future__ import annotations
 
-import json
 import math
 
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
+from vigil_interfaces.msg import CameraPerson
 
 import stack.topics as topic
 from stack.cells import ConfigError
@@ -43,6 +44,7 @@ from stack.perception.messages import image_from_msg, stamp_to_s
 from stack.perception.observation import NO_PERSON
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import camera_to_msg
 from stack.ros_params import declare
 from stack.ros_qos import FRAME_QOS
 from stack.stamp_guard import StampGuard
@@ -63,6 +65,7 @@ class CameraPeopleNode(Node):
             lockstep=False,
             max_future_stamp_s=1.0,
             max_past_stamp_s=0.0,
+            label_topics=False,
         )
         calibration_file = v.calibration_file
         self.map_frame = v.map_frame
@@ -81,10 +84,12 @@ class CameraPeopleNode(Node):
             self.get_logger().error("no calibration_file: person positions will be 'unknown'")
         self.tracker = CameraPeopleTracker(config, grid, homography)
         ls = self.lockstep
-        self.pub_state = ls.publisher(String, topic.PERSON, 10)
+        self.pub_state = ls.publisher(CameraPerson, topic.PERSON, 10)
         self.pub_position = ls.publisher(PointStamped, topic.PERSON_POSITION, 10)
-        self.pub_cell = ls.publisher(String, topic.PERSON_CELL, 10)
-        self.pub_direction = ls.publisher(String, topic.PERSON_DIRECTION, 10)
+        self.pub_cell = self.pub_direction = None
+        if v.label_topics:
+            self.pub_cell = ls.publisher(String, topic.PERSON_CELL, 10)
+            self.pub_direction = ls.publisher(String, topic.PERSON_DIRECTION, 10)
         self.stamps = StampGuard(v.max_future_stamp_s, v.max_past_stamp_s)
         ls.subscription(Image, v.image_topic, self.on_image, FRAME_QOS)
         self._last_frame_s = self._now_s()
@@ -123,18 +128,23 @@ class CameraPeopleNode(Node):
             f"no camera frame for {silent_s:.1f} s", throttle_duration_sec=10.0
         )
         out = self.tracker.state.silent_dict(silent_s)
-        self.pub_state.publish(String(data=json.dumps(out)))
-        self.pub_cell.publish(String(data=NO_PERSON))
-        self.pub_direction.publish(String(data="Not moving"))
+        self.pub_state.publish(camera_to_msg(out, self.map_frame))
+        self.publish_labels(NO_PERSON, "Not moving")
+
+    def publish_labels(self, cell: str, direction: str) -> None:
+        if self.pub_cell is not None and self.pub_direction is not None:
+            self.pub_cell.publish(String(data=cell))
+            self.pub_direction.publish(String(data=direction))
 
     def publish(self, state, stamp_msg) -> None:
         out = state.to_dict()
         if self.tracker.config.max_people > 1:  # several people (issue 16): all of them
             out["people_m"] = [list(q) for q in state.people_m]
-        self.pub_state.publish(String(data=json.dumps(out)))
+        self.pub_state.publish(camera_to_msg(out, self.map_frame))
         seen = state.status is PersonStatus.PERSON and state.position_m is not None
-        self.pub_cell.publish(String(data=str(state.cell) if seen and state.cell else NO_PERSON))
-        self.pub_direction.publish(String(data=state.direction.label))
+        self.publish_labels(
+            str(state.cell) if seen and state.cell else NO_PERSON, state.direction.label
+        )
         if seen and all(math.isfinite(v) for v in state.position_m):
             pt = PointStamped()
             pt.header.stamp = stamp_msg

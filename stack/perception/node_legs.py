@@ -12,9 +12,9 @@ Subscribes (names are parameters):
         (chair and table legs) are ignored.
 
 Publishes:
-    ``/perception/legs`` std_msgs/String: JSON {stamp_s, valid_beams, segments,
-        on_obstacles, legs, people, tracks [{id, position_m, velocity_mps, speed_mps,
-        speed_class, hits, age_s, confirmed}]} per scan.
+    ``/perception/legs`` vigil_interfaces/LegTracks: {valid_beams, segments,
+        on_obstacles, legs, people, tracks [{id, position, velocity, speed_mps,
+        speed_class, hits, age_s, confirmed}]} per scan (frame ``map_frame``).
     ``/perception/leg_people`` geometry_msgs/PoseArray: confirmed tracks' positions
         (frame ``map_frame``), e.g. for navigation's person avoidance.
 
@@ -32,14 +32,12 @@ message stamped further from the node's clock is ignored and counted
 
 from __future__ import annotations
 
-import json
-
 from geometry_msgs.msg import Pose, PoseArray
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
-from std_msgs.msg import String
+from vigil_interfaces.msg import LegTracks
 
 import stack.topics as topic
 from stack import tf
@@ -58,6 +56,7 @@ from stack.perception.observation import CombinerConfig
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import legs_to_msg
 from stack.ros_params import declare, declare_topics
 from stack.ros_tf import MapPose
 from stack.stamp_guard import StampGuard
@@ -101,7 +100,7 @@ class LegsNode(Node):
         self._waiting_scan: tuple[float, LaserScan] | None = None
         self.stamps = StampGuard(v.max_future_stamp_s, v.max_past_stamp_s)
         ls = self.lockstep = Participant(self, v.lockstep)
-        self.pub_legs = ls.publisher(String, topic.LEGS, 10)
+        self.pub_legs = ls.publisher(LegTracks, topic.LEGS, 10)
         self.pub_people = ls.publisher(PoseArray, topic.LEG_PEOPLE, 10)
         latched = QoSProfile(
             depth=1,
@@ -186,7 +185,8 @@ class LegsNode(Node):
         except BadScanError as err:
             log.warning(f"scan ignored: {err}", throttle_duration_sec=5.0)
             return
-        self.pub_legs.publish(String(data=json.dumps(legs_to_dict(det, tracks, self.thresholds))))
+        record = legs_to_dict(det, tracks, self.thresholds)
+        self.pub_legs.publish(legs_to_msg(record, self.map_frame))
         people = PoseArray()
         people.header.stamp = msg.header.stamp
         people.header.frame_id = self.map_frame

@@ -1,8 +1,8 @@
 """The observations node: one combined observation per decision step for the planner.
 
 Subscribes (names are parameters):
-    ``/perception/person`` std_msgs/String: the camera people node's JSON.
-    ``/perception/legs`` std_msgs/String: the legs node's JSON (tracks with speeds).
+    ``/perception/person`` vigil_interfaces/CameraPerson: the camera people node's state.
+    ``/perception/legs`` vigil_interfaces/LegTracks: the legs node's tracks with speeds.
     ``/odom`` nav_msgs/Odometry: the robot's pose in the map frame; with
         ``pose_source: tf`` instead ``/tf`` and ``/tf_static`` (``map <- base_link``:
         on a robot, where odometry drifts from the map).
@@ -10,34 +10,34 @@ Subscribes (names are parameters):
         asks when the robot has finished its action).
 
 Publishes (every ``decision_period_s`` and on request):
-    ``/observations`` std_msgs/String: JSON {stamp_s, robot, person, velocity,
-        person_position_m, speed_mps} with the planner's labels, e.g.
-        {"robot": "7", "person": "9", "velocity": "East higher"}.
-    ``/observations/robot``, ``/observations/person``, ``/observations/velocity``
-        std_msgs/String: the three labels on their own.
-    ``/observations/direction``, ``/observations/speed`` std_msgs/String: the two
-        components of the velocity, as the thesis published them ("East", "higher";
-        "Not moving", "Not moving").
+    ``/observations`` vigil_interfaces/PersonObservation: the planner's labels, e.g.
+        robot "7", person "9", velocity "East higher", with the person's position, the
+        speed, the hidden cells and (several people) one label pair per person slot.
+    with ``label_topics`` (off by default): ``/observations/robot``,
+        ``/observations/person``, ``/observations/velocity`` std_msgs/String: the three
+        labels on their own; ``/observations/direction``, ``/observations/speed``: the
+        two components of the velocity, as the thesis published them ("East",
+        "higher"; "Not moving", "Not moving"). The typed message carries all of it.
 
 Freshness is judged on this node's clock at reception, so publishers' stamps need
 not share its clock. Parameters: ``config_file`` (optional ``grid``, ``observations``
 and ``visibility`` sections), ``calibration_file`` (the camera's; with it the cells the
 robot hides from the camera are known, see :mod:`stack.perception.visibility`),
 ``lockstep`` (see :mod:`stack.ros_lockstep`), ``pose_source`` (odom | tf),
-``tf_timeout_s`` (1.0), ``decision_period_s`` (0: only on request), ``people`` (the
-task's; 2 or more adds ``"people"``: one {person, velocity} per person slot, slot 0
-first, from :class:`stack.perception.multi.PeoplePerception` on the camera's
+``tf_timeout_s`` (1.0), ``label_topics`` (false), ``decision_period_s`` (0: only on
+request), ``people`` (the task's; 2 or more adds ``"people"``: one {person,
+velocity} per person slot, slot 0 first, from
+:class:`stack.perception.multi.PeoplePerception` on the camera's
 ``people_m`` and the laser tracks; docs/PERCEPTION.md), topic names. A message that
 cannot be used is logged and skipped; the node never dies of one.
 """
 
 from __future__ import annotations
 
-import json
-
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from std_msgs.msg import Empty, String
+from vigil_interfaces.msg import CameraPerson, LegTracks, PersonObservation
 
 import stack.topics as topic
 from stack.cells import ConfigError
@@ -45,14 +45,18 @@ from stack.perception._config import load_config_file
 from stack.perception.errors import CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import Pose2D
-from stack.perception.messages import camera_state_from_json, pose_from_msg, tracks_from_dict
+from stack.perception.messages import camera_state_from_dict, pose_from_msg, tracks_from_dict
 from stack.perception.multi import PeoplePerception, SlotConfig, SlotPerson, slot_labels
 from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import camera_from_msg, legs_from_msg, observation_to_msg
 from stack.ros_params import declare, declare_topics
 from stack.ros_tf import MapPose
+
+# the thesis's one-label topics, ``/observations/<name>`` (``label_topics``)
+LABELS = ("robot", "person", "velocity", "direction", "speed")
 
 
 class ObservationsNode(Node):
@@ -69,6 +73,7 @@ class ObservationsNode(Node):
             tf_timeout_s=1.0,
             lockstep=False,
             people=1,
+            label_topics=False,
         )
         calibration_file, period_s = v.calibration_file, v.decision_period_s
         if v.pose_source not in ("odom", "tf"):
@@ -116,12 +121,13 @@ class ObservationsNode(Node):
         self.pose: Pose2D | None = None
         ls = self.lockstep = Participant(self, v.lockstep)
         base = topics["observations"]
-        self.pubs = {
-            name: ls.publisher(String, base if name == "" else f"{base}/{name}", 10)
-            for name in ("", "robot", "person", "velocity", "direction", "speed")
+        self.pub = ls.publisher(PersonObservation, base, 10)
+        self.label_pubs = {
+            name: ls.publisher(String, f"{base}/{name}", 10)
+            for name in (LABELS if v.label_topics else ())
         }
-        ls.subscription(String, topics["person"], self.on_person, 10)
-        ls.subscription(String, topics["legs"], self.on_legs, 10)
+        ls.subscription(CameraPerson, topics["person"], self.on_person, 10)
+        ls.subscription(LegTracks, topics["legs"], self.on_legs, 10)
         if v.pose_source == "tf":
             self.map_pose = MapPose(ls, self.on_map_pose, v.tf_timeout_s)
         else:
@@ -133,9 +139,9 @@ class ObservationsNode(Node):
     def _now_s(self) -> float:
         return self.lockstep.now_s()
 
-    def on_person(self, msg: String) -> None:
+    def on_person(self, msg: CameraPerson) -> None:
         try:
-            self.camera = camera_state_from_json(msg.data, self._now_s())
+            self.camera = camera_state_from_dict(camera_from_msg(msg), self._now_s())
             if self.people is not None:
                 self.slot_people = self.people.update(
                     self.camera.stamp_s, self.camera.people_m, self.tracks
@@ -143,9 +149,9 @@ class ObservationsNode(Node):
         except ValueError as err:
             self.get_logger().warning(f"person message ignored: {err}", throttle_duration_sec=5.0)
 
-    def on_legs(self, msg: String) -> None:
+    def on_legs(self, msg: LegTracks) -> None:
         try:
-            self.tracks = tracks_from_dict(json.loads(msg.data), self._now_s())
+            self.tracks = tracks_from_dict(legs_from_msg(msg), self._now_s())
         except (ValueError, TypeError) as err:
             self.get_logger().warning(f"legs message ignored: {err}", throttle_duration_sec=5.0)
 
@@ -166,11 +172,13 @@ class ObservationsNode(Node):
         except (ValueError, ArithmeticError) as err:  # never die of one bad input
             self.get_logger().error(f"observation skipped: {err}", throttle_duration_sec=5.0)
             return
-        text = obs.to_json()
+        record = obs.to_dict()
         if self.people is not None:
-            text = json.dumps({**obs.to_dict(), "people": slot_labels(self.slot_people, obs.blind)})
+            record["people"] = slot_labels(self.slot_people, obs.blind)
+        self.pub.publish(observation_to_msg(record))
+        if not self.label_pubs:
+            return
         labels = {
-            "": text,
             "robot": obs.robot_label,
             "person": obs.person_label,
             "velocity": obs.velocity_label,
@@ -178,7 +186,7 @@ class ObservationsNode(Node):
             "speed": NOT_MOVING if obs.speed is None else obs.speed.label,
         }
         for name, text in labels.items():
-            self.pubs[name].publish(String(data=text))
+            self.label_pubs[name].publish(String(data=text))
 
 
 def main(args=None) -> None:

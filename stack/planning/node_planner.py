@@ -10,17 +10,18 @@ the robot reacts to a walker instead of finishing a move first. Navigation keeps
 driving meanwhile; a next action toward the same cell does not stop it.
 
 Subscribes (names are parameters):
-    ``/nav/result`` std_msgs/String: navigation's JSON result of the action.
-    ``/observations`` std_msgs/String: the observations node's JSON
-        {"robot": "7", "person": "9", "velocity": "East higher", ...}.
+    ``/nav/result`` vigil_interfaces/NavResult: navigation's result, matched to the
+        step's goal by ``goal_id`` (a late result of an earlier goal is ignored).
+    ``/observations`` vigil_interfaces/PersonObservation: the observations node's
+        labels {"robot": "7", "person": "9", "velocity": "East higher", ...}.
 
 Publishes:
-    ``/nav/action`` std_msgs/String: "North", "South", "East", "West", "Do nothing".
+    ``/nav/action`` vigil_interfaces/NavGoal: the action ("North", "South", "East",
+        "West", "Do nothing") with its goal id (the step's number).
     ``/observations/request`` std_msgs/Empty: asks for the step's observations.
-    ``/planner/belief`` std_msgs/String: JSON {"robot": {"1": p, ...}, "person": {...},
-        "direction": {...}} after every update.
-    ``/planner/step`` std_msgs/String: JSON record of each step (as ``steps_file``).
-    ``/planner/done`` std_msgs/String: JSON {steps} when ``max_steps`` are done.
+    ``/planner/belief`` vigil_interfaces/Belief: the marginals after every update.
+    ``/planner/step`` vigil_interfaces/Decision: each step's record (as ``steps_file``).
+    ``/planner/done`` vigil_interfaces/PlannerDone: when ``max_steps`` are done.
 
 Parameters: ``task_file``, ``policy_file`` (alpha vectors, ``vigil solve``),
 ``state_file`` (belief and step, written after every change; an existing one is
@@ -44,7 +45,15 @@ import os
 from pathlib import Path
 
 from rclpy.node import Node
-from std_msgs.msg import Empty, String
+from std_msgs.msg import Empty
+from vigil_interfaces.msg import (
+    Belief,
+    Decision,
+    NavGoal,
+    NavResult,
+    PersonObservation,
+    PlannerDone,
+)
 
 import stack.topics as topic
 from stack.cells import ConfigError
@@ -58,6 +67,14 @@ from stack.planning.stepper import Command, DecisionSteps, StepTiming
 from stack.planning.task import load_task
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
+from stack.ros_msgs import (
+    belief_to_msg,
+    decision_to_msg,
+    nav_goal_to_msg,
+    nav_result_from_msg,
+    observation_from_msg,
+    planner_done_to_msg,
+)
 from stack.ros_params import declare
 
 
@@ -124,13 +141,13 @@ class PlannerNode(Node):
         self.steps = DecisionSteps(self.agent, timing, first_person, resumed)
 
         ls = self.lockstep = Participant(self, v.lockstep)
-        self.pub_action = ls.publisher(String, topic.NAV_ACTION, 10)
+        self.pub_action = ls.publisher(NavGoal, topic.NAV_ACTION, 10)
         self.pub_request = ls.publisher(Empty, topic.OBSERVATIONS_REQUEST, 10)
-        self.pub_belief = ls.publisher(String, topic.PLANNER_BELIEF, 10)
-        self.pub_step = ls.publisher(String, topic.PLANNER_STEP, 10)
-        self.pub_done = ls.publisher(String, topic.PLANNER_DONE, 10)
-        ls.subscription(String, topic.NAV_RESULT, self.on_result, 10)
-        ls.subscription(String, topic.OBSERVATIONS, self.on_observation, 10)
+        self.pub_belief = ls.publisher(Belief, topic.PLANNER_BELIEF, 10)
+        self.pub_step = ls.publisher(Decision, topic.PLANNER_STEP, 10)
+        self.pub_done = ls.publisher(PlannerDone, topic.PLANNER_DONE, 10)
+        ls.subscription(NavResult, topic.NAV_RESULT, self.on_result, 10)
+        ls.subscription(PersonObservation, topic.OBSERVATIONS, self.on_observation, 10)
         ls.timer(0.1, self.poll)
         what = f"resuming at step {self.agent.step + 1}" if resumed else "initial belief"
         self.get_logger().info(f"planner: {Path(task_file).name}, {what_policy}, {what}")
@@ -142,19 +159,19 @@ class PlannerNode(Node):
     def poll(self) -> None:
         self.run(self.steps.tick(self.now_s()))
 
-    def on_result(self, msg: String) -> None:
+    def on_result(self, msg: NavResult) -> None:
         try:
-            body = json.loads(msg.data)
-        except ValueError:
-            body = {"result": "malformed", "raw": msg.data[:200]}
-            self.get_logger().warning(f"malformed navigation result {msg.data[:80]!r}")
+            body = nav_result_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warning(f"malformed navigation result ignored: {err}")
+            return
         self.run(self.steps.on_nav_result(self.now_s(), body))
 
-    def on_observation(self, msg: String) -> None:
+    def on_observation(self, msg: PersonObservation) -> None:
         if self.steps.waiting not in ("obs", "nav", "hold"):
             return
         try:
-            observed = Observed.from_dict(json.loads(msg.data))
+            observed = Observed.from_dict(observation_from_msg(msg))
             commands = self.steps.on_observation(self.now_s(), observed)
         except (ValueError, ObservationError) as err:
             self.get_logger().error(f"observation ignored: {err}", throttle_duration_sec=5.0)
@@ -166,15 +183,16 @@ class PlannerNode(Node):
         for c in commands:
             if c.kind == "act":
                 self.save()
-                self.pub_action.publish(String(data=c.action))
-                self.get_logger().info(f"step {self.agent.step + 1}: {c.action}")
+                self.pub_action.publish(nav_goal_to_msg(c.goal_id, c.action, self.now_s()))
+                self.get_logger().info(f"step {self.agent.step + 1}: {c.action} (goal {c.goal_id})")
             elif c.kind == "request":
                 self.pub_request.publish(Empty())
             elif c.kind == "record" and c.record is not None:
                 self.save()
                 self.write_record(c.record)
-                self.pub_belief.publish(String(data=json.dumps(c.record["belief"])))
-                self.pub_step.publish(String(data=json.dumps(c.record)))
+                r = c.record
+                self.pub_belief.publish(belief_to_msg(r["belief"], r["step"], self.now_s()))
+                self.pub_step.publish(decision_to_msg(r))
                 o = c.record["observation"]
                 self.get_logger().info(
                     f"step {c.record['step']}: {c.record['action']} -> robot {o['robot']}, "
@@ -182,7 +200,7 @@ class PlannerNode(Node):
                 )
             elif c.kind == "done":
                 self.save()
-                self.pub_done.publish(String(data=json.dumps({"steps": self.agent.step})))
+                self.pub_done.publish(planner_done_to_msg(self.agent.step, self.now_s()))
                 self.get_logger().info(f"done after {self.agent.step} steps")
             elif c.kind == "log":
                 self.get_logger().warning(c.text)

@@ -54,15 +54,16 @@ class StepTiming:
 class Command:
     """What the machine asks for.
 
-    kind: "act" (publish ``action``), "request" (ask for observations), "record" (a step
-    is complete: ``record`` holds it), "done" (the run's steps are over), "log" (a
-    warning in ``text``).
+    kind: "act" (publish ``action`` as navigation goal ``goal_id``), "request" (ask for
+    observations), "record" (a step is complete: ``record`` holds it), "done" (the
+    run's steps are over), "log" (a warning in ``text``).
     """
 
     kind: str
     action: str = ""
     record: dict[str, Any] | None = None
     text: str = ""
+    goal_id: int = 0
 
 
 class Agent(Protocol):
@@ -101,6 +102,7 @@ class DecisionSteps:
     hold_until_s: float = 0.0
     requests: int = 0
     sent_action: str = ""
+    sent_goal_id: int = 0  # the goal the step's action went out as (its step number)
     last_nav: dict[str, Any] | None = None
     last_person: str = field(init=False)
 
@@ -134,11 +136,21 @@ class DecisionSteps:
         return []
 
     def on_nav_result(self, now_s: float, body: Any) -> list[Command]:
-        """Navigation's result (a dict; anything else is kept as its text)."""
+        """Navigation's result (a dict; anything else is kept as its text).
+
+        A result is matched to the goal by its ``goal_id``: a late result of an earlier
+        goal (one that timed out, or a superseded move) is ignored, never taken for the
+        step's own. A result without a ``goal_id`` key (an older navigation) is matched
+        by its action's name.
+        """
         if self.waiting != "nav":
             return []  # a result nobody waits for (e.g. after a timeout)
-        if isinstance(body, dict) and body.get("action") not in (None, self.sent_action):
-            return []  # the result of an earlier action, superseded
+        if isinstance(body, dict):
+            if "goal_id" in body:
+                if body["goal_id"] != self.sent_goal_id:
+                    return []  # another goal's result (late, or not the planner's)
+            elif body.get("action") not in (None, self.sent_action):
+                return []  # the result of an earlier action, superseded
         self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
         self.hold_until_s = self.step_start_s + self.timing.min_step_s
         moved = self.sent_action != "Do nothing" and self.last_nav.get("result") == "succeeded"
@@ -172,7 +184,11 @@ class DecisionSteps:
         record = self.agent.observe(observed)
         self.last_person = _event_key(observed)
         record.update(
-            stamp_s=round(now_s, 6), nav=self.last_nav, resumed=self.resumed, trigger=trigger
+            stamp_s=round(now_s, 6),
+            nav=self.last_nav,
+            resumed=self.resumed,
+            trigger=trigger,
+            goal_id=self.sent_goal_id,
         )
         self.resumed = False
         self.waiting = ""
@@ -189,6 +205,7 @@ class DecisionSteps:
             self.step_start_s = now_s
             if self.agent.action is not None:
                 self.sent_action = ACTIONS[self.agent.action]
+            self.sent_goal_id = goal_id_of(self.agent.step + 1)
             return [Command("log", text=f"resumed during step {self.agent.step + 1}")]
         return self._act(now_s)
 
@@ -199,7 +216,8 @@ class DecisionSteps:
         self.waiting, self.since_s, self.last_nav = "nav", now_s, None
         self.step_start_s = now_s
         self.sent_action = ACTIONS[a]
-        return [Command("act", action=self.sent_action)]
+        self.sent_goal_id = goal_id_of(self.agent.step + 1)
+        return [Command("act", action=self.sent_action, goal_id=self.sent_goal_id)]
 
     def _request(self, now_s: float) -> list[Command]:
         self.waiting, self.since_s = "obs", now_s
@@ -210,6 +228,13 @@ class DecisionSteps:
         self.agent.phase = "done"
         self.waiting = ""
         return [Command("done")]
+
+
+def goal_id_of(step: int) -> int:
+    """The navigation goal id of a step's action: the step's number (1, 2, ...), so a
+    planner resumed from its state file expects the id its predecessor sent, and no two
+    steps share one."""
+    return int(step)
 
 
 def _person_key(label: str) -> str:
@@ -225,4 +250,4 @@ def _event_key(observed: Observed) -> str:
     return ",".join(keys) if any(keys) else ""
 
 
-__all__ = ["Command", "DecisionSteps", "ObservationError", "StepTiming"]
+__all__ = ["Command", "DecisionSteps", "ObservationError", "StepTiming", "goal_id_of"]
