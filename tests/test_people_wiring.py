@@ -79,7 +79,13 @@ def test_a_one_person_observation_feeds_slot_one_only(pm):
     a.decide()
     before = a.belief.predict(pm)
     a.observe(Observed("7", "2", "Not moving"))
-    assert a.belief.position(pm, 0)[pm.model.position_index(2)] > 0.5
+    # slot one's person (absent before) is now likeliest at 2 of all cells (with the
+    # fitted 14 % false positives one sighting may leave "No person" likelier still)
+    p = a.belief.position(pm, 0)
+    cells = [pm.model.position_index(c) for c in range(1, 13)]
+    assert max(cells, key=lambda i: p[i]) == pm.model.position_index(2)
+    prior = before[0].reshape(p.size, -1).sum(axis=1)  # the predicted cell marginal
+    assert p[pm.model.position_index(2)] > 10 * prior[pm.model.position_index(2)]
     assert np.allclose(a.belief.persons[1], before[1])
 
 

@@ -171,7 +171,13 @@ def test_two_people_build_and_track(r1):
     np.testing.assert_allclose(
         fb2.marginal(1), b.reshape(one.state_shape).sum(axis=(0, 2)), atol=1e-12
     )
-    assert fb2.marginal(3).argmax() == model.position_index(2)  # person 2 seen entering at 2
+    # person 2, certainly absent before, seen entering at 2: cell 2 becomes the likeliest
+    # cell, far above an entering person's ~1 % per cell (with the fitted 14 % false
+    # positives one sighting may leave "No person" likelier still)
+    m = fb2.marginal(3)
+    cells = [model.position_index(c) for c in range(1, 13)]
+    assert max(cells, key=lambda i: m[i]) == model.position_index(2)
+    assert m[model.position_index(2)] > 10 * m[model.position_index(3)]
 
     small = Task(
         grid=CellGrid(numbering=((2,), (1,))),

@@ -2,6 +2,7 @@
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +10,8 @@ import pytest
 from stack.planning.replay import TABLES
 from vigil.cli import build_parser, main
 from vigil.replay import run_replay
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _args() -> argparse.Namespace:
@@ -45,18 +48,21 @@ def test_replay_agrees_with_the_thesis(replay):
 def test_quoted_beliefs_are_close_to_the_thesis(replay):
     results, _ = replay
     errors = np.array([q.ours - q.quote.thesis for r in results for q in r.quotes])
-    assert np.sqrt(np.mean(errors**2)) < 0.1
-    assert np.abs(errors).max() < 0.25
+    # issue 12's bar: every quoted belief within 0.1 (the recalibrated model: 0.072)
+    assert np.sqrt(np.mean(errors**2)) < 0.05
+    assert np.abs(errors).max() < 0.1
 
 
 @pytest.mark.slow  # solves both tasks (minutes); CI runs it
 def test_the_first_quoted_beliefs(replay):
-    """After step 1 of table 5.1: P(East) = 0.75, P(at 9) = 0.22, P(at 11) = 0.73."""
+    """After step 1 of table 5.1: P(East) = 0.75, P(at 9) = 0.22, P(at 11) = 0.73, each
+    within issue 12's 0.1 (the second fit gives 0.70, 0.26, 0.70: it trades these for
+    the largest errors elsewhere, max 0.208 -> 0.072)."""
     results, _ = replay
     q = {(x.quote.what, x.quote.values): x.ours for x in results[0].quotes if x.quote.step == 1}
-    assert q[("direction", ("East",))] == pytest.approx(0.75, abs=0.05)
-    assert q[("position", (9,))] == pytest.approx(0.22, abs=0.05)
-    assert q[("position", (11,))] == pytest.approx(0.73, abs=0.05)
+    assert q[("direction", ("East",))] == pytest.approx(0.75, abs=0.1)
+    assert q[("position", (9,))] == pytest.approx(0.22, abs=0.1)
+    assert q[("position", (11,))] == pytest.approx(0.73, abs=0.1)
 
 
 @pytest.mark.slow  # solves both tasks (minutes); CI runs it
@@ -79,3 +85,27 @@ def test_cli_replay_json(capsys):
     assert first["thesis_action"] == "South"
     assert first["observation"] == {"robot": 7, "person": None, "velocity": "Not moving"}
     assert {"step", "belief", "thesis", "ours"} <= set(table["quoted_beliefs"][0])
+
+
+def test_the_action_is_the_plain_argmax_and_only_equal_values_tie():
+    """The policy's action: the argmax; "Do nothing" wins only among equal values (up to
+    rounding), not within a band (the 0.5 % band the replay used before issue 12)."""
+    from stack.planning.model import build_model
+    from stack.planning.policy import AlphaPolicy
+    from stack.planning.replay import policy_chooser
+    from stack.planning.task import load_task
+    from stack.vocabulary import ACTIONS
+
+    pomdp = build_model(load_task(REPO / "config" / "task-r1.yaml")).flat()
+    stay, north = ACTIONS.index("Do nothing"), ACTIONS.index("North")
+    b = pomdp.b0
+
+    def chosen(v_north: float, v_stay: float) -> int:
+        alphas = np.full((2, pomdp.n_states), 0.0)
+        alphas[0], alphas[1] = v_north, v_stay
+        policy = AlphaPolicy(alphas, np.array([north, stay]))
+        return policy_chooser(policy, pomdp, lookahead=False)(b)[0]
+
+    assert chosen(100.0, 99.9) == north  # 0.1 % better: moves
+    assert chosen(99.9, 100.0) == stay
+    assert chosen(100.0, 100.0 - 1e-9) == stay  # equal up to rounding: waits

@@ -165,3 +165,24 @@ def test_rounds_stop_at_a_plateau():
     assert every.rounds_done == 60
     assert 1 <= early.rounds_done < 60
     assert r_early.lower_bound <= r_every.lower_bound + 1e-12
+
+
+def test_growing_rounds_sample_more_beliefs_past_a_plateau():
+    """With ``grow`` a plateau adds a batch of sampled beliefs instead of ending the
+    rounds: the rounds run on and the lower bound is at least the plateau's."""
+    m = _mixed(7, X=4, Y=5, A=3, Z=4, discount=0.95)
+    b0 = _b0(m)
+    pomdp = _flat(m, b0)
+    seeds = (blind_lower_bound(pomdp), np.arange(m.A))
+    cfg = SearchConfig(time_limit_s=None, progress_every_s=0.0, target_gap=0.0, max_trials=1)
+
+    def run(grow):
+        s = MixedSearch(m, cfg, seeds, [b0], beliefs=40, rounds=30, plateau=0.01, grow=grow)
+        return s, s.run()
+
+    plain, r_plain = run(False)
+    grown, r_grown = run(True)
+    assert plain.rounds_done < 30
+    assert grown.rounds_done == 30 and grown._batches >= 1
+    assert len(grown.nodes) > len(plain.nodes)
+    assert r_grown.lower_bound >= r_plain.lower_bound - 1e-12

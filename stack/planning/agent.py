@@ -25,7 +25,7 @@ from stack.planning import belief as belief_ops
 from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
-from stack.planning.replay import policy_chooser
+from stack.planning.replay import TIE_TOLERANCE, policy_chooser
 from stack.vocabulary import (
     ACTIONS,
     DIRECTIONS,
@@ -201,7 +201,7 @@ class PlannerAgent:
         pomdp: POMDP,
         policy: AlphaPolicy,
         initial_belief: np.ndarray | None = None,
-        tie_tolerance: float = 0.005,
+        tie_tolerance: float = TIE_TOLERANCE,
     ):
         self.model, self.pomdp, self.policy = model, pomdp, policy
         self._choose = policy_chooser(policy, pomdp, lookahead=True, tie_tolerance=tie_tolerance)

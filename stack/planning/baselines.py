@@ -26,7 +26,7 @@ from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.model import ACTION_DIRECTIONS, build_model
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
-from stack.planning.replay import policy_chooser
+from stack.planning.replay import TIE_TOLERANCE, policy_chooser
 from stack.planning.solve import TASK_CONFIG, SolverConfig, solve_task
 from stack.planning.task import Task
 from stack.vocabulary import ACTIONS
@@ -113,7 +113,7 @@ class SinglePlanner:
         policy: AlphaPolicy,
         pomdp: POMDP | None = None,
         flat: bool = False,
-        tie_tolerance: float = 0.005,
+        tie_tolerance: float = TIE_TOLERANCE,
     ):
         self.pm = pm
         n_states = pm.n_robot * pm.n_person

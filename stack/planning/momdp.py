@@ -22,7 +22,8 @@ every robot cell; a backup at b updates all cells at once:
   trials, person beliefs sampled from the starts (the person evolves whatever the
   robot does, so these are the beliefs every policy meets) are backed up in rounds,
   deepest first: this raises the lower bound far faster than trials, which SARSOP's
-  target levels stop a few steps from the root;
+  target levels stop a few steps from the root; under a time limit a plateau of the
+  rounds adds a further batch of sampled beliefs (``grow``);
 - **upper bound**: the fast informed bound computed on the factors (a sweep is one
   (X, Y, Y) x (Y, Z) product per action, milliseconds, against a second for the
   flat form), refined by the backups in the tree, and optionally (``sawtooth``) by
@@ -363,6 +364,10 @@ class MixedSearch(StoppingRules):
         start: time.perf_counter() at which the time limit started.
         progress: called with :class:`SearchStats` at most once per progress_every_s.
         sawtooth: refine the upper bound between nodes by sawtooth interpolation.
+        beliefs, rounds, depth, plateau: the rounds over sampled person beliefs (see
+            ``_rounds``).
+        grow: at a plateau, sample a further batch of beliefs and go on with the rounds
+            instead of ending them (for time-limited solves).
     """
 
     def __init__(
@@ -378,9 +383,12 @@ class MixedSearch(StoppingRules):
         rounds: int = 0,
         depth: int = 30,
         plateau: float = 0.01,
+        grow: bool = False,
     ):
         self.m = m
         self.plateau = plateau
+        self.grow = grow
+        self._batches = 0
         self.sawtooth = sawtooth
         self.n_beliefs = beliefs
         self.rounds = rounds
@@ -605,7 +613,15 @@ class MixedSearch(StoppingRules):
             # took 160 s, the last 14 of them gained 0.1 % of V)
             gains = [(r.lb - lb, gap) for r, (lb, gap) in zip(self.roots, before, strict=True)]
             if all(gain < self.plateau * gap for gain, gap in gains):
-                break
+                if not self.grow:
+                    break
+                # with a time limit the rounds go on over a further batch of sampled
+                # beliefs (the lower bound keeps rising with more beliefs: r1 192.85
+                # with 300, 194.47 with 1,000, docs/BENCHMARKS.md)
+                self._batches += 1
+                more = self.sample_nodes(n_traj, self.depth, seed=self._batches)
+                order = list(reversed([r.node for r in self.roots] + sampled + more))
+                sampled = sampled + more
         return stopped
 
     def sample_nodes(self, n_traj: int, depth: int, seed: int = 0) -> list[_Node]:

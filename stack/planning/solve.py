@@ -239,6 +239,7 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
         progress=progress,
         beliefs=config.beliefs,
         rounds=config.iterations,
+        grow=config.time_limit_s is not None,
     )
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
@@ -274,8 +275,9 @@ def format_progress(stats) -> str:
 # form (stack/planning/momdp.py: the robot's cell observed, beliefs over the person):
 # 300 person beliefs sampled from the starts (fixed seed) backed up in 20 rounds, then
 # 100 trials, or a gap of 1 % (deterministic: the same policy on any machine, whatever
-# its load). r1 141.3 / 145.1, r2 222.4 / 228.9 (docs/BENCHMARKS.md); `vigil replay
-# --table all` replays 47/50 with it for every --seed (46/50 with the plain argmax).
+# its load). With the task files' second fit: r1 192.85 / 199.93, r2 305.23 / 316.94
+# (docs/BENCHMARKS.md); `vigil replay --table all` replays 48/50 with it for every
+# --seed (the policy's own action, plain argmax).
 # Perseus as the thesis ran it (300 beliefs, 200 iterations) remains available as
 # algorithm="perseus".
 TASK_CONFIG = SolverConfig(
