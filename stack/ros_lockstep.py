@@ -153,7 +153,13 @@ class Participant:
         return counting
 
     def subscription(
-        self, msg_type, topic: str, callback: Callable, qos: QoSProfile | int, internal=False
+        self,
+        msg_type,
+        topic: str,
+        callback: Callable,
+        qos: QoSProfile | int,
+        internal=False,
+        raw: bool = False,
     ):
         """A subscription whose messages are counted (lock-step) or a plain one.
 
@@ -161,9 +167,10 @@ class Participant:
         timers for the tick (another node's timer was quicker) is held back and handled
         right after them: every node runs its timers first and then what the others'
         timers sent, whichever process the machine happened to schedule first.
+        ``raw``: the callback gets the serialized bytes (a recorder).
         """
         if not self.enabled:
-            return self.node.create_subscription(msg_type, topic, callback, qos)
+            return self.node.create_subscription(msg_type, topic, callback, qos, raw=raw)
         holder: dict[str, str] = {}
 
         def run(msg) -> None:
@@ -181,7 +188,7 @@ class Participant:
                 return
             run(msg)
 
-        sub = self.node.create_subscription(msg_type, topic, counted, _reliable(qos))
+        sub = self.node.create_subscription(msg_type, topic, counted, _reliable(qos), raw=raw)
         holder["topic"] = sub.topic_name
         self.recv[sub.topic_name] += 0  # declare the subscription in every ack
         return sub

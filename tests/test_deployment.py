@@ -255,13 +255,13 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path):
     system = prepare(dep, tmp_path / "run", scenario, say=lambda s: None)
     p = system.params
     assert p["twin_bridge"]["lockstep"] is True
-    # every node takes part in the lock-step but the viewer's markers, which only draw,
-    # and the bag, which only listens
+    # every node takes part in the lock-step but the viewer's markers, which only draw
+    # (the bag too: it holds every message in its lock-step phase, for vigil replay-bag)
     assert set(p["twin_bridge"]["participants"]) == {s.name for s in system.specs} - {
         "twin_bridge",
         "markers",
-        "bag",
     }
+    assert p["bag"]["lockstep"] is True and "bag" not in p["bag"]["participants"]
     assert {"markers", "bag"} <= {s.name for s in system.specs}
     assert (
         "<address>127.0.0.1</address></interfaceWhiteList>"

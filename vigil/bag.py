@@ -12,15 +12,22 @@ camera's frames: about 900 kB each at full rate would make the bag the run's lar
 by far).
 
 The writer never touches a path it did not create: an existing bag folder is an error.
+
+:func:`read_recording` reads a lock-step run's bag back split by ``/lockstep/tick`` (the
+bag node writes one before each tick's messages), for ``vigil replay-bag``.
 """
 
 from __future__ import annotations
 
+import importlib
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+
+import stack.topics as topic
 
 REPO = Path(__file__).resolve().parents[1]
 INTERFACES = REPO / "interfaces"
@@ -38,6 +45,13 @@ def fresh_path(folder: Path, name: str = BAG_DIR) -> Path:
         n += 1
         path = Path(folder) / f"{name}_{n}"
     return path
+
+
+def message_class(type_name: str):
+    """``pkg/msg/Name`` -> the generated Python class (ImportError, AttributeError or
+    ValueError when there is none)."""
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
 
 def typestore(interfaces: Path = INTERFACES) -> Typestore:
@@ -76,15 +90,19 @@ class BagWriter:
     Args:
         path: the bag's folder (created here).
         store: the typestore holding every type to be written (:func:`typestore`).
+        compress: zstd-compress the MCAP's chunks (MCAP's own chunk compression, which
+            Foxglove, ``rosbags`` and ``ros2 bag`` read; the messages stay CDR).
     """
 
-    def __init__(self, path: Path, store: Typestore | None = None):
+    def __init__(self, path: Path, store: Typestore | None = None, compress: bool = True):
         path = Path(path)
         if path.exists():
             raise FileExistsError(f"bag {path} already exists: not overwriting it")
         self.path = path
         self.store = store if store is not None else typestore()
         self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        if compress:
+            self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self.writer.open()
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}
@@ -114,3 +132,81 @@ class BagWriter:
         if not self.closed:
             self.closed = True
             self.writer.close()
+
+
+# -- reading a run's bag for a replay (vigil replay-bag) ----------------------------
+class ReplayError(RuntimeError):
+    """The run folder or its bag cannot be replayed (names the file and the reason)."""
+
+
+@dataclass
+class Tick:
+    """One recorded lock-step tick: its time and the messages the bag got in it."""
+
+    t_ns: int
+    messages: list[tuple[str, bytes]] = field(default_factory=list)  # (topic, CDR)
+
+
+@dataclass
+class Recording:
+    """A bag read for a replay.
+
+    Attributes:
+        before: messages received before the first tick (latched ones: /map, /tf_static).
+        ticks: the ticks in order.
+        types: topic -> its recorded ROS type (``pkg/msg/Name``).
+    """
+
+    before: list[tuple[str, bytes]]
+    ticks: list[Tick]
+    types: dict[str, str]
+
+    def count(self, name: str) -> int:
+        return sum(t == name for t, _ in self.before) + sum(
+            t == name for tick in self.ticks for t, _ in tick.messages
+        )
+
+
+def _clock_ns(cdr: bytes) -> int:
+    """A rosgraph_msgs/Clock's time from its CDR bytes (4-byte header, sec, nanosec)."""
+    if len(cdr) < 12:
+        raise ValueError(f"a /lockstep/tick record of {len(cdr)} bytes")
+    order = "little" if cdr[1] in (1, 3) else "big"
+    sec = int.from_bytes(cdr[4:8], order, signed=True)
+    nsec = int.from_bytes(cdr[8:12], order)
+    return sec * 1_000_000_000 + nsec
+
+
+def read_recording(bag: Path) -> Recording:
+    """Every message of the bag, split by lock-step tick.
+
+    Raises:
+        ReplayError: the bag cannot be read, or it has no lock-step ticks (it was
+            recorded without lock-step, e.g. on a robot: no deterministic replay then).
+    """
+    from rosbags.rosbag2 import Reader
+
+    before: list[tuple[str, bytes]] = []
+    ticks: list[Tick] = []
+    types: dict[str, str] = {}
+    try:
+        with Reader(bag) as reader:
+            for conn in reader.connections:
+                types[conn.topic] = conn.msgtype
+            for conn, _t, raw in reader.messages():
+                if conn.topic == topic.LOCKSTEP_TICK:
+                    ticks.append(Tick(_clock_ns(bytes(raw))))
+                elif ticks:
+                    ticks[-1].messages.append((conn.topic, bytes(raw)))
+                else:
+                    before.append((conn.topic, bytes(raw)))
+    except ReplayError:
+        raise
+    except Exception as err:  # rosbags' ReaderError, a truncated MCAP, bad YAML...
+        raise ReplayError(f"{bag}: the bag cannot be read: {type(err).__name__}: {err}") from err
+    if not ticks:
+        raise ReplayError(
+            f"{bag} has no {topic.LOCKSTEP_TICK} records: it was recorded without lock-step "
+            "(or by an older vigil), so it cannot be replayed deterministically"
+        )
+    return Recording(before, ticks, types)

@@ -7,6 +7,7 @@ vigil evaluate MODEL --policy P          mean discounted return by simulation (a
 vigil replay --table all                 chapter 5's tables against our planner
 vigil replay-report --out DIR            solve, replay chapter 5, simulate, report
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
+vigil replay-bag RUN [--out DIR]         re-play a run's bag into its planner; same steps?
 vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
 vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
@@ -339,6 +340,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = _command(
         sub,
+        "replay-bag",
+        "re-play a run's bag into its observations and planner nodes and compare the steps "
+        "(exit 1 on a mismatch, 2 on an error)",
+    )
+    p.add_argument("run", help="a run folder written by vigil run (with bag/ and params.yaml)")
+    p.add_argument(
+        "--out", default=None, help="the replay's folder (default RUN/replay, replay_1, ...)"
+    )
+    p.add_argument(
+        "--stall",
+        type=float,
+        default=120.0,
+        help="wall seconds without an acknowledgement from the nodes before giving up",
+    )
+    p.set_defaults(func=cmd_replay_bag)
+
+    p = _command(
+        sub,
         "experiments",
         "run a folder of scenarios; metric table per scenario and totals, and a figure",
     )
@@ -420,6 +439,24 @@ def cmd_run(args: argparse.Namespace) -> int:
     keys = ("steps", "total_discounted_reward", "left_map", "returned_to_rest")
     print(json.dumps({k: summary.get(k) for k in keys}, sort_keys=True))
     return 0
+
+
+def cmd_replay_bag(args: argparse.Namespace) -> int:
+    from vigil.replay_bag import ReplayError, comparison_markdown, replay_run
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+
+    try:
+        result = replay_run(args.run, args.out, say=say, stall_s=args.stall)
+    except ReplayError as err:
+        print(f"vigil replay-bag: error: {err}", file=sys.stderr)
+        return 2
+    print(comparison_markdown(result.comparison), end="")
+    if result.note:
+        print(f"note: {result.note}")
+    print(f"[replay-bag] {result.out_dir}/replay.md ({result.wall_s:.0f} s)")
+    return 0 if result.comparison.matches else 1
 
 
 def cmd_experiments(args: argparse.Namespace) -> int:

@@ -262,8 +262,15 @@ def prepare(
     # the viewer's markers (RViz, Foxglove): no lock-step participant, it only draws
     params["markers"] = {"task_file": str(task)}
     names.append("markers")
-    # the run's rosbag2 bag (MCAP): no lock-step participant either, it only listens
+    # the run's rosbag2 bag (MCAP): with lock-step a participant (it only listens, but the
+    # twin waits for it, so every message is in the bag in its lock-step phase: what
+    # vigil replay-bag re-enacts); without lock-step it only listens
     params["bag"] = {"out_dir": str(run_dir), "camera_period_s": 1.0, "sim_clock": twin_mode}
+    if twin_mode and dep.lockstep:
+        params["bag"].update(
+            lockstep=True, participants=list(params["twin_bridge"]["participants"])
+        )
+        params["twin_bridge"]["participants"].append("bag")
     names.append("bag")
     return _write(run_dir, names, params, dep, max_steps)
 
