@@ -706,7 +706,7 @@ def diagnostics_from_msg(msg: Any) -> dict[str, dict[str, Any]]:
         for kv in st.values:
             try:
                 entry[kv.key] = json.loads(kv.value)
-            except ValueError:
+            except (ValueError, RecursionError):  # text, or JSON nested too deep to read
                 entry[kv.key] = kv.value
         out[str(st.name)] = entry
     return out

@@ -89,6 +89,18 @@ def test_bad_inputs_are_refused_with_a_reason():
     assert ex.goal(float("inf"), 1.0, 1.0)[0].kind == "log"
 
 
+def test_a_refused_goal_never_takes_over_the_id_of_the_goal_under_way():
+    ex, base = setup(3)
+    ex.action("East", 0.0, goal_id=5)  # 3 -> 1
+    t, _ = run(ex, base, 0.0, 0.5, stop_on_result=False)
+    for bad in ("Upwards", "South"):  # invalid; South from the south row leaves the map
+        (refused,) = [o.body for o in ex.action(bad, t, goal_id=6) if o.kind == "result"]
+        assert refused["result"] == "refused" and refused["goal_id"] == 6
+    assert ex.goal_id == 5 and ex.task["target_cell"] == 1 and ex.follower.active
+    t, results = run(ex, base, t, t + 10.0)
+    assert results[0][1]["goal_id"] == 5 and results[0][1]["target_cell"] == 1
+
+
 def test_cancel_ends_only_the_goal_under_way():
     ex, base = setup(7)
     ex.action("East", 0.0, goal_id=5)

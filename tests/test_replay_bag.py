@@ -20,6 +20,7 @@ from vigil.replay_bag import (
     comparison_markdown,
     find_bag,
     read_recording,
+    read_steps,
     replay_params,
     restart_note,
 )
@@ -85,13 +86,27 @@ def test_a_bag_without_ticks_or_a_run_without_a_bag_is_refused(tmp_path):
         find_bag(tmp_path / "run")
 
 
-def test_a_corrupt_bag_is_named(tmp_path):
+def test_a_corrupt_bag_is_named(tmp_path, capsys):
     bag = _bag(tmp_path / "run" / "bag", [(topic.LOCKSTEP_TICK, 1, _clock(0))])
     (mcap,) = bag.glob("*.mcap")
     mcap.write_bytes(mcap.read_bytes()[:40])  # truncated
     with pytest.raises(ReplayError, match="cannot be read"):
         read_recording(bag)
+    steps = tmp_path / "run" / "steps.jsonl"  # a run with steps: the bag is what fails
+    steps.write_text(json.dumps(_step(1, "Do nothing", "No person", 1.0)) + "\n")
     assert main(["replay-bag", str(tmp_path / "run")]) == 2
+    assert "cannot be read" in capsys.readouterr().err
+    assert not (tmp_path / "run" / "replay").exists()  # nothing written for a bad run
+
+
+def test_a_step_record_cut_off_mid_write_is_dropped_and_a_bad_one_before_it_named(tmp_path):
+    good = json.dumps(_step(1, "Do nothing", "No person", 1.0))
+    path = tmp_path / "steps.jsonl"
+    path.write_text(good + "\n" + good[:20] + "\n")
+    assert len(read_steps(path)) == 1
+    path.write_text(good[:20] + "\n" + good + "\n")
+    with pytest.raises(ReplayError, match="line 1: not JSON"):
+        read_steps(path)
 
 
 def _step(n: int, action: str, person: str, t: float) -> dict:

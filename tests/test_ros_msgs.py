@@ -179,3 +179,12 @@ def test_diagnostics_carry_level_message_and_values():
     assert back == {"level": 1, "message": "not armed", **values}
     with pytest.raises(KeyError):
         rm.diagnostics_to_msg("x", "", "fine", "", {}, Time())
+
+
+def test_a_diagnostic_value_nested_too_deep_is_read_back_as_text():
+    from builtin_interfaces.msg import Time
+
+    deep = "[" * 100_000 + "]" * 100_000  # json.loads raises RecursionError on it
+    msg = rm.diagnostics_to_msg("peer", "", "ok", "", {"x": "text"}, Time())
+    msg.status[0].values[0].value = deep
+    assert rm.diagnostics_from_msg(msg)["peer"]["x"] == deep

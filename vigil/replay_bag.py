@@ -66,12 +66,16 @@ def read_steps(path: Path) -> list[dict]:
     if not path.is_file():
         return []
     out = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    lines = path.read_text().splitlines()
+    last = max((n for n, line in enumerate(lines, 1) if line.strip()), default=0)
+    for n, line in enumerate(lines, 1):
         if not line.strip():
             continue
         try:
             rec = json.loads(line)
         except ValueError as err:
+            if n == last:  # cut off mid-write (the run was killed): the steps before it
+                break
             raise ReplayError(f"{path} line {n}: not JSON ({err})") from err
         if not isinstance(rec, dict):
             raise ReplayError(f"{path} line {n}: not a step record")
@@ -253,20 +257,24 @@ def replay_run(
     out_dir = fresh_path(run_dir, REPLAY_DIR) if out is None else Path(out).resolve()
     if out_dir.exists() and any(out_dir.iterdir()):
         raise ReplayError(f"{out_dir} exists and is not empty: not writing into it")
+    params = replay_params(run_dir, out_dir)  # checks the run before anything is written
     out_dir.mkdir(parents=True, exist_ok=True)
-    params = replay_params(run_dir, out_dir)
     params_file = out_dir / "params.yaml"
     params_file.write_text(
         yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=True)
     )
     run_id = "replay-" + uuid.uuid4().hex[:8]
     claim = claim_domain()
-    env = dds_env(write_profile(out_dir), True)
-    env.update({RUN_ID_ENV: run_id, "ROS_DOMAIN_ID": str(claim.domain_id)})
-    env.update(PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
-    say(f"[replay-bag] folder {out_dir}, ROS domain {claim.domain_id}")
-    specs = [ProcessSpec(n, MODULES[n], params_file, restart=False) for n in REPLAYED]
-    launcher = Launcher(specs, out_dir / "logs", env, max_restarts=0, say=say)
+    try:
+        env = dds_env(write_profile(out_dir), True)
+        env.update({RUN_ID_ENV: run_id, "ROS_DOMAIN_ID": str(claim.domain_id)})
+        env.update(PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
+        say(f"[replay-bag] folder {out_dir}, ROS domain {claim.domain_id}")
+        specs = [ProcessSpec(n, MODULES[n], params_file, restart=False) for n in REPLAYED]
+        launcher = Launcher(specs, out_dir / "logs", env, max_restarts=0, say=say)
+    except BaseException:
+        claim.release()  # (the finally below owns it once the launcher exists)
+        raise
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)  # this process's DDS participant joins the same domain
     try:

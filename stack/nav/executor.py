@@ -117,26 +117,33 @@ class ActionExecutor:
         sender gave none, e.g. ``/nav/action_id``; the planner's ids start at 1).
         """
         previous_target = self.task.get("target_cell") if self.follower.active else None
-        self.goal_id = int(goal_id)
+        gid = int(goal_id)
+        task: dict[str, Any]
+        # a refused goal is answered under its own id and leaves the goal under way (its
+        # id, task and motion) as it was: it never takes over another goal's id
         try:
             action = parse_action(raw)
         except ValueError as exc:
+            task = {"action": None}
             return [
                 Output("log", text=str(exc)),
-                self._result(NavResult.REFUSED, NavErrorCode.INVALID_ACTION, str(exc)),
+                self._result(NavResult.REFUSED, NavErrorCode.INVALID_ACTION, str(exc), gid, task),
             ]
-        self.task = {"action": action.label if action.value < 4 else "Do nothing"}
+        task = {"action": action.label if action.value < 4 else "Do nothing"}
         if self.pose is None:
-            return [self._result(NavResult.REFUSED, NavErrorCode.NO_POSE, "no pose yet")]
+            no_pose = NavErrorCode.NO_POSE
+            return [self._result(NavResult.REFUSED, no_pose, "no pose yet", gid, task)]
         cell = self.waypoints.cell_of(self.pose.x_m, self.pose.y_m)
         target = self.waypoints.target(cell, action)
-        self.task.update(from_cell=cell, target_cell=target.cell)
+        task.update(from_cell=cell, target_cell=target.cell)
         waypoint = target.waypoint_m
         if target.outcome is ActionOutcome.REFUSED:
+            leaves = NavErrorCode.ACTION_LEAVES_MAP
             return [
                 Output("log", text=f"refusing action: {target.reason}"),
-                self._result(NavResult.REFUSED, NavErrorCode.ACTION_LEAVES_MAP, target.reason),
+                self._result(NavResult.REFUSED, leaves, target.reason, gid, task),
             ]
+        self.goal_id, self.task = gid, task
         out: list[Output] = []
         if target.outcome is ActionOutcome.HOLD:
             if self.follower.active and previous_target != cell:
@@ -236,18 +243,27 @@ class ActionExecutor:
             },
         )
 
-    def _result(self, result: NavResult, code: NavErrorCode, message: str) -> Output:
+    def _result(
+        self,
+        result: NavResult,
+        code: NavErrorCode,
+        message: str,
+        goal_id: int | None = None,
+        task: dict | None = None,
+    ) -> Output:
+        """The result of the goal under way, or of ``goal_id`` with ``task`` (a refusal)."""
+        task = self.task if task is None else task
         return Output(
             "result",
             body={
-                "goal_id": self.goal_id,
+                "goal_id": self.goal_id if goal_id is None else goal_id,
                 "result": result.value,
                 "error_code": int(code),
                 "error_name": code.name,
                 "message": message,
-                "action": self.task.get("action"),
-                "from_cell": self.task.get("from_cell"),
-                "target_cell": self.task.get("target_cell"),
+                "action": task.get("action"),
+                "from_cell": task.get("from_cell"),
+                "target_cell": task.get("target_cell"),
                 "cell": self.robot_cell(),
             },
         )

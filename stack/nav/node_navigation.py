@@ -30,9 +30,10 @@ Serves (nav2's way, issue 14):
         distance, replans, state); the result (nav2's error code: 0, 9003 timeout, 9000
         otherwise; vigil's ``result`` and ``cell``); cancel stops the robot and ends the
         goal "canceled". A newer goal (from the action or the topics) ends the one under
-        way as canceled ("superseded"). The goal's ``goal_id`` is its id on
-        ``/nav/progress`` and ``/nav/result`` too (0: one is given, from 2^31 up, never a
-        planner step's). The planner does not use the action: it sends goals on
+        way: status aborted, result "canceled" ("superseded by goal N"). The server gives
+        each goal its id, from 2^31 up, never a planner step's nor one in use (a
+        client's ``goal_id`` is ignored); the id is the goal's on ``/nav/progress`` and
+        ``/nav/result`` too. The planner does not use the action: it sends goals on
         ``/nav/action`` and reads ``/nav/result``, the lock-stepped pair (an action's
         services and status topics are outside the lock-step's counts, so the twin
         would no longer be deterministic; docs/INTERFACES.md). A nav2 stack replaces this
@@ -275,9 +276,15 @@ class NavigationNode(Node):
 
     async def execute_goal(self, handle):
         goal = nav_action_goal_from_msg(handle.request, self.map_frame)  # checked on accept
-        goal_id = goal["goal_id"]
-        if not goal_id or goal_id in self._action_goals:
-            goal_id, self._next_action_id = self._next_action_id, self._next_action_id + 1
+        # the server gives the id (a client's own could be a planner step's, or one in use)
+        while self._next_action_id in self._action_goals:
+            self._next_action_id += 1
+        goal_id, self._next_action_id = self._next_action_id, self._next_action_id + 1
+        if handle.is_cancel_requested:  # canceled before it started: never move for it
+            handle.canceled()
+            return nav_action_result_to_msg({"goal_id": goal_id, "result": "canceled",
+                                             "error_name": "CANCELED",
+                                             "message": "canceled before it started"})  # fmt: skip
         done: Future = Future()
         now = self.now_s()
         self._action_goals[goal_id] = (done, handle, now)

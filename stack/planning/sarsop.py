@@ -807,9 +807,6 @@ class BeliefTreeSearch(StoppingRules):
         return order
 
     # -- the search -----------------------------------------------------------------
-    def _write_s_per_value(self) -> float:
-        return self.config.write_s_per_value * self._write_factor
-
     def _values_to_write(self) -> int:
         # the archived successors written with the active set, as counted at the last
         # pruning (RockSample_5_7: 2,027 vectors written for ~800 active), scaled by
@@ -822,7 +819,8 @@ class BeliefTreeSearch(StoppingRules):
         self._n_archived = len(self._closure(reached=False)) - self.K  # an upper bound
         if self.config.write_s_per_value <= 0:
             return
-        per_value = seconds_per_value(self._AT[:, : min(self.K, 64)].T)
+        # a sample block (at most 512 states x 64 vectors): the speed per value, cheaply
+        per_value = seconds_per_value(self._AT[: min(self.S, 512), : min(self.K, 64)].T)
         self._write_factor = max(1.0, per_value / self.config.write_s_per_value)
 
     def _trial(self) -> None:
