@@ -211,9 +211,8 @@ def test_launcher_stop_and_kill(tmp_path):
 
 
 # -- the system a deployment makes --------------------------------------------------
-def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
-    from vigil.system import prepare
-
+def hardware_deployment(tmp_path) -> dict:
+    """config/hardware.yaml with task r2, and an empty policy and calibration in tmp_path."""
     (tmp_path / "cal.yaml").write_text("unused: true\n")
     (tmp_path / "policy.npz").write_bytes(b"")
     data = yaml.safe_load((CONFIG / "hardware.yaml").read_text())
@@ -222,6 +221,13 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
         policy=str(tmp_path / "policy.npz"),
         perception={"calibration": str(tmp_path / "cal.yaml")},
     )
+    return data
+
+
+def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
+    from vigil.system import prepare
+
+    data = hardware_deployment(tmp_path)
     dep = parse_deployment(data, tmp_path / "hardware.yaml")
     system = prepare(dep, tmp_path / "run", say=lambda s: None)
     names = [s.name for s in system.specs]
@@ -303,14 +309,7 @@ def test_hardware_camera_info_reaches_the_camera_node_and_a_bad_one_stops_the_de
 ):
     from vigil.system import prepare
 
-    (tmp_path / "cal.yaml").write_text("unused: true\n")
-    (tmp_path / "policy.npz").write_bytes(b"")
-    data = yaml.safe_load((CONFIG / "hardware.yaml").read_text())
-    data.update(
-        task=str(CONFIG / "task-r2.yaml"),
-        policy=str(tmp_path / "policy.npz"),
-        perception={"calibration": str(tmp_path / "cal.yaml")},
-    )
+    data = hardware_deployment(tmp_path)
     data["hardware"]["camera_info"] = "intrinsics.yaml"  # relative to the deployment file
     (tmp_path / "intrinsics.yaml").write_text(
         "width: 640\nheight: 400\nK: [500, 0, 319.5, 0, 500, 199.5, 0, 0, 1]\n"
