@@ -7,8 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
+from stack.planning import pomdpx
 from stack.planning.pomdp_format import parse_pomdp, read_pomdp
+from stack.planning.pomdpx import PomdpxError, read_pomdpx
 
 REPO = Path(__file__).resolve().parents[1]
 POMDP_DIR = REPO.parent / "shared" / "pomdp"
@@ -84,3 +87,144 @@ def test_non_standard_sizes_place_rocks_by_seed():
     assert a == b and a != c and len(set(a.rocks)) == 5
     with pytest.raises(ValueError, match="do not fit"):
         gen.instance(2, 5)
+
+
+# -- .pomdpx flattened sparsely ----------------------------------------------------------
+SARSOP_EXAMPLES = REPO.parent / "sarsop-build" / "sarsop" / "examples" / "POMDPX"
+if not SARSOP_EXAMPLES.is_dir():
+    SARSOP_EXAMPLES = Path("/work/sarsop-build/sarsop/examples/POMDPX")
+
+
+def _cpt(tag, var, parents, table):
+    """A <CondProb>/<Func> giving every entry with one '-' per axis."""
+    value = "ValueTable" if tag == "Func" else "ProbTable"
+    nums = " ".join(repr(float(x)) for x in np.ravel(table))
+    dashes = " ".join("-" for _ in range(table.ndim))
+    return (
+        f"<{tag}><Var>{var}</Var><Parent>{' '.join(parents) or 'null'}</Parent>"
+        f"<Parameter type='TBL'><Entry><Instance>{dashes}</Instance>"
+        f"<{value}>{nums}</{value}></Entry></Parameter></{tag}>"
+    )
+
+
+def _random_factored(rng):
+    """A random factored model as .pomdpx text and its flat (T, O, R, b0) by brute force."""
+    sizes, fully, A, Zo = [3, 2, 2], [True, False, False], 3, 2
+    names = ["x", "y", "w"]
+    dirich = lambda shape: rng.dirichlet(np.ones(shape[-1]) * 0.5, size=shape[:-1])  # noqa: E731
+    # x' | a, x ; y' | a, x, y ; w' | a, w, y ; o | a, x', w' ; R(a, x, y) + R(a, y')
+    tx, ty, tw = dirich((A, 3, 3)), dirich((A, 3, 2, 2)), dirich((A, 2, 2, 2))
+    ty[1] = 0.0
+    ty[1, ..., 0] = 1.0  # a deterministic table (sparse rows)
+    to = dirich((A, 3, 2, Zo))
+    r1, r2 = rng.normal(size=(A, 3, 2)), rng.normal(size=(A, 2))
+    b_x, b_yw = dirich((3,)), dirich((2, 4)).reshape(2, 2, 2)[0]
+    var = "".join(
+        f"<StateVar vnamePrev='{n}0' vnameCurr='{n}1' fullyObs='{str(f).lower()}'>"
+        f"<NumValues>{k}</NumValues></StateVar>"
+        for n, k, f in zip(names, sizes, fully, strict=True)
+    )
+    var += f"<ObsVar vname='o'><NumValues>{Zo}</NumValues></ObsVar>"
+    var += f"<ActionVar vname='a'><NumValues>{A}</NumValues></ActionVar><RewardVar vname='r'/>"
+    b_yw = b_yw / b_yw.sum()
+    text = (
+        "<?xml version='1.0'?><pomdpx><Discount>0.9</Discount>"
+        f"<Variable>{var}</Variable>"
+        "<InitialStateBelief>"
+        + _cpt("CondProb", "x0", [], b_x)
+        + _cpt("CondProb", "w0", [], b_yw.sum(axis=0))
+        + _cpt("CondProb", "y0", ["w0"], (b_yw / b_yw.sum(axis=0)).T)
+        + "</InitialStateBelief><StateTransitionFunction>"
+        + _cpt("CondProb", "w1", ["a", "w0", "y0"], tw)
+        + _cpt("CondProb", "x1", ["a", "x0"], tx)
+        + _cpt("CondProb", "y1", ["a", "x0", "y0"], ty)
+        + "</StateTransitionFunction><ObsFunction>"
+        + _cpt("CondProb", "o", ["a", "x1", "w1"], to)
+        + "</ObsFunction><RewardFunction>"
+        + _cpt("Func", "r", ["a", "x0", "y0"], r1)
+        + _cpt("Func", "r", ["a", "y1"], r2)
+        + "</RewardFunction></pomdpx>"
+    )
+    S = 12
+    T = np.zeros((A, S, S))
+    O = np.zeros((A, S, 3 * Zo))
+    R = np.zeros((S, A))
+    b0 = np.zeros(S)
+    for a in range(A):
+        for s, (x, y, w) in enumerate(np.ndindex(3, 2, 2)):
+            b0[s] = b_x[x] * b_yw[y, w]
+            R[s, a] = r1[a, x, y]
+            for s2, (x2, y2, w2) in enumerate(np.ndindex(3, 2, 2)):
+                p = tx[a, x, x2] * ty[a, x, y, y2] * tw[a, w, y, w2]
+                T[a, s, s2] = p
+                R[s, a] += p * r2[a, y2]
+            O[a, s, x * Zo : (x + 1) * Zo] = to[a, x, w]
+    return text, T, O, R, b0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pomdpx_sparse_flattening_matches_the_dense_product(tmp_path, seed):
+    text, T, O, R, b0 = _random_factored(np.random.default_rng(seed))
+    f = tmp_path / "m.pomdpx"
+    f.write_text(text)
+    m = read_pomdpx(f)
+    assert m.n_states == 12 and m.n_observations == 3 * 2
+    for a in range(3):
+        np.testing.assert_allclose(m.T[a].toarray(), T[a], atol=1e-12)
+        np.testing.assert_allclose(m.O[a].toarray(), O[a], atol=1e-12)
+    np.testing.assert_allclose(m.R, R, atol=1e-12)
+    np.testing.assert_allclose(m.b0, b0, atol=1e-12)
+    assert m.T[1].nnz < np.count_nonzero(T[0])  # the deterministic table stays sparse
+
+
+def test_pomdpx_oversized_and_malformed_input_is_refused(tmp_path, monkeypatch):
+    text = _random_factored(np.random.default_rng(0))[0]
+    f = tmp_path / "m.pomdpx"
+    f.write_text(text)
+    monkeypatch.setattr(pomdpx, "MAX_FLAT_NONZEROS", 100)
+    with pytest.raises(PomdpxError, match="non-zeros"):
+        read_pomdpx(f)
+    monkeypatch.setattr(pomdpx, "MAX_FLAT_STATES", 10)
+    with pytest.raises(PomdpxError, match="12 flat states"):
+        read_pomdpx(f)
+    monkeypatch.undo()
+    w1 = text[text.index("<CondProb><Var>w1") : text.index("<CondProb><Var>x1")]
+    f.write_text(text.replace(w1, w1 + w1))
+    with pytest.raises(PomdpxError, match="two transition tables for 'w1'"):
+        read_pomdpx(f)
+    f.write_text(text.replace(w1, ""))
+    with pytest.raises(PomdpxError, match=r"no transition table for \['w1'\]"):
+        read_pomdpx(f)
+    big = text.replace("<NumValues>3</NumValues>", "<NumValues>3000000</NumValues>", 1)
+    f.write_text(big)
+    with pytest.raises(PomdpxError, match="values|flat states|entries"):
+        read_pomdpx(f)
+
+
+def _lumped(x, p, state_map, obs_map):
+    """``x`` maps onto ``p`` exactly: states by ``state_map`` (x -> p), observations by
+    ``obs_map``; then both models have the same values (x's states are p's, split)."""
+    P = sp.csr_matrix((np.ones(x.n_states), state_map, np.arange(x.n_states + 1)))
+    Q = sp.csr_matrix((np.ones(x.n_observations), obs_map, np.arange(x.n_observations + 1)))
+    assert x.n_actions == p.n_actions and x.discount == p.discount
+    for a in range(x.n_actions):
+        diff = abs(x.T[a] @ P - p.T[a][state_map])
+        assert diff.nnz == 0 or diff.max() < 1e-9
+        diff = abs(x.O[a] @ Q - p.O[a][state_map])
+        assert diff.nnz == 0 or diff.max() < 2e-6  # the .pomdp's 6 decimals
+    np.testing.assert_allclose(x.R, p.R[state_map], atol=1e-9)
+    np.testing.assert_allclose(x.b0 @ P, p.b0, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_rocksample_7_8_pomdpx_is_the_generated_pomdp():
+    f = SARSOP_EXAMPLES / "RockSample_7_8.pomdpx"
+    if not f.is_file():
+        pytest.skip(f"{f} not present")
+    x = read_pomdpx(f)
+    p = parse_pomdp(gen.format_rocksample(gen.instance(7, 8)))
+    assert (x.n_states, p.n_states, x.n_observations) == (12_800, 12_545, 100)
+    # robot square r (x-major, 49 = the terminal 'st') x 256 rock values: the .pomdp has the
+    # same numbering and one terminal state for the 256; observations (square, reading)
+    state_map = np.minimum(np.arange(x.n_states), 12_544)
+    _lumped(x, p, state_map, np.arange(x.n_observations) % 2)
