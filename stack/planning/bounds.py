@@ -79,23 +79,40 @@ def fast_informed_bound(
     g = pomdp.discount
     A, S, Z = pomdp.n_actions, pomdp.n_states, pomdp.n_observations
     start = clock.now()
-    # TO[a]: rows (z, s), columns s': T(s, a, s') O(s', a, z), built once; then an
-    # iteration is one sparse-by-dense product per action, (Z S, S) @ (S, A)
-    TO = []
-    for a in range(A):
-        T, O = pomdp.T[a].tocsr(), pomdp.O[a].tocsc()
-        TO.append(sp.vstack([T.multiply(O[:, [z]].T) for z in range(Z)], format="csr"))
+    # TO[a]: one row per (s, z) that can occur, columns s': T(s, a, s') O(s', a, z),
+    # built once; then an iteration is one sparse-by-dense product per action
+    TO = [_joint_rows(pomdp.T[a], pomdp.O[a], Z) for a in range(A)]
     for _ in range(max_iterations):
         new = np.empty_like(Q)
         for a in range(A):
-            best = np.asarray(TO[a] @ Q).max(axis=1)  # (Z S,): max over a' per (z, s)
-            new[:, a] = pomdp.R[:, a] + g * best.reshape(Z, S).sum(axis=0)
+            M, state_of_row = TO[a]
+            best = np.asarray(M @ Q).max(axis=1)  # max over a' per (s, z)
+            new[:, a] = pomdp.R[:, a] + g * np.bincount(state_of_row, best, minlength=S)
         new = np.minimum(new, Q)  # numerical safety: iterates only decrease
         delta = np.abs(new - Q).max()
         Q = new
         if delta < tol or (time_limit_s is not None and clock.now() - start > time_limit_s):
             break
     return Q
+
+
+def _joint_rows(T: sp.spmatrix, O: sp.spmatrix, Z: int) -> tuple[sp.csr_matrix, np.ndarray]:
+    """T(s, s') O(s', z) as a sparse matrix with one row per (s, z) pair that occurs
+    (columns s'), and each row's s. Its size is the non-zeros of T times those of O's
+    rows, never Z x S rows: a model whose observation joins a fully observed variable
+    (RockSample_11_11.pomdpx: 249,856 states, 244 observations) would need 61 million
+    rows per action, 7.8 GB in all, and as many per product."""
+    T, O = sp.csr_matrix(T), sp.csr_matrix(O)
+    S = T.shape[0]
+    row_s = np.repeat(np.arange(S), np.diff(T.indptr))
+    per = np.diff(O.indptr)[T.indices]  # observations of each transition's next state
+    t = np.repeat(np.arange(T.nnz), per)  # the transition of each (s, s', z)
+    within = np.arange(t.size) - np.repeat(np.cumsum(per) - per, per)
+    o = O.indptr[T.indices[t]] + within  # its entry of O
+    key = row_s[t].astype(np.int64) * Z + O.indices[o]
+    rows, row_of = np.unique(key, return_inverse=True)
+    M = sp.csr_matrix((T.data[t] * O.data[o], (row_of.ravel(), T.indices[t])), shape=(rows.size, S))
+    return M, (rows // Z).astype(np.int64)
 
 
 def blind_lower_bound(pomdp: POMDP) -> np.ndarray:
