@@ -16,6 +16,13 @@ own simulator also reads each policy we wrote (``--sim-num`` runs, one-step look
 Limits in CPU seconds (SARSOP's measure; the result no longer depends on the load):
 ``--solver-args "--perseus-share 0.3 --beliefs 1000 --iterations 1000 --cpu-time"``.
 
+Held-out family members (optional; not in ../shared): ``--heldout`` generates
+RockSample_7_8.pomdp (12,545 states, bench/gen_rocksample.py) into the policy folder
+and runs it too; ``--files`` also takes paths, e.g. SARSOP's RockSample_7_8.pomdpx:
+
+    nice -n 5 .venv/bin/python bench/bench_solver.py --limits 60 --files --heldout \
+        --solver-args "--cpu-time"
+
 Progress: one line per run on stderr.
 """
 
@@ -43,6 +50,9 @@ SARSOP_60S = {  # LB / UB at 60 CPU seconds, ../shared/pomdp/README.md; simulate
     "Hallway2.pomdp": ("0.364 / 0.904", "0.516 ± 0.008"),
     "TagAvoid.pomdp": ("−6.200 / −1.998", "−6.07 ± 0.12"),
     "RockSample_5_7.pomdp": ("24.475 / 27.107", "24.35 ± 0.14"),
+    # held-out: pomdpsol --timeout 60 on this machine (docs/BENCHMARKS.md, 24 Nov)
+    "RockSample_7_8.pomdp": ("20.121 / 25.526", ""),
+    "RockSample_7_8.pomdpx": ("21.125 / 24.529", "21.82 (21.41, 22.23)"),
 }
 
 
@@ -85,15 +95,31 @@ def main() -> None:
     ap.add_argument("--sim-num", type=int, default=1000, help="pomdpsim runs")
     ap.add_argument("--sim-timeout", type=float, default=600.0, help="[s] per pomdpsim run")
     ap.add_argument("--keep", help="directory to keep the policies in (default: a temporary one)")
+    ap.add_argument(
+        "--heldout",
+        action="store_true",
+        help="also RockSample_7_8.pomdp, generated into the policy folder",
+    )
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         keep = Path(args.keep or tmp)
         keep.mkdir(parents=True, exist_ok=True)
-        for name in args.files:
-            path = SHARED / name
+        files = list(args.files)
+        if args.heldout:
+            gen = keep / "RockSample_7_8.pomdp"
+            if not gen.is_file():
+                subprocess.run(
+                    [sys.executable, str(REPO / "bench" / "gen_rocksample.py"), "7", "8"]
+                    + ["-o", str(gen)],
+                    check=True,
+                )
+            files.append(str(gen))
+        for file in files:
+            path = SHARED / file  # an absolute path stays itself
+            name = path.name
             for limit in args.limits:
-                out = keep / f"{path.stem}-{limit:g}.policy"
+                out = keep / f"{path.name}-{limit:g}.policy"
                 load = os.getloadavg()[0]
                 t0 = time.perf_counter()
                 s = run(
