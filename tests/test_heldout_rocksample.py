@@ -280,3 +280,21 @@ def test_fast_informed_bound_matches_the_dense_operator(seed):
             new[:, a] = R[:, a] + g * per_z.sum(axis=1)
         want = np.minimum(new, want)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_archived_vectors_no_policy_can_reach_are_released():
+    """Pruned vectors outside the active set's closure are forgotten (memory), and the
+    written policy, which reads only the closure, is the same as with all of them kept."""
+    from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+
+    m = gen.RockSample(4, ((3, 1), (2, 1), (1, 3), (1, 0)), (0, 2), 20.0, True)
+    pomdp = parse_pomdp(gen.format_rocksample(m))
+    search = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None, max_trials=60))
+    result = search.run()
+    released = [g for g, v in enumerate(search._all_alpha) if v is None]
+    assert released  # pruning dropped vectors that nothing leads to
+    closure = set(search._closure(reached=False))
+    assert not closure & set(released)
+    alphas, actions, succ = search._closed_policy()
+    assert np.isfinite(alphas).all() and (succ < len(alphas)).all()
+    assert result.policy.value(pomdp.b0) == pytest.approx(result.lower_bound, abs=1e-9)

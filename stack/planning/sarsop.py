@@ -351,6 +351,18 @@ def _written_share(search: BeliefTreeSearch) -> float:
     return min(1.0, len(search._closure(reached=True)) / max(1, full))
 
 
+def _forget_unreachable(search: BeliefTreeSearch, closure: list[int]) -> None:
+    """Release the archived vectors outside ``closure`` (the active set's closure).
+
+    A new vector's successors are active vectors, so an archived vector that no vector
+    of the closure leads to is never read again: its memory goes (one S-vector each;
+    RockSample_11_11: 2 MB a vector). Its id stays, holding None."""
+    keep = np.zeros(len(search._all_alpha), dtype=bool)
+    keep[closure] = True
+    for g in np.flatnonzero(~keep).tolist():
+        search._all_alpha[g] = None
+
+
 class BeliefTreeSearch(StoppingRules):
     """The solver for one model. See the module docstring.
 
@@ -464,7 +476,7 @@ class BeliefTreeSearch(StoppingRules):
         self._act[: self.K] = actions[: self.K]
         # every vector ever made, by global id (alphas, actions, successors' ids); the
         # active set's ids; pruning drops vectors from the active set only
-        self._all_alpha: list[np.ndarray] = list(np.asarray(alphas, dtype=float))
+        self._all_alpha: list[np.ndarray | None] = list(np.asarray(alphas, dtype=float))
         self._all_act: list[int] = [int(a) for a in actions]
         self._all_succ: list[np.ndarray] = list(succ)
         self._gid = np.zeros(self._AT.shape[1], dtype=int)
@@ -774,7 +786,7 @@ class BeliefTreeSearch(StoppingRules):
         where = {g: k for k, g in enumerate(order)}
         where[-1] = -1
         succ = np.array([[where[int(g)] for g in self._all_succ[k]] for k in order], dtype=int)
-        alphas = np.vstack([self._all_alpha[k] for k in order])
+        alphas = np.vstack([self._all_alpha[k] for k in order])  # type: ignore[misc]
         actions = np.array([self._all_act[k] for k in order], dtype=int)
         return alphas, actions, succ.reshape(len(order), -1)
 
@@ -832,7 +844,9 @@ class BeliefTreeSearch(StoppingRules):
     def _measure_writing(self) -> None:
         """How much slower than ``config.write_s_per_value`` writing a value is now,
         and what share of the closure of the active set the written policy holds."""
-        self._n_archived = len(self._closure(reached=False)) - self.K  # an upper bound
+        closure = self._closure(reached=False)
+        self._n_archived = len(closure) - self.K  # an upper bound
+        _forget_unreachable(self, closure)
         if self.config.write_s_per_value <= 0:
             return
         self._write_share = _written_share(self)
