@@ -298,3 +298,40 @@ def test_archived_vectors_no_policy_can_reach_are_released():
     alphas, actions, succ = search._closed_policy()
     assert np.isfinite(alphas).all() and (succ < len(alphas)).all()
     assert result.policy.value(pomdp.b0) == pytest.approx(result.lower_bound, abs=1e-9)
+
+
+def test_sarsop_policy_of_a_pomdpx_file_reads_onto_the_flat_states(tmp_path, capsys):
+    """SARSOP writes a .pomdpx model's vectors per value of the fully observed variables
+    (obsValue) over the other variables; `vigil evaluate` lays them onto the flat states."""
+    from stack.planning.policy import AlphaPolicy
+    from stack.planning.pomdpx import observed_blocks
+    from vigil.cli import main as vigil
+
+    text = _random_factored(np.random.default_rng(0))[0]
+    f = tmp_path / "m.pomdpx"
+    f.write_text(text)
+    m = read_pomdpx(f)
+    blocks = observed_blocks(m)
+    assert [b.tolist() for b in blocks] == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]]
+    assert observed_blocks(parse_pomdp(gen.format_rocksample(gen.instance(4, 4)))) is None
+    xml = (
+        "<?xml version='1.0'?><Policy><AlphaVector vectorLength='4' numObsValue='3' "
+        "numVectors='3'><Vector action='0' obsValue='1'>1 2 3 4</Vector>"
+        "<Vector action='1' obsValue='2'>5 6 7 8</Vector>"
+        "<Vector action='2' obsValue='0'>9 9 9 9</Vector></AlphaVector></Policy>"
+    )
+    pol_file = tmp_path / "m.policy"
+    pol_file.write_text(xml)
+    pol = AlphaPolicy.load(pol_file, n_states=12, obs_blocks=blocks)
+    assert pol.alphas[0, 4:8].tolist() == [1, 2, 3, 4] and pol.alphas[1, 8:].tolist() == [
+        5,
+        6,
+        7,
+        8,
+    ]
+    assert np.isneginf(pol.alphas[0, :4]).all() and np.isneginf(pol.alphas[2, 4:]).all()
+    b = np.zeros(12)
+    b[[9, 10]] = 0.5  # x = 2: only the obsValue 2 vector counts
+    assert pol.action(b) == 1
+    assert vigil(["evaluate", str(f), "--policy", str(pol_file), "--episodes", "3", "--json"]) == 0
+    assert "mean" in capsys.readouterr().out

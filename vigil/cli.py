@@ -163,8 +163,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
     if args.policy is None:
         raise ValueError("give --policy (a solved policy) or --planner (online, greedy, single)")
+    from stack.planning.pomdpx import observed_blocks
+
     pomdp = read_model(args.model)
-    policy = AlphaPolicy.load(args.policy, n_states=pomdp.n_states, model_hash=pomdp.fingerprint())
+    policy = AlphaPolicy.load(
+        args.policy,
+        n_states=pomdp.n_states,
+        model_hash=pomdp.fingerprint(),
+        obs_blocks=observed_blocks(pomdp),  # SARSOP's policy of a .pomdpx file
+    )
     ev = evaluate(pomdp, policy, episodes=args.episodes, horizon=args.horizon, seed=args.seed)
     print(
         json.dumps(ev.summary())

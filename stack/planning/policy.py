@@ -63,6 +63,9 @@ class AlphaPolicy:
         return self.alphas.shape[1]
 
     def values(self, belief: np.ndarray) -> np.ndarray:
+        if self.meta.get("blocks"):  # -inf outside a vector's block: read the support only
+            nz = np.flatnonzero(belief)
+            return self.alphas[:, nz] @ belief[nz]
         return self.alphas @ belief
 
     def value(self, belief: np.ndarray) -> float:
@@ -108,7 +111,11 @@ class AlphaPolicy:
 
     @classmethod
     def load(
-        cls, path: str | Path, n_states: int | None = None, model_hash: str | None = None
+        cls,
+        path: str | Path,
+        n_states: int | None = None,
+        model_hash: str | None = None,
+        obs_blocks: list[np.ndarray] | None = None,
     ) -> AlphaPolicy:
         """Read a policy written by :meth:`save` (numpy archive) or by SARSOP (XML).
 
@@ -122,12 +129,14 @@ class AlphaPolicy:
         Raises:
             PolicyFileError: unreadable file, missing arrays, a state count that does
                 not match ``n_states``, or a policy made for another model.
+            obs_blocks: a factored model's layout of SARSOP's vectors
+                (:func:`read_policy_xml`; :func:`stack.planning.pomdpx.observed_blocks`).
         """
         path = Path(path)
         if path.is_dir():
             raise PolicyFileError(f"{path} is a directory, not a policy file")
         if is_policy_xml(path):
-            return read_policy_xml(path, n_states)
+            return read_policy_xml(path, n_states, obs_blocks)
         try:
             with np.load(path, allow_pickle=False) as data:
                 alphas, actions = data["alphas"], data["actions"]
@@ -253,7 +262,8 @@ def read_policy_xml(
         n_states: the model's state count, checked against the vectors.
         obs_blocks: for a factored model, the flat state indices of each value of
             the fully observed variable (vector ``obsValue=x`` covers
-            ``obs_blocks[x]``; other states get -inf, so the vector never wins there).
+            ``obs_blocks[x]``; other states get -inf, so the vector never wins there);
+            ignored for vectors over all the model's states.
 
     Raises:
         PolicyFileError: not a policy file, or vectors that do not fit the model.
@@ -293,7 +303,8 @@ def read_policy_xml(
     alphas = np.vstack(vectors)
     if not np.all(np.isfinite(alphas)):
         raise PolicyFileError(f"{path}: the policy holds non-finite values")
-    if obs_blocks is not None:
+    if obs_blocks is not None and length != sum(len(b) for b in obs_blocks):
+        # factored vectors (a flat policy for the same model has vectorLength S)
         S = sum(len(b) for b in obs_blocks)
         flat = np.full((len(vectors), S), -np.inf)
         for k, (x, vals) in enumerate(zip(obs, vectors, strict=True)):
@@ -310,7 +321,13 @@ def read_policy_xml(
         raise PolicyFileError(
             f"{path}: policy is for {alphas.shape[1]} states, the model has {n_states}"
         )
-    meta = {"solver": "sarsop-xml", "model": root.get("model", ""), "file": str(path)}
+    meta: dict[str, Any] = {
+        "solver": "sarsop-xml",
+        "model": root.get("model", ""),
+        "file": str(path),
+    }
+    if not np.isfinite(alphas).all():
+        meta["blocks"] = True  # laid onto obs_blocks, -inf elsewhere
     return AlphaPolicy(alphas=alphas, actions=np.asarray(actions, dtype=int), meta=meta)
 
 

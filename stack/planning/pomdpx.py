@@ -387,7 +387,22 @@ def read_pomdpx(path: str | os.PathLike) -> POMDP:
         pomdp.validate(tol=1e-6)
     except ValueError as exc:
         raise PomdpxError(f"{path}: {exc}") from None
+    if seen_rows is not None:  # SARSOP's policies for the file index states this way
+        by_value = np.argsort(seen_rows.indices, kind="stable")
+        cut = np.searchsorted(seen_rows.indices[by_value], np.arange(seen_rows.shape[1] + 1))
+        pomdp._cache[_BLOCKS] = [by_value[lo:hi] for lo, hi in zip(cut, cut[1:], strict=False)]
     return pomdp
+
+
+_BLOCKS = "pomdpx_observed_blocks"
+
+
+def observed_blocks(pomdp: POMDP) -> list[np.ndarray] | None:
+    """For a model read from a ``.pomdpx`` with fully observed variables: per joint
+    value x of those variables, the flat states that have it, in the order of the
+    other variables' joint value -- the layout of SARSOP's vectors ``obsValue=x``
+    (:func:`stack.planning.policy.read_policy_xml`). None for any other model."""
+    return pomdp._cache.get(_BLOCKS)
 
 
 def _joint_names(value_lists: list[list[str]]) -> list[str]:
