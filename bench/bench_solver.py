@@ -21,7 +21,7 @@ RockSample_7_8.pomdp (12,545 states, bench/gen_rocksample.py) into the policy fo
 and runs it too; ``--files`` also takes paths, e.g. SARSOP's RockSample_7_8.pomdpx:
 
     nice -n 5 .venv/bin/python bench/bench_solver.py --limits 60 --files --heldout \
-        --solver-args "--cpu-time"
+        --solver-args=--cpu-time
 
 Progress: one line per run on stderr.
 """
