@@ -335,3 +335,31 @@ def test_sarsop_policy_of_a_pomdpx_file_reads_onto_the_flat_states(tmp_path, cap
     assert pol.action(b) == 1
     assert vigil(["evaluate", str(f), "--policy", str(pol_file), "--episodes", "3", "--json"]) == 0
     assert "mean" in capsys.readouterr().out
+
+
+def test_flat_policy_of_a_pomdpx_model_rewritten_in_sarsop_layout(tmp_path):
+    """bench/factored_policy.py: every flat vector once per observed value, over that
+    value's states; read back onto the flat states it values every belief the same."""
+    from stack.planning.policy import AlphaPolicy, read_policy_xml, write_policy_xml
+    from stack.planning.pomdpx import observed_blocks
+
+    spec = importlib.util.spec_from_file_location(
+        "factored_policy", REPO / "bench" / "factored_policy.py"
+    )
+    fp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fp)
+    text = _random_factored(np.random.default_rng(1))[0]
+    model = tmp_path / "m.pomdpx"
+    model.write_text(text)
+    m = read_pomdpx(model)
+    rng = np.random.default_rng(2)
+    flat = AlphaPolicy(rng.normal(size=(4, 12)), np.array([0, 1, 2, 1]))
+    write_policy_xml(flat, tmp_path / "flat.policy")
+    assert fp.main([str(model), str(tmp_path / "flat.policy"), str(tmp_path / "f.policy")]) == 0
+    back = read_policy_xml(tmp_path / "f.policy", 12, observed_blocks(m))
+    assert len(back.alphas) == 4 * 3
+    for rows in observed_blocks(m):
+        b = np.zeros(12)
+        b[rows] = rng.dirichlet(np.ones(rows.size))
+        np.testing.assert_allclose(back.value(b), flat.value(b), atol=1e-9)
+        assert back.action(b) == flat.action(b)
