@@ -62,7 +62,7 @@ def _solver_args(
         type=float,
         default=None,
         help="seconds for the whole command (start-up, reading, solving, writing); wall time, "
-        "or CPU time with --cpu-time (solve-pomdp)",
+        "or CPU time with --cpu-time (solve, solve-pomdp)",
     )
     p.add_argument("--target-gap", type=float, default=1e-3, help="sarsop: stop at this gap")
     p.add_argument(
@@ -268,6 +268,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="policy file (.npz, or .policy XML)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     _task_solver_args(p)
+    p.add_argument(
+        "--dual-paths",
+        type=int,
+        default=64,
+        help="one-person tasks: sampled paths of the statistical (information-relaxation) "
+        "upper bound at b0 reported beside the search's bounds; 0 = off (default 64)",
+    )
+    p.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="--time-limit counts this process's CPU seconds, not wall",
+    )
     p.set_defaults(func=cmd_solve)
 
     p = _command(sub, "export-pomdp", "write a task model as a Cassandra .pomdp file")
