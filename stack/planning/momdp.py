@@ -138,7 +138,11 @@ def _mdp_start(m: MixedModel, deadline: float, sweeps: int = 4000) -> np.ndarray
 
 
 def factored_fib(
-    m: MixedModel, tol: float = 1e-3, max_iterations: int = 5000, deadline: float = math.inf
+    m: MixedModel,
+    tol: float = 1e-3,
+    max_iterations: int = 5000,
+    deadline: float = math.inf,
+    start: np.ndarray | None = None,
 ) -> np.ndarray:
     """The fast informed bound on the factors, Q (X, Y, A).
 
@@ -150,6 +154,8 @@ def factored_fib(
     along the last decrease (Q - beta (Q_prev - Q)) and keeps the extrapolated table
     only where that check H(Q) <= Q holds for the whole table; otherwise beta halves.
     Every accepted table is an upper bound, so stopping at the deadline is safe.
+    ``start``: a table from an earlier call (H(Q) <= Q holds for it), to go on from it
+    to a smaller ``tol`` instead of starting again from the MDP's values.
     """
     g = m.discount
 
@@ -159,8 +165,8 @@ def factored_fib(
         U = W.max(axis=3).sum(axis=2)  # (X', Y)
         return m.R + g * np.einsum("axk,ky->xya", m.TX, U)
 
-    Q = _mdp_start(m, deadline)  # H(Q) <= Q holds
-    HQ = np.minimum(H(Q), Q)
+    Q = _mdp_start(m, deadline) if start is None else np.array(start, dtype=float)
+    HQ = np.minimum(H(Q), Q)  # H(Q) <= Q holds
     beta = 1.0
     for _ in range(max_iterations):
         step = Q - HQ  # >= 0

@@ -26,6 +26,7 @@ from stack.planning.pomdp import POMDP
 ALGORITHMS = ("sarsop", "perseus")
 DUAL_SHARE = 0.2  # of a time limit, kept for the dual bound after the search
 DUAL_BATCH = 16  # paths of the dual bound per batch (each batch seeded on its own)
+DUAL_FIB_TOL = 1e-6  # the fast informed bound behind the dual bound's penalty
 
 
 @dataclass(frozen=True)
@@ -291,7 +292,11 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
     """The dual bound in batches of DUAL_BATCH paths (batch k seeded config.seed + k)
     until config.dual_paths or the deadline; (DualBound or None, note)."""
     from stack.planning.dual import DualBound, dual_upper_bound
+    from stack.planning.momdp import factored_fib
 
+    # the penalty's table: the search's fast informed bound iterated closer to its fixed
+    # point (the closer the penalty is to V*, the tighter the bound; r1: 199.93 -> 199.85)
+    Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=_perf_deadline(deadline), start=Q)
     values: list[np.ndarray] = []
     seconds = 0.0
     horizon = 0
@@ -337,6 +342,13 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
         ),
         "",
     )
+
+
+def _perf_deadline(deadline: float) -> float:
+    """A deadline on clock.now() as one on time.perf_counter() (factored_fib's clock)."""
+    import time
+
+    return deadline if not math.isfinite(deadline) else time.perf_counter() + deadline - clock.now()
 
 
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
