@@ -45,12 +45,12 @@ its beliefs and vectors are flat.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from stack.planning import clock
 from stack.planning.policy import AlphaPolicy
 from stack.planning.sarsop import SearchConfig, SearchResult, SearchStats, StoppingRules
 from stack.planning.threads import blas_threads
@@ -132,7 +132,7 @@ def _mdp_start(m: MixedModel, deadline: float, sweeps: int = 4000) -> np.ndarray
         new = np.minimum(m.R + g * np.einsum("axk,ky->xya", m.TX, U), Q)
         done = float((Q - new).max()) < 1e-9
         Q = new
-        if done or (i % 100 == 0 and time.perf_counter() > deadline):
+        if done or (i % 100 == 0 and clock.now() > deadline):
             break
     return Q
 
@@ -170,7 +170,7 @@ def factored_fib(
     beta = 1.0
     for _ in range(max_iterations):
         step = Q - HQ  # >= 0
-        if step.max() < tol or time.perf_counter() > deadline:
+        if step.max() < tol or clock.now() > deadline:
             return HQ
         Qe = HQ - beta * step
         HQe = H(Qe)
@@ -367,7 +367,7 @@ class MixedSearch(StoppingRules):
         seed_alphas: flat (K, X*Y) lower-bound vectors and their actions, each the
             exact value of a policy (blind policies, plans); cut into cell blocks.
         roots: flat beliefs, each certain about x; the first is b0 (bounds reported).
-        start: time.perf_counter() at which the time limit started.
+        start: clock.now() at which the time limit started.
         progress: called with :class:`SearchStats` at most once per progress_every_s.
         sawtooth: refine the upper bound between nodes by sawtooth interpolation.
         beliefs, rounds, depth, plateau: the rounds over sampled person beliefs (see
@@ -401,7 +401,7 @@ class MixedSearch(StoppingRules):
         self.depth = depth
         self.rounds_done = 0
         self.config = config
-        self.start = time.perf_counter() if start is None else start
+        self.start = clock.now() if start is None else start
         self.deadline = (
             math.inf if config.time_limit_s is None else self.start + config.time_limit_s
         )
@@ -409,11 +409,11 @@ class MixedSearch(StoppingRules):
         self.g = m.discount
         X, Y = m.X, m.Y
         self.v_min = float(m.R.min()) / (1 - self.g)
-        remaining = self.deadline - time.perf_counter()
+        remaining = self.deadline - clock.now()
         fib_deadline = (
             math.inf
             if not math.isfinite(remaining)
-            else time.perf_counter() + max(0.0, remaining) * max(config.fib_share, FIB_SHARE)
+            else clock.now() + max(0.0, remaining) * max(config.fib_share, FIB_SHARE)
         )
         self.Q_upper = factored_fib(m, deadline=fib_deadline)  # (X, Y, A)
         self.upper_initial = self.Q_upper
@@ -706,7 +706,7 @@ class MixedSearch(StoppingRules):
         self.trials += 1
 
     def _report(self, force: bool = False) -> None:
-        now = time.perf_counter()
+        now = clock.now()
         if not force and now - self._last_report < self.config.progress_every_s:
             return
         self._last_report = now
@@ -748,7 +748,7 @@ class MixedSearch(StoppingRules):
             policy=policy,
             lower_bound=self.root.lb,
             upper_bound=self.root.ub,
-            seconds=time.perf_counter() - self.start,
+            seconds=clock.now() - self.start,
             history=self.history,
             trials=self.trials,
             backups=self.backups,

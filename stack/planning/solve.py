@@ -296,7 +296,7 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
 
     # the penalty's table: the search's fast informed bound iterated closer to its fixed
     # point (the closer the penalty is to V*, the tighter the bound; r1: 199.93 -> 199.85)
-    Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=_perf_deadline(deadline), start=Q)
+    Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=deadline, start=Q)
     values: list[np.ndarray] = []
     seconds = 0.0
     horizon = 0
@@ -342,13 +342,6 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
         ),
         "",
     )
-
-
-def _perf_deadline(deadline: float) -> float:
-    """A deadline on clock.now() as one on time.perf_counter() (factored_fib's clock)."""
-    import time
-
-    return deadline if not math.isfinite(deadline) else time.perf_counter() + deadline - clock.now()
 
 
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
