@@ -25,8 +25,9 @@ def test_with_the_exact_value_as_penalty_every_path_is_worth_exactly_v_star():
     d = dual_upper_bound(m, Q, 0, b, paths=40, seed=3)
     v = d.values
     v_star = float((b @ Q[0]).max())
-    assert np.allclose(v, v_star, atol=1e-8)
-    assert d.sd < 1e-8
+    # to float32's rounding: the step's products run in float32 (dual.py)
+    assert np.allclose(v, v_star, atol=1e-4)
+    assert d.sd < 1e-4
 
 
 @pytest.mark.parametrize("seed", [0, 2])
@@ -42,7 +43,7 @@ def test_the_dual_bound_lies_between_v_star_and_the_fast_informed_bound(seed):
     v = d.values
     fib = float((b @ Q[0]).max())
     # pathwise below the fast informed bound (a supersolution), in mean above V*
-    assert (v <= fib + 1e-9).all()
+    assert (v <= fib + 1e-4).all()  # to float32's rounding
     assert d.mean + 2 * d.ci95 >= exact.lower_bound - 1e-9
     assert d.mean < fib  # the relaxation is tighter than the bound it is built from
 
