@@ -12,16 +12,19 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
-from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
+
+if TYPE_CHECKING:  # the task model (yaml, cells) is imported where a task is solved:
+    # solving a .pomdp file does not load it (start-up, docs/BENCHMARKS.md)
+    from stack.planning.model import FactoredModel
 
 ALGORITHMS = ("sarsop", "perseus")
 
@@ -254,6 +257,8 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
 
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
     """Lower-bound seeds for the task model: "walk to a cell and wait" plans."""
+    from stack.planning.model import guard_plans
+
     plans, stay = guard_plans(model)
     alphas = plan_alphas(pomdp, plans, stay)
     actions = np.array([p[0] if p else stay for p in plans])
