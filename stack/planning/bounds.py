@@ -13,6 +13,7 @@ import scipy.sparse as sp
 
 from stack.planning import clock
 from stack.planning.pomdp import POMDP, ModelError
+from stack.planning.threads import blas_threads
 
 # systems up to this many states are solved densely (numpy's LAPACK, already loaded):
 # RockSample_4_4's 257 states take well under a millisecond, and the solve path then
@@ -26,7 +27,10 @@ def _solve_value(T: sp.spmatrix, discount: float, rewards: np.ndarray) -> np.nda
     if S <= _DENSE_SOLVE_MAX_STATES:
         M = -discount * (T.toarray() if sp.issparse(T) else np.asarray(T, dtype=float))
         M[np.diag_indices(S)] += 1.0
-        return np.linalg.solve(M, np.asarray(rewards, dtype=float))
+        # one thread: OpenBLAS's second thread made this 257-state solve 0.2 s instead
+        # of 1 ms on the shared 2-core machine (docs/BENCHMARKS.md)
+        with blas_threads(1):
+            return np.linalg.solve(M, np.asarray(rewards, dtype=float))
     import scipy.sparse.linalg as spla  # only for large models (its import is slow)
 
     eye = sp.identity(S, format="csc")

@@ -146,7 +146,7 @@ class _Kids:
 
 
 class _Node:
-    __slots__ = ("idx", "val", "ub", "lb", "kids", "point", "cat")
+    __slots__ = ("idx", "val", "ub", "lb", "kids", "point", "cat", "flat")
 
     def __init__(self, idx: np.ndarray, val: np.ndarray, ub: float, lb: float):
         self.idx = idx
@@ -157,6 +157,9 @@ class _Node:
         self.point = -1  # index of this belief's upper-bound point, -1 if none
         # every action's successors side by side (see BeliefTreeSearch._concatenate)
         self.cat: tuple | None = None
+        # (successors of every action in order, their actions, P(z | b, a), R(b, .)):
+        # Q of every action in one bincount (BeliefTreeSearch._q_bound)
+        self.flat: tuple | None = None
 
 
 @dataclass
@@ -198,6 +201,8 @@ class _UpperPoints:
         self.val: list[np.ndarray] = []
         self.value: list[float] = []
         self.by_state: dict[int, list[int]] = {}  # smallest support state -> points
+        self._has = np.zeros(self.S, dtype=bool)  # the states by_state holds
+        self._pos = np.full(self.S, -1)  # scratch: a belief's position of each state
         self._arrays: dict[int, tuple] = {}
 
     def __len__(self) -> int:
@@ -214,6 +219,7 @@ class _UpperPoints:
         self.val.append(val)
         self.value.append(value)
         self.by_state.setdefault(int(idx[0]), []).append(i)
+        self._has[idx[0]] = True
         self._arrays.pop(int(idx[0]), None)
         return i
 
@@ -262,31 +268,30 @@ class _UpperPoints:
         base = self.corner[nz] @ M
         if not self.idx:
             return base
-        pos = np.full(self.S, -1)
+        groups = nz[self._has[nz]].tolist()
+        if not groups:
+            return base
+        pos = self._pos  # -1 outside nz (restored below)
         pos[nz] = np.arange(nz.size)
-        best = np.zeros(M.shape[1])
-        groups = [int(s) for s in nz if int(s) in self.by_state]
-        if len(groups) > 4:
-            return base + self._interpolate(self._all(), pos, M, best)
-        for s in groups:
-            best = self._interpolate(self._group(s), pos, M, best)
+        # a zero row last: a point with a state outside nz reads it (pos -1), so its
+        # ratio is 0 and it adds nothing, as the sawtooth says; no filtering needed
+        Mx = np.concatenate([M, np.zeros((1, M.shape[1]))])
+        try:
+            if len(groups) > 4:
+                return base + self._interpolate(self._all(), pos, Mx)
+            best = self._interpolate(self._group(groups[0]), pos, Mx)
+            for s in groups[1:]:
+                best = np.minimum(best, self._interpolate(self._group(s), pos, Mx))
+        finally:
+            pos[nz] = -1
         return base + best
 
     @staticmethod
-    def _interpolate(group: tuple, pos: np.ndarray, M: np.ndarray, best: np.ndarray):
-        states, probs, offsets, sizes, excess = group
-        p = pos[states]
-        inside = np.minimum.reduceat(p, offsets) >= 0
-        if not inside.any():
-            return best
-        if not inside.all():
-            keep = np.flatnonzero(inside)
-            sel = np.repeat(inside, sizes)
-            p, probs = p[sel], probs[sel]
-            offsets = np.concatenate([[0], np.cumsum(sizes[keep])[:-1]])
-            excess = excess[keep]
-        ratio = np.minimum.reduceat(M[p] / probs[:, None], offsets, axis=0)
-        return np.minimum(best, (ratio * excess[:, None]).min(axis=0))
+    def _interpolate(group: tuple, pos: np.ndarray, Mx: np.ndarray) -> np.ndarray:
+        """min over the group's points of (v_i - c . b_i) min_s b(s) / b_i(s) (<= 0)."""
+        states, probs, offsets, _, excess = group
+        ratio = np.minimum.reduceat(Mx[pos[states]] / probs[:, None], offsets, axis=0)
+        return (ratio * excess[:, None]).min(axis=0)
 
 
 class StoppingRules:
@@ -383,6 +388,7 @@ class BeliefTreeSearch(StoppingRules):
         self.T = [pomdp.T[a].tocsr() for a in range(A)]
         self.O = [pomdp.O[a].tocsr() for a in range(A)]
         self.O_rows = [np.repeat(np.arange(S), np.diff(O.indptr)) for O in self.O]
+        self.T_rows = [np.repeat(np.arange(S), np.diff(T.indptr)) for T in self.T]
         # dense observation tables where they are small (row gathers are then cheap);
         # actions that share one table share the dense copy
         self.O_dense: list[np.ndarray | None] = [None] * A
@@ -533,14 +539,40 @@ class BeliefTreeSearch(StoppingRules):
             # the fast informed bound only: the sawtooth is interpolated when an action's
             # successors matter (see _q_upper)
             ub = self._upper_vectors(nz, M)
-            nodes = []
-            for j in range(zs.size):
-                rows = np.flatnonzero(M[:, j] > 0)
-                child = self._node(nz[rows], M[rows, j], ub=float(ub[j]))
-                nodes.append(child)
-            kids.append(_Kids(reward, zs, pz[zs], nodes, M, nz))
+            kids.append(_Kids(reward, zs, pz[zs], self._children(nz, M, ub), M, nz))
         node.kids = kids
+        node.flat = (
+            [c for k in kids for c in k.nodes],
+            np.repeat(np.arange(self.A), [k.zs.size for k in kids]),
+            np.concatenate([k.pz for k in kids]),
+            np.array([k.reward for k in kids]),
+        )
         return kids
+
+    def _children(self, nz: np.ndarray, M: np.ndarray, ub: np.ndarray) -> list[_Node]:
+        """The nodes of the beliefs M[:, j] (over states nz), made where new with the
+        upper bound ``ub[j]``: one pass over all columns (a column's support, key and,
+        for new nodes, lower bound come from arrays made once)."""
+        cols, rows = np.nonzero(M.T > 0)  # column by column, rows ascending
+        vals = M[rows, cols]
+        idxs = nz[rows]
+        keys = np.round(vals, 10)
+        ends = np.searchsorted(cols, np.arange(1, M.shape[1] + 1))
+        lbs = None
+        nodes = []
+        lo = 0
+        for j, hi in enumerate(ends.tolist()):
+            key = idxs[lo:hi].tobytes() + keys[lo:hi].tobytes()
+            child = self.nodes.get(key)
+            if child is None:
+                if lbs is None:  # every column's best vector, one product
+                    lbs = (M.T @ self._AT[nz, : self.K]).max(axis=1)
+                u = float(ub[j])
+                child = _Node(idxs[lo:hi], vals[lo:hi], u, min(float(lbs[j]), u))
+                self.nodes[key] = child
+            nodes.append(child)
+            lo = hi
+        return nodes
 
     def _expand_dense(self, node: _Node) -> list[_Kids]:
         """:meth:`_expand` for a model whose tables are small enough to be dense: every
@@ -549,32 +581,37 @@ class BeliefTreeSearch(StoppingRules):
         assert self.T_all_dense is not None and self.O_stack is not None
         pred = (node.val @ self.T_all_dense[node.idx]).reshape(A, S)
         nz = np.flatnonzero(pred.any(axis=0))
-        joint = pred[:, nz, None] * self.O_stack[:, nz, :]  # (A, n, Z)
+        pred = pred[:, nz]  # (A, n)
+        joint = pred[:, :, None] * self.O_stack[:, nz, :]  # (A, n, Z)
         pz = joint.sum(axis=1)  # (A, Z)
         acts, zs = np.nonzero(pz > _PROB_EPS)  # by action, then observation
-        M = joint[acts, :, zs].T / pz[acts, zs]  # (n, successors)
+        pz_flat = pz[acts, zs]
+        M = joint[acts, :, zs].T / pz_flat  # (n, successors)
         ub = (self.Q_upper[nz].T @ M).max(axis=0)  # the fast informed bound only
         reward = node.val @ self.R[node.idx]
-        nodes = []
-        for j in range(zs.size):
-            rows = np.flatnonzero(M[:, j] > 0)
-            nodes.append(self._node(nz[rows], M[rows, j], ub=float(ub[j])))
-        bounds = np.searchsorted(acts, np.arange(A + 1))
+        nodes = self._children(nz, M, ub)
+        bounds = np.searchsorted(acts, np.arange(A + 1)).tolist()
+        # the action's own states: the sawtooth reads only the points whose support
+        # lies inside them
+        own = pred > 0
+        every = own.all(axis=1).tolist()
         kids = []
         for a in range(A):
             lo, hi = bounds[a], bounds[a + 1]
-            rows = np.flatnonzero(pred[a, nz] > 0)  # the action's own states: the sawtooth
-            # reads only the points whose support lies inside them
-            kids.append(
-                _Kids(
-                    float(reward[a]),
-                    zs[lo:hi],
-                    pz[a, zs[lo:hi]],
-                    nodes[lo:hi],
-                    M[rows, lo:hi],
-                    nz[rows],
-                )
-            )
+            if every[a]:
+                Ma, nza = M[:, lo:hi], nz
+            else:
+                rows = np.flatnonzero(own[a])
+                Ma, nza = M[rows, lo:hi], nz[rows]
+            kids.append(_Kids(float(reward[a]), zs[lo:hi], pz_flat[lo:hi], nodes[lo:hi], Ma, nza))
+        node.flat = (nodes, acts, pz_flat, reward)
+        # the concatenation _q_lower values every successor with is M itself
+        n = M.shape[1]
+        if n and M.size <= _CAT_MAX and self._cat_values + M.size <= _CAT_BUDGET:
+            starts = np.array(bounds)
+            leaf = np.array([c.kids is None for c in nodes])
+            node.cat = (nz, M, acts, pz_flat, reward, starts, nodes, leaf)
+            self._cat_values += M.size
         return kids
 
     def _refresh_upper(self, kids: _Kids) -> np.ndarray:
@@ -582,18 +619,24 @@ class BeliefTreeSearch(StoppingRules):
         fresh = self.points.values(kids.nz, kids.M)
         ub = np.array([c.ub for c in kids.nodes])
         ub = np.minimum(ub, fresh)
-        for c, u in zip(kids.nodes, ub, strict=True):
-            c.ub = float(u)
+        for c, u in zip(kids.nodes, ub.tolist(), strict=True):
+            c.ub = u
         return ub
 
-    def _q_upper(self, kids: list[_Kids]) -> np.ndarray:
+    def _q_bound(self, node: _Node, upper: bool) -> np.ndarray:
+        """Q(b, a) of every action from the successors' cached upper (lower) bounds."""
+        children, acts, pz, reward = node.flat  # type: ignore[misc]
+        v = np.array([c.ub for c in children] if upper else [c.lb for c in children])
+        return reward + self.gamma * np.bincount(acts, weights=pz * v, minlength=self.A)
+
+    def _q_upper(self, node: _Node, kids: list[_Kids]) -> np.ndarray:
         """Q_U(b, a) for every action, the best one with freshly interpolated successors.
 
         The successors' cached bounds are valid, if loose (the bound only decreases):
         re-interpolate the best action's successors until the best action is fresh.
         """
         g = self.gamma
-        q_upper = np.array([k.reward + g * (k.pz @ [c.ub for c in k.nodes]) for k in kids])
+        q_upper = self._q_bound(node, upper=True)
         fresh = np.zeros(self.A, dtype=bool)
         while True:
             a = int(q_upper.argmax())
@@ -666,7 +709,7 @@ class BeliefTreeSearch(StoppingRules):
         """Back up both bounds at ``node``: one alpha vector and one upper point."""
         kids = self._expand(node)
         q_lower, choice = self._q_lower(node, kids)
-        q_upper = self._q_upper(kids)
+        q_upper = self._q_upper(node, kids)
         self.backups += 1
         # upper bound: a point at this belief
         u = float(q_upper.max())
@@ -695,7 +738,9 @@ class BeliefTreeSearch(StoppingRules):
         kstar[kids.zs] = best
         rows = self.O_rows[a]
         v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
-        return self.R[:, a] + self.gamma * (self.T[a] @ v), self._gid[kstar]
+        T = self.T[a]  # T @ v as a bincount: scipy's product costs ~25 us of overhead
+        Tv = np.bincount(self.T_rows[a], weights=T.data * v[T.indices], minlength=self.S)
+        return self.R[:, a] + self.gamma * Tv, self._gid[kstar]
 
     def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int) -> None:
         if self.K == self._AT.shape[1]:
@@ -843,8 +888,8 @@ class BeliefTreeSearch(StoppingRules):
             if self.config.target_levels and node.ub <= U:
                 break
             kids = self._expand(node)
-            q_upper = self._q_upper(kids)
-            q_lower = np.array([k.reward + g * (k.pz @ [c.lb for c in k.nodes]) for k in kids])
+            q_upper = self._q_upper(node, kids)
+            q_lower = self._q_bound(node, upper=False)
             a = int(q_upper.argmax())
             k = kids[a]
             if not k.nodes:
