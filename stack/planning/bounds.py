@@ -25,7 +25,7 @@ def _solve_value(T: sp.spmatrix, discount: float, rewards: np.ndarray) -> np.nda
     """V with V = rewards + discount T V, T a row-stochastic (S, S) matrix."""
     S = T.shape[0]
     if S <= _DENSE_SOLVE_MAX_STATES:
-        M = -discount * (T.toarray() if sp.issparse(T) else np.asarray(T, dtype=float))
+        M = -discount * (T.toarray() if sp.issparse(T) else np.asarray(T, dtype=float))  # type: ignore[union-attr]
         M[np.diag_indices(S)] += 1.0
         # one thread: OpenBLAS's second thread made this 257-state solve 0.2 s instead
         # of 1 ms on the shared 2-core machine (docs/BENCHMARKS.md)
@@ -62,10 +62,22 @@ def qmdp(pomdp: POMDP, max_iterations: int = 100) -> np.ndarray:
     S = pomdp.n_states
     R = pomdp.R
     policy = R.argmax(axis=1)
+    states = np.arange(S)
+    # small models: every action's table dense, (A, S, S); a policy's table is then one
+    # gather and Q one product (scipy's per-call costs were most of RockSample_4_4's)
+    dense = (
+        np.stack([pomdp.T[a].toarray() for a in range(pomdp.n_actions)])
+        if S <= _DENSE_SOLVE_MAX_STATES
+        else None
+    )
     for _ in range(max_iterations):
-        Tpi = _policy_matrix(pomdp, policy)
-        V = _solve_value(Tpi, g, R[np.arange(S), policy])
-        Q = R + g * np.column_stack([pomdp.T[a] @ V for a in range(pomdp.n_actions)])
+        if dense is not None:
+            V = _solve_value(dense[policy, states], g, R[states, policy])
+            Q = R + g * (dense @ V).T
+        else:
+            Tpi = _policy_matrix(pomdp, policy)
+            V = _solve_value(Tpi, g, R[states, policy])
+            Q = R + g * np.column_stack([pomdp.T[a] @ V for a in range(pomdp.n_actions)])
         new = Q.argmax(axis=1)
         # keep the old action on ties so that policy iteration terminates
         keep = Q[np.arange(S), policy] >= Q[np.arange(S), new] - 1e-12

@@ -134,15 +134,41 @@ def format_search_progress(s: SearchStats) -> str:
 class _Kids:
     """The successors of one node under one action."""
 
-    __slots__ = ("reward", "zs", "pz", "nodes", "M", "nz")
+    __slots__ = ("reward", "zs", "pz", "nodes", "_M", "_nz", "_src")
 
-    def __init__(self, reward, zs, pz, nodes, M, nz):
+    def __init__(self, reward, zs, pz, nodes, M, nz, src=None):
         self.reward: float = reward  # R(b, a)
         self.zs: np.ndarray = zs  # the reachable observations
         self.pz: np.ndarray = pz  # P(z | b, a) of the reachable observations
         self.nodes = nodes  # successor node per reachable observation
-        self.M = M  # (len(nz), len(pz)) successor beliefs as columns, over states nz
-        self.nz = nz  # states reachable from b under a
+        self._M = M
+        self._nz = nz
+        # or, made when first read (most actions' never are): (M, nz) of every action's
+        # successors, this action's states among nz (bool), its columns lo:hi
+        self._src = src
+
+    def _make(self) -> None:
+        M, nz, own, lo, hi = self._src
+        if own.all():
+            self._M, self._nz = M[:, lo:hi], nz
+        else:
+            rows = np.flatnonzero(own)
+            self._M, self._nz = M[rows, lo:hi], nz[rows]
+        self._src = None
+
+    @property
+    def M(self) -> np.ndarray:
+        """(len(nz), len(pz)) successor beliefs as columns, over states nz."""
+        if self._src is not None:
+            self._make()
+        return self._M
+
+    @property
+    def nz(self) -> np.ndarray:
+        """The states reachable from b under a."""
+        if self._src is not None:
+            self._make()
+        return self._nz
 
 
 class _Node:
@@ -203,7 +229,12 @@ class _UpperPoints:
         self.by_state: dict[int, list[int]] = {}  # smallest support state -> points
         self._has = np.zeros(self.S, dtype=bool)  # the states by_state holds
         self._pos = np.full(self.S, -1)  # scratch: a belief's position of each state
-        self._arrays: dict[int, tuple] = {}
+        self._value_arr = np.empty(64)  # self.value as an array
+        # per group (s; -1: all points): (support states, probabilities, offsets, point
+        # ids, heights c . b_i), kept while the corners stay; and the excesses
+        # min(v_i - c . b_i, 0), kept while the group's values stay
+        self._struct: dict[int, tuple] = {}
+        self._excess: dict[int, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self.idx)
@@ -212,56 +243,67 @@ class _UpperPoints:
         if idx.size == 1:
             self.set_corner(int(idx[0]), value)
             return -1
-        if value - float(self.corner[idx] @ val) >= -1e-12:
+        height = float(self.corner[idx] @ val)
+        if value - height >= -1e-12:
             return -1
         i = len(self.idx)
         self.idx.append(idx)
         self.val.append(val)
         self.value.append(value)
-        self.by_state.setdefault(int(idx[0]), []).append(i)
-        self._has[idx[0]] = True
-        self._arrays.pop(int(idx[0]), None)
+        if i == self._value_arr.size:
+            self._value_arr = np.concatenate([self._value_arr, np.empty(i)])
+        self._value_arr[i] = value
+        s = int(idx[0])
+        self.by_state.setdefault(s, []).append(i)
+        self._has[s] = True
+        for key in (s, -1):  # the point joins its group's arrays and all points'
+            self._excess.pop(key, None)
+            g = self._struct.get(key)
+            if g is not None:
+                states, probs, offsets, ids, heights = g
+                self._struct[key] = (
+                    np.concatenate([states, idx]),
+                    np.concatenate([probs, val]),
+                    np.append(offsets, states.size),
+                    np.append(ids, i),
+                    np.append(heights, height),
+                )
         return i
 
     def update(self, i: int, value: float) -> None:
         if value < self.value[i]:
             self.value[i] = value
-            self._arrays.pop(int(self.idx[i][0]), None)
-            self._arrays.pop(-1, None)
+            self._value_arr[i] = value
+            self._excess.pop(int(self.idx[i][0]), None)
+            self._excess.pop(-1, None)
 
     def set_corner(self, s: int, value: float) -> None:
         if value < self.corner[s] - 1e-12:
             self.corner[s] = value
-            self._arrays.clear()  # every point's height above the corner plane moves
+            # every point's height above the corner plane moves
+            self._struct.clear()
+            self._excess.clear()
 
     def _group(self, s: int) -> tuple:
-        """Concatenated (support states, probabilities, offsets, excess) of a group."""
-        g = self._arrays.get(s)
+        """Concatenated (support states, probabilities, offsets, excess) of the points
+        whose smallest support state is s (s = -1: of all points, for models whose
+        points are few and spread)."""
+        g = self._struct.get(s)
         if g is None:
-            ids = self.by_state[s]
+            ids = np.array(self.by_state[s] if s >= 0 else range(len(self.idx)), dtype=int)
             sizes = np.array([self.idx[i].size for i in ids])
             states = np.concatenate([self.idx[i] for i in ids])
             probs = np.concatenate([self.val[i] for i in ids])
             offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-            height = np.add.reduceat(self.corner[states] * probs, offsets)
-            excess = np.minimum(np.array([self.value[i] for i in ids]) - height, 0.0)
-            g = (states, probs, offsets, sizes, excess)
-            self._arrays[s] = g
-        return g
-
-    def _all(self) -> tuple:
-        """All points as one group (for models whose points are few and spread)."""
-        g = self._arrays.get(-1)
-        if g is None:
-            sizes = np.array([i.size for i in self.idx])
-            states = np.concatenate(self.idx)
-            probs = np.concatenate(self.val)
-            offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-            height = np.add.reduceat(self.corner[states] * probs, offsets)
-            excess = np.minimum(np.asarray(self.value) - height, 0.0)
-            g = (states, probs, offsets, sizes, excess)
-            self._arrays[-1] = g
-        return g
+            heights = np.add.reduceat(self.corner[states] * probs, offsets)
+            g = (states, probs, offsets, ids, heights)
+            self._struct[s] = g
+        states, probs, offsets, ids, heights = g
+        excess = self._excess.get(s)
+        if excess is None:
+            excess = np.minimum(self._value_arr[ids] - heights, 0.0)
+            self._excess[s] = excess
+        return states, probs, offsets, excess
 
     def values(self, nz: np.ndarray, M: np.ndarray) -> np.ndarray:
         """Sawtooth bound at the beliefs M[:, j] (over states nz), shape (M.shape[1],)."""
@@ -278,7 +320,7 @@ class _UpperPoints:
         Mx = np.concatenate([M, np.zeros((1, M.shape[1]))])
         try:
             if len(groups) > 4:
-                return base + self._interpolate(self._all(), pos, Mx)
+                return base + self._interpolate(self._group(-1), pos, Mx)
             best = self._interpolate(self._group(groups[0]), pos, Mx)
             for s in groups[1:]:
                 best = np.minimum(best, self._interpolate(self._group(s), pos, Mx))
@@ -289,7 +331,7 @@ class _UpperPoints:
     @staticmethod
     def _interpolate(group: tuple, pos: np.ndarray, Mx: np.ndarray) -> np.ndarray:
         """min over the group's points of (v_i - c . b_i) min_s b(s) / b_i(s) (<= 0)."""
-        states, probs, offsets, _, excess = group
+        states, probs, offsets, excess = group
         ratio = np.minimum.reduceat(Mx[pos[states]] / probs[:, None], offsets, axis=0)
         return (ratio * excess[:, None]).min(axis=0)
 
@@ -317,6 +359,8 @@ class StoppingRules:
     def _late(self) -> bool:
         """Past the deadline, less the time writing the vectors will take and the
         share of the limit kept for pruning them (``config.finish_share``)."""
+        if self.deadline == math.inf:
+            return False
         return clock.now() >= self.deadline - self._reserve()
 
     def _reserve(self) -> float:
@@ -594,16 +638,12 @@ class BeliefTreeSearch(StoppingRules):
         # the action's own states: the sawtooth reads only the points whose support
         # lies inside them
         own = pred > 0
-        every = own.all(axis=1).tolist()
         kids = []
-        for a in range(A):
-            lo, hi = bounds[a], bounds[a + 1]
-            if every[a]:
-                Ma, nza = M[:, lo:hi], nz
-            else:
-                rows = np.flatnonzero(own[a])
-                Ma, nza = M[rows, lo:hi], nz[rows]
-            kids.append(_Kids(float(reward[a]), zs[lo:hi], pz_flat[lo:hi], nodes[lo:hi], Ma, nza))
+        for a, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+            src = (M, nz, own[a], lo, hi)
+            kids.append(
+                _Kids(float(reward[a]), zs[lo:hi], pz_flat[lo:hi], nodes[lo:hi], None, None, src)
+            )
         node.flat = (nodes, acts, pz_flat, reward)
         # the concatenation _q_lower values every successor with is M itself
         n = M.shape[1]
@@ -861,6 +901,8 @@ class BeliefTreeSearch(StoppingRules):
 
     def _measure_writing(self) -> None:
         """How much slower than ``config.write_s_per_value`` writing a value is now."""
+        if self.config.time_limit_s is None:
+            return  # no deadline to keep time from (the measurement cost 20 ms a solve)
         self._n_archived = len(self._closure(reached=False)) - self.K  # an upper bound
         if self.config.write_s_per_value <= 0:
             return
