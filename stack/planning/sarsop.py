@@ -648,7 +648,7 @@ class BeliefTreeSearch(StoppingRules):
         # the concatenation _q_lower values every successor with is M itself
         n = M.shape[1]
         if n and M.size <= _CAT_MAX and self._cat_values + M.size <= _CAT_BUDGET:
-            starts = np.array(bounds)
+            starts = bounds  # (A + 1) where each action's successors start
             leaf = np.array([c.kids is None for c in nodes])
             node.cat = (nz, M, acts, pz_flat, reward, starts, nodes, leaf)
             self._cat_values += M.size
@@ -713,8 +713,9 @@ class BeliefTreeSearch(StoppingRules):
         self._cat_values += M.size
         return node.cat
 
-    def _q_lower(self, node: _Node, kids: list[_Kids]) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Q_L(b, a) for every action and, per action, the best vector at each successor."""
+    def _q_lower(self, node: _Node, kids: list[_Kids]) -> tuple[np.ndarray, np.ndarray, list]:
+        """Q_L(b, a) for every action, the best vector at each successor (every action's
+        in turn) and where each action's successors start there (A + 1)."""
         g = self.gamma
         cat = self._concatenate(node, kids)
         if cat is not None:
@@ -723,14 +724,15 @@ class BeliefTreeSearch(StoppingRules):
             best = G.argmax(axis=1)
             lbs = G[np.arange(best.size), best]
             if leaf.any():  # a leaf's bound is just its best vector's value
-                for j in np.flatnonzero(leaf):
+                values = lbs.tolist()
+                for j in leaf.nonzero()[0].tolist():
                     c = children[j]
                     if c.kids is None:
-                        c.lb = min(float(lbs[j]), c.ub)
+                        c.lb = min(values[j], c.ub)
                     else:
                         leaf[j] = False
             q = reward + g * np.bincount(seg, weights=pz * lbs, minlength=self.A)
-            return q, [best[starts[a] : starts[a + 1]] for a in range(self.A)]
+            return q, best, starts
         q_lower = np.empty(self.A)
         choice = []
         for a, k in enumerate(kids):
@@ -743,12 +745,12 @@ class BeliefTreeSearch(StoppingRules):
                     c.lb = min(float(v), c.ub)
             q_lower[a] = k.reward + g * (k.pz @ lbs)
             choice.append(best)
-        return q_lower, choice
+        return q_lower, np.concatenate(choice), np.cumsum([0] + [c.size for c in choice]).tolist()
 
     def _backup(self, node: _Node) -> None:
         """Back up both bounds at ``node``: one alpha vector and one upper point."""
         kids = self._expand(node)
-        q_lower, choice = self._q_lower(node, kids)
+        q_lower, best, starts = self._q_lower(node, kids)
         q_upper = self._q_upper(node, kids)
         self.backups += 1
         # upper bound: a point at this belief
@@ -762,7 +764,8 @@ class BeliefTreeSearch(StoppingRules):
         # lower bound: add the backed-up vector if it improves the value here
         a = int(q_lower.argmax())
         if q_lower[a] > node.lb + 1e-12 * max(1.0, abs(node.lb)):
-            self._add_alpha(*self._alpha(kids[a], a, choice[a], node), a)
+            choice = best[starts[a] : starts[a + 1]]
+            self._add_alpha(*self._alpha(kids[a], a, choice, node), a)
             node.lb = float(q_lower[a])
         node.lb = min(node.lb, node.ub)
 
