@@ -904,8 +904,6 @@ class BeliefTreeSearch(StoppingRules):
 
     def _measure_writing(self) -> None:
         """How much slower than ``config.write_s_per_value`` writing a value is now."""
-        if self.config.time_limit_s is None:
-            return  # no deadline to keep time from (the measurement cost 20 ms a solve)
         self._n_archived = len(self._closure(reached=False)) - self.K  # an upper bound
         if self.config.write_s_per_value <= 0:
             return

@@ -21,6 +21,7 @@ from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_a
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
 
 if TYPE_CHECKING:  # the task model (yaml, cells) is imported where a task is solved:
     # solving a .pomdp file does not load it (start-up, docs/BENCHMARKS.md)
@@ -173,15 +174,18 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         budget = None if until is None else until - clock.now()
         iterations = config.iterations if budget is not None else max(1, config.iterations)
         closure: dict = {}
-        perseus(
-            pomdp,
-            B,
-            iterations=iterations,
-            rng=rng,
-            time_limit_s=budget,
-            b0=starts[0],
-            closure=closure,
-        )
+        # one BLAS thread, as the search: Hallway, 8 CPU-s of Perseus at load 7.6, 57
+        # iterations against 53 with OpenBLAS's two (docs/BENCHMARKS.md)
+        with blas_threads(1):
+            perseus(
+                pomdp,
+                B,
+                iterations=iterations,
+                rng=rng,
+                time_limit_s=budget,
+                b0=starts[0],
+                closure=closure,
+            )
         # Perseus's final vectors, and (archived, not searched with) the earlier ones
         # they lead to: with them the policy earns its bound (controller.py)
         closed = (closure["alphas"], closure["actions"], closure["successors"])
