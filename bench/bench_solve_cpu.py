@@ -43,7 +43,7 @@ from stack.planning.solve import SolverConfig, solve
 c1 = time.process_time()
 pomdp = read_pomdp(sys.argv[1])
 c2 = time.process_time()
-r = solve(pomdp, SolverConfig(write_s_per_value=0.5e-6))
+r = solve(pomdp, SolverConfig())
 c3 = time.process_time()
 r.policy.save(sys.argv[2])
 c4 = time.process_time()

@@ -15,10 +15,12 @@ from stack.planning import clock
 from stack.planning.pomdp import POMDP, ModelError
 from stack.planning.threads import blas_threads
 
-# systems up to this many states are solved densely (numpy's LAPACK, already loaded):
-# RockSample_4_4's 257 states take well under a millisecond, and the solve path then
-# never imports scipy.sparse.linalg (~0.08 s of start-up, docs/BENCHMARKS.md)
-_DENSE_SOLVE_MAX_STATES = 600
+# systems up to this many states are solved densely (numpy's LAPACK, already loaded),
+# so the solve path of a small model never imports scipy.sparse.linalg (~0.08 s of
+# start-up). Dense LU grows as S^3: RockSample_4_4's 257 states take ~0.7 ms a solve
+# (its QMDP and blind bounds 0.027 s against 0.015 s sparse); at 600 states a solve
+# would cost ~10 ms per action and iteration, more than the import (docs/BENCHMARKS.md)
+_DENSE_SOLVE_MAX_STATES = 300
 
 
 def _solve_value(T: sp.spmatrix, discount: float, rewards: np.ndarray) -> np.ndarray:
@@ -64,7 +66,7 @@ def qmdp(pomdp: POMDP, max_iterations: int = 100) -> np.ndarray:
     policy = R.argmax(axis=1)
     states = np.arange(S)
     # small models: every action's table dense, (A, S, S); a policy's table is then one
-    # gather and Q one product (scipy's per-call costs were most of RockSample_4_4's)
+    # gather and Q one product
     dense = (
         np.stack([pomdp.T[a].toarray() for a in range(pomdp.n_actions)])
         if S <= _DENSE_SOLVE_MAX_STATES
