@@ -32,6 +32,7 @@ one set of cached per-node arrays; split apart they would pass them back and for
 
 from __future__ import annotations
 
+import gc
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -513,6 +514,7 @@ class BeliefTreeSearch(StoppingRules):
         self._pruned_at = self.K
 
         self.nodes: dict[bytes, _Node] = {}
+        self._corners: dict[int, _Node] = {}  # the certain beliefs' nodes, by state
         b0 = pomdp.b0 if b0 is None else np.asarray(b0, dtype=float)
         idx = np.flatnonzero(b0 > 0)
         self.root = self._node(idx, b0[idx] / b0[idx].sum())
@@ -958,10 +960,12 @@ class BeliefTreeSearch(StoppingRules):
         # on RockSample_4_4 the corners were most of the backups)
         leaf = path[-1]
         if leaf.idx.size <= 32:
-            for s in leaf.idx:
+            for s in leaf.idx.tolist():
                 if self._late():
                     break
-                corner = self._node(np.array([s]), np.ones(1))
+                corner = self._corners.get(s)
+                if corner is None:
+                    corner = self._corners[s] = self._node(np.array([s]), np.ones(1))
                 if corner.ub - corner.lb > eps * g**-t:
                     self._backup(corner)
         for n in reversed(path):
@@ -990,9 +994,19 @@ class BeliefTreeSearch(StoppingRules):
             self.progress(stats)
 
     def run(self) -> SearchResult:
-        """Search until the target gap, the time limit or the trial limit."""
-        with blas_threads(self.config.blas_threads):
-            return self._run()
+        """Search until the target gap, the time limit or the trial limit.
+
+        Python's cyclic garbage collector is paused meanwhile: the search frees nothing
+        until it ends (the belief graph's cycles go with the search object), and the
+        collections' scans of the growing tree were 8 % of RockSample_4_4's search."""
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            with blas_threads(self.config.blas_threads):
+                return self._run()
+        finally:
+            if collecting:
+                gc.enable()
 
     def _run(self) -> SearchResult:
         for r in self.roots:
