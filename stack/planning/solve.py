@@ -12,16 +12,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
-from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
+
+if TYPE_CHECKING:  # the task model (yaml, cells) is imported where a task is solved:
+    # solving a .pomdp file does not load it (start-up, docs/BENCHMARKS.md)
+    from stack.planning.model import FactoredModel
 
 ALGORITHMS = ("sarsop", "perseus")
 DUAL_SHARE = 0.2  # of a time limit, kept for the dual bound after the search
@@ -194,15 +198,18 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         budget = None if until is None else until - clock.now()
         iterations = config.iterations if budget is not None else max(1, config.iterations)
         closure: dict = {}
-        perseus(
-            pomdp,
-            B,
-            iterations=iterations,
-            rng=rng,
-            time_limit_s=budget,
-            b0=starts[0],
-            closure=closure,
-        )
+        # one BLAS thread, as the search: Hallway, 8 CPU-s of Perseus at load 7.6, 57
+        # iterations against 53 with OpenBLAS's two (docs/BENCHMARKS.md)
+        with blas_threads(1):
+            perseus(
+                pomdp,
+                B,
+                iterations=iterations,
+                rng=rng,
+                time_limit_s=budget,
+                b0=starts[0],
+                closure=closure,
+            )
         # Perseus's final vectors, and (archived, not searched with) the earlier ones
         # they lead to: with them the policy earns its bound (controller.py)
         closed = (closure["alphas"], closure["actions"], closure["successors"])
@@ -346,6 +353,8 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
 
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
     """Lower-bound seeds for the task model: "walk to a cell and wait" plans."""
+    from stack.planning.model import guard_plans
+
     plans, stay = guard_plans(model)
     alphas = plan_alphas(pomdp, plans, stay)
     actions = np.array([p[0] if p else stay for p in plans])
