@@ -81,7 +81,7 @@ def test_solver_config_checks_the_dual_paths():
     from stack.planning.solve import SolverConfig
 
     with pytest.raises(ValueError, match="dual_paths"):
-        SolverConfig(dual_paths=3)
+        SolverConfig(dual_paths=15)
     assert SolverConfig(dual_paths=0).dual_paths == 0
 
 

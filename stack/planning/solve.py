@@ -84,9 +84,9 @@ class SolverConfig:
             raise ValueError(f"perseus_share must be in [0, 1), got {self.perseus_share}")
         if self.trials is not None and self.trials < 1:
             raise ValueError(f"trials must be >= 1, got {self.trials}")
-        if self.dual_paths != 0 and self.dual_paths < 2 * DUAL_BATCH:
+        if self.dual_paths != 0 and self.dual_paths < DUAL_BATCH:
             raise ValueError(
-                f"dual_paths must be 0 (off) or at least {2 * DUAL_BATCH}, got {self.dual_paths}"
+                f"dual_paths must be 0 (off) or at least {DUAL_BATCH}, got {self.dual_paths}"
             )
 
 
@@ -332,8 +332,8 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
                 f"dual bound: {len(values) * DUAL_BATCH} paths, "
                 f"mean {np.concatenate(values).mean():.3f}, {seconds:.1f} s"
             )
-    if len(values) < 2:
-        return None, f"dual bound: fewer than {2 * DUAL_BATCH} paths within the time limit"
+    if not values:
+        return None, f"dual bound: not {DUAL_BATCH} paths within the time limit"
     v = np.concatenate(values)
     sd = float(v.std(ddof=1))
     return (
