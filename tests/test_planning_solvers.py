@@ -126,3 +126,16 @@ def test_cli_export_round_trips_the_task_model(tmp_path):
         assert abs(back.O[a] - original.O[a]).max() < 1e-9
     np.testing.assert_allclose(back.R, original.R, atol=1e-9)
     np.testing.assert_allclose(back.b0, original.b0)
+
+
+@needs_shared
+def test_dense_and_sparse_value_solves_agree(monkeypatch):
+    """Small models' QMDP and blind bounds are solved densely (no scipy.sparse.linalg
+    on the solve path); the sparse solve of larger models gives the same values."""
+    import stack.planning.bounds as bounds
+
+    pomdp = read_pomdp(SHARED / "Hallway.pomdp")
+    Q, L = qmdp(pomdp), blind_lower_bound(pomdp)
+    monkeypatch.setattr(bounds, "_DENSE_SOLVE_MAX_STATES", 0)
+    np.testing.assert_allclose(qmdp(pomdp), Q, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(blind_lower_bound(pomdp), L, rtol=0, atol=1e-9)

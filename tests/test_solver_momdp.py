@@ -128,7 +128,7 @@ def test_task_r1_factored_bounds_improve_on_qmdp():
 def test_time_limit_is_checked_inside_trials(monkeypatch):
     """With a clock that moves 10 ms per reading, the search stops within a few
     readings of the limit (the time goes to the clock, not to the search)."""
-    import stack.planning.momdp as momdp_module
+    from stack.planning import clock as clock_module
 
     m = _mixed(6, X=4, Y=6, A=3, Z=4, discount=0.99)
     b0 = _b0(m)
@@ -139,7 +139,7 @@ def test_time_limit_is_checked_inside_trials(monkeypatch):
         now[0] += 0.01
         return now[0]
 
-    monkeypatch.setattr(momdp_module.time, "perf_counter", clock)
+    monkeypatch.setattr(clock_module, "now", clock)
     cfg = SearchConfig(time_limit_s=3.0, target_gap=0.0, progress_every_s=0.0)
     r = MixedSearch(m, cfg, seeds, [b0], start=0.0).run()
     assert r.stopped == "time"
@@ -186,3 +186,22 @@ def test_growing_rounds_sample_more_beliefs_past_a_plateau():
     assert grown.rounds_done == 30 and grown._batches >= 1
     assert len(grown.nodes) > len(plain.nodes)
     assert r_grown.lower_bound >= r_plain.lower_bound - 1e-12
+
+
+def test_a_cpu_time_limit_is_read_on_the_cpu_clock_everywhere():
+    """Under --cpu-time the start and every deadline are CPU seconds; the fast informed
+    bound once compared a CPU-time deadline with wall time and stopped at once."""
+    from stack.planning import clock
+
+    m = _mixed(8, X=3, Y=4, A=2, Z=3, discount=0.95)
+    b0 = _b0(m)
+    seeds = (blind_lower_bound(_flat(m, b0)), np.arange(m.A))
+    clock.use_cpu_time(True)
+    try:
+        cfg = SearchConfig(time_limit_s=60.0, max_trials=3, progress_every_s=0.0)
+        s = MixedSearch(m, cfg, seeds, [b0], start=clock.now())
+        r = s.run()
+    finally:
+        clock.use_cpu_time(False)
+    np.testing.assert_allclose(s.Q_upper, factored_fib(m), atol=1e-9)
+    assert r.stopped != "time" and r.trials == 3

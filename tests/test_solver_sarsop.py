@@ -420,3 +420,39 @@ def test_written_policy_keeps_the_root_bound_closed_and_smaller():
     assert r.policy.value(pomdp.b0) >= r.lower_bound - 1e-12
     assert len(r.policy.alphas) <= len(every.policy.alphas)
     _closed(pomdp, r.policy.alphas, r.policy.actions, search.successors)
+
+
+def test_rocksample_4_4_solved_exactly_with_the_default_options():
+    """Issue 12: RockSample_4_4 exact with the defaults (SARSOP: 17.924 exact,
+    ../shared/pomdp/README.md); the search stops because the gap closed."""
+    r = solve(_model("RockSample_4_4.pomdp"), SolverConfig())
+    assert r.policy.meta["stopped"] == "gap"
+    assert r.upper_bound - r.lower_bound < 1e-6  # exact, not just the 1e-3 target
+    assert abs(r.lower_bound - 17.924) < 1e-3
+
+
+def test_the_solve_pomdp_path_loads_no_robot_stack_and_no_sparse_solver(tmp_path):
+    """Solving a .pomdp file (a process of its own, as the command runs) imports
+    neither ROS, OpenCV, MuJoCo, plotting nor the task model; a small model does not
+    load scipy's sparse solvers either (their import alone is ~0.08 s)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import json, sys\n"
+        "from vigil.cli import main\n"
+        f"rc = main(['solve-pomdp', {str(POMDP_DIR / 'Tiger.pomdp')!r}, '--json', '--quiet',"
+        f" '-o', {str(tmp_path / 't.policy')!r}])\n"
+        "print(json.dumps([rc, sorted(sys.modules)]))\n"
+    )
+    if not POMDP_DIR.is_dir():
+        pytest.skip(f"{POMDP_DIR} not present")
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    rc, modules = json.loads(out.strip().splitlines()[-1])
+    assert rc == 0 and (tmp_path / "t.policy").is_file()
+    top = {m.split(".")[0] for m in modules}
+    assert not top & {"rclpy", "cv2", "mujoco", "matplotlib", "yaml", "twin"}
+    assert "stack.planning.sarsop" in modules  # the solve did run in that process
+    assert not {"scipy.sparse.linalg", "stack.planning.model", "stack.planning.task"} & set(modules)

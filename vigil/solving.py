@@ -43,9 +43,12 @@ def solver_config(args: argparse.Namespace):
         relative_gap=getattr(args, "relative_gap", 0.0),
         trials=getattr(args, "trials", None),
         perseus_share=getattr(args, "perseus_share", 0.0),
+        dual_paths=getattr(args, "dual_paths", 0),
         # writing a vector entry as XML text takes ~0.4 us on an idle core, more under
-        # load (the search measures it and scales this up); it stops that much earlier
-        write_s_per_value=0.5e-6 if getattr(args, "output", None) else 0.0,
+        # load (the search measures it and scales this up); it stops that much earlier.
+        # Without a time limit there is nothing to keep time from, and no measuring
+        # (20 ms of RockSample_4_4's solve)
+        write_s_per_value=0.5e-6 if getattr(args, "output", None) and limit is not None else 0.0,
     )
 
 
@@ -123,5 +126,11 @@ def bounds_line(s: dict) -> str:
     return (
         f"lower {s['lower_bound']:.4f}  upper {s['upper_bound']:.4f}  gap {s['gap']:.4f} "
         f"({100 * s['relative_gap']:.1f}%)  alphas {s['alpha_vectors']}  {s['seconds']:.2f} s"
+        + (
+            f"  dual upper {s['dual_upper_mean']:.3f} +- {s['dual_upper_ci95']:.3f} "
+            f"({100 * s['dual_relative_gap']:.2f}% above the lower bound, 95 %)"
+            if "dual_upper" in s
+            else ""
+        )
         + (f"  -> {s['policy']}" if "policy" in s else "")
     )

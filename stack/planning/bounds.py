@@ -10,10 +10,33 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from stack.planning import clock
 from stack.planning.pomdp import POMDP, ModelError
+from stack.planning.threads import blas_threads
+
+# systems up to this many states are solved densely (numpy's LAPACK, already loaded),
+# so the solve path of a small model never imports scipy.sparse.linalg (~0.08 s of
+# start-up). Dense LU grows as S^3: RockSample_4_4's 257 states take ~0.7 ms a solve
+# (its QMDP and blind bounds 0.027 s against 0.015 s sparse); at 600 states a solve
+# would cost ~10 ms per action and iteration, more than the import (docs/BENCHMARKS.md)
+_DENSE_SOLVE_MAX_STATES = 300
+
+
+def _solve_value(T: sp.spmatrix, discount: float, rewards: np.ndarray) -> np.ndarray:
+    """V with V = rewards + discount T V, T a row-stochastic (S, S) matrix."""
+    S = T.shape[0]
+    if S <= _DENSE_SOLVE_MAX_STATES:
+        M = -discount * (T.toarray() if sp.issparse(T) else np.asarray(T, dtype=float))  # type: ignore[union-attr]
+        M[np.diag_indices(S)] += 1.0
+        # one thread: OpenBLAS's second thread made this 257-state solve 0.2 s instead
+        # of 1 ms on the shared 2-core machine (docs/BENCHMARKS.md)
+        with blas_threads(1):
+            return np.linalg.solve(M, np.asarray(rewards, dtype=float))
+    import scipy.sparse.linalg as spla  # only for large models (its import is slow)
+
+    eye = sp.identity(S, format="csc")
+    return spla.spsolve((eye - discount * T).tocsc(), rewards)
 
 
 def require_discounted(pomdp: POMDP) -> None:
@@ -41,11 +64,22 @@ def qmdp(pomdp: POMDP, max_iterations: int = 100) -> np.ndarray:
     S = pomdp.n_states
     R = pomdp.R
     policy = R.argmax(axis=1)
-    eye = sp.identity(S, format="csc")
+    states = np.arange(S)
+    # small models: every action's table dense, (A, S, S); a policy's table is then one
+    # gather and Q one product
+    dense = (
+        np.stack([pomdp.T[a].toarray() for a in range(pomdp.n_actions)])
+        if S <= _DENSE_SOLVE_MAX_STATES
+        else None
+    )
     for _ in range(max_iterations):
-        Tpi = _policy_matrix(pomdp, policy)
-        V = spla.spsolve((eye - g * Tpi).tocsc(), R[np.arange(S), policy])
-        Q = R + g * np.column_stack([pomdp.T[a] @ V for a in range(pomdp.n_actions)])
+        if dense is not None:
+            V = _solve_value(dense[policy, states], g, R[states, policy])
+            Q = R + g * (dense @ V).T
+        else:
+            Tpi = _policy_matrix(pomdp, policy)
+            V = _solve_value(Tpi, g, R[states, policy])
+            Q = R + g * np.column_stack([pomdp.T[a] @ V for a in range(pomdp.n_actions)])
         new = Q.argmax(axis=1)
         # keep the old action on ties so that policy iteration terminates
         keep = Q[np.arange(S), policy] >= Q[np.arange(S), new] - 1e-12
@@ -121,13 +155,8 @@ def blind_lower_bound(pomdp: POMDP) -> np.ndarray:
     Each is the exact value of a policy, so max_a alpha_a . b is a lower bound.
     """
     require_discounted(pomdp)
-    S = pomdp.n_states
-    eye = sp.identity(S, format="csc")
     return np.vstack(
-        [
-            spla.spsolve((eye - pomdp.discount * pomdp.T[a]).tocsc(), pomdp.R[:, a])
-            for a in range(pomdp.n_actions)
-        ]
+        [_solve_value(pomdp.T[a], pomdp.discount, pomdp.R[:, a]) for a in range(pomdp.n_actions)]
     )
 
 
@@ -144,10 +173,7 @@ def plan_alphas(pomdp: POMDP, plans: list[list[int]], stay_action: int) -> np.nd
     """
     require_discounted(pomdp)
     S = pomdp.n_states
-    eye = sp.identity(S, format="csc")
-    stay = spla.spsolve(
-        (eye - pomdp.discount * pomdp.T[stay_action]).tocsc(), pomdp.R[:, stay_action]
-    )
+    stay = _solve_value(pomdp.T[stay_action], pomdp.discount, pomdp.R[:, stay_action])
     out = []
     for plan in plans:
         v = stay

@@ -45,12 +45,12 @@ its beliefs and vectors are flat.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from stack.planning import clock
 from stack.planning.policy import AlphaPolicy
 from stack.planning.sarsop import SearchConfig, SearchResult, SearchStats, StoppingRules
 from stack.planning.threads import blas_threads
@@ -132,13 +132,17 @@ def _mdp_start(m: MixedModel, deadline: float, sweeps: int = 4000) -> np.ndarray
         new = np.minimum(m.R + g * np.einsum("axk,ky->xya", m.TX, U), Q)
         done = float((Q - new).max()) < 1e-9
         Q = new
-        if done or (i % 100 == 0 and time.perf_counter() > deadline):
+        if done or (i % 100 == 0 and clock.now() > deadline):
             break
     return Q
 
 
 def factored_fib(
-    m: MixedModel, tol: float = 1e-3, max_iterations: int = 5000, deadline: float = math.inf
+    m: MixedModel,
+    tol: float = 1e-3,
+    max_iterations: int = 5000,
+    deadline: float = math.inf,
+    start: np.ndarray | None = None,
 ) -> np.ndarray:
     """The fast informed bound on the factors, Q (X, Y, A).
 
@@ -150,6 +154,8 @@ def factored_fib(
     along the last decrease (Q - beta (Q_prev - Q)) and keeps the extrapolated table
     only where that check H(Q) <= Q holds for the whole table; otherwise beta halves.
     Every accepted table is an upper bound, so stopping at the deadline is safe.
+    ``start``: a table from an earlier call (H(Q) <= Q holds for it), to go on from it
+    to a smaller ``tol`` instead of starting again from the MDP's values.
     """
     g = m.discount
 
@@ -159,12 +165,12 @@ def factored_fib(
         U = W.max(axis=3).sum(axis=2)  # (X', Y)
         return m.R + g * np.einsum("axk,ky->xya", m.TX, U)
 
-    Q = _mdp_start(m, deadline)  # H(Q) <= Q holds
-    HQ = np.minimum(H(Q), Q)
+    Q = _mdp_start(m, deadline) if start is None else np.array(start, dtype=float)
+    HQ = np.minimum(H(Q), Q)  # H(Q) <= Q holds
     beta = 1.0
     for _ in range(max_iterations):
         step = Q - HQ  # >= 0
-        if step.max() < tol or time.perf_counter() > deadline:
+        if step.max() < tol or clock.now() > deadline:
             return HQ
         Qe = HQ - beta * step
         HQe = H(Qe)
@@ -361,7 +367,7 @@ class MixedSearch(StoppingRules):
         seed_alphas: flat (K, X*Y) lower-bound vectors and their actions, each the
             exact value of a policy (blind policies, plans); cut into cell blocks.
         roots: flat beliefs, each certain about x; the first is b0 (bounds reported).
-        start: time.perf_counter() at which the time limit started.
+        start: clock.now() at which the time limit started.
         progress: called with :class:`SearchStats` at most once per progress_every_s.
         sawtooth: refine the upper bound between nodes by sawtooth interpolation.
         beliefs, rounds, depth, plateau: the rounds over sampled person beliefs (see
@@ -395,7 +401,7 @@ class MixedSearch(StoppingRules):
         self.depth = depth
         self.rounds_done = 0
         self.config = config
-        self.start = time.perf_counter() if start is None else start
+        self.start = clock.now() if start is None else start
         self.deadline = (
             math.inf if config.time_limit_s is None else self.start + config.time_limit_s
         )
@@ -403,11 +409,11 @@ class MixedSearch(StoppingRules):
         self.g = m.discount
         X, Y = m.X, m.Y
         self.v_min = float(m.R.min()) / (1 - self.g)
-        remaining = self.deadline - time.perf_counter()
+        remaining = self.deadline - clock.now()
         fib_deadline = (
             math.inf
             if not math.isfinite(remaining)
-            else time.perf_counter() + max(0.0, remaining) * max(config.fib_share, FIB_SHARE)
+            else clock.now() + max(0.0, remaining) * max(config.fib_share, FIB_SHARE)
         )
         self.Q_upper = factored_fib(m, deadline=fib_deadline)  # (X, Y, A)
         self.upper_initial = self.Q_upper
@@ -700,7 +706,7 @@ class MixedSearch(StoppingRules):
         self.trials += 1
 
     def _report(self, force: bool = False) -> None:
-        now = time.perf_counter()
+        now = clock.now()
         if not force and now - self._last_report < self.config.progress_every_s:
             return
         self._last_report = now
@@ -742,7 +748,7 @@ class MixedSearch(StoppingRules):
             policy=policy,
             lower_bound=self.root.lb,
             upper_bound=self.root.ub,
-            seconds=time.perf_counter() - self.start,
+            seconds=clock.now() - self.start,
             history=self.history,
             trials=self.trials,
             backups=self.backups,

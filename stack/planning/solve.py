@@ -11,19 +11,26 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import asdict, dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
-from stack.planning.model import FactoredModel, guard_plans
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
+from stack.planning.threads import blas_threads
+
+if TYPE_CHECKING:  # the task model (yaml, cells) is imported where a task is solved:
+    # solving a .pomdp file does not load it (start-up, docs/BENCHMARKS.md)
+    from stack.planning.model import FactoredModel
 
 ALGORITHMS = ("sarsop", "perseus")
+DUAL_SHARE = 0.2  # of a time limit, kept for the dual bound after the search
+DUAL_BATCH = 16  # paths of the dual bound per batch (each batch seeded on its own)
+DUAL_FIB_TOL = 1e-6  # the fast informed bound behind the dual bound's penalty
 
 
 @dataclass(frozen=True)
@@ -57,6 +64,10 @@ class SolverConfig:
     # sarsop on a task model: search the mixed-observability form (robot cell observed,
     # beliefs over the person only; stack/planning/momdp.py) instead of the flat one
     factored: bool = True
+    # sarsop on a one-person task model: paths of the information-relaxation (dual)
+    # upper bound at b0 (stack/planning/dual.py), a statistical bound reported beside
+    # the search's; 0 = not computed. Under a time limit it gets DUAL_SHARE of it.
+    dual_paths: int = 0
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
@@ -73,6 +84,10 @@ class SolverConfig:
             raise ValueError(f"perseus_share must be in [0, 1), got {self.perseus_share}")
         if self.trials is not None and self.trials < 1:
             raise ValueError(f"trials must be >= 1, got {self.trials}")
+        if self.dual_paths != 0 and self.dual_paths < DUAL_BATCH:
+            raise ValueError(
+                f"dual_paths must be 0 (off) or at least {DUAL_BATCH}, got {self.dual_paths}"
+            )
 
 
 @dataclass
@@ -82,6 +97,19 @@ class SolveResult(BoundedResult):
     upper_bound: float
     seconds: float
     history: list[Any] = field(default_factory=list)  # IterationStats or SearchStats
+    dual: Any = None  # a DualBound at b0 (stack/planning/dual.py), when computed
+    dual_note: str = ""  # why it was not, when asked for
+
+    def summary(self) -> dict:
+        out = super().summary()
+        if self.dual is not None:
+            out |= self.dual.summary()
+            out["dual_relative_gap"] = (self.dual.upper - self.lower_bound) / max(
+                abs(self.lower_bound), 1e-12
+            )
+        elif self.dual_note:
+            out["dual_note"] = self.dual_note
+        return out
 
     @property
     def n_iterations(self) -> int:
@@ -170,15 +198,18 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
         budget = None if until is None else until - clock.now()
         iterations = config.iterations if budget is not None else max(1, config.iterations)
         closure: dict = {}
-        perseus(
-            pomdp,
-            B,
-            iterations=iterations,
-            rng=rng,
-            time_limit_s=budget,
-            b0=starts[0],
-            closure=closure,
-        )
+        # one BLAS thread, as the search: Hallway, 8 CPU-s of Perseus at load 7.6, 57
+        # iterations against 53 with OpenBLAS's two (docs/BENCHMARKS.md)
+        with blas_threads(1):
+            perseus(
+                pomdp,
+                B,
+                iterations=iterations,
+                rng=rng,
+                time_limit_s=budget,
+                b0=starts[0],
+                closure=closure,
+            )
         # Perseus's final vectors, and (archived, not searched with) the earlier ones
         # they lead to: with them the policy earns its bound (controller.py)
         closed = (closure["alphas"], closure["actions"], closure["successors"])
@@ -228,15 +259,20 @@ def _search_config(config: SolverConfig):
 
 
 def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
-    """The belief-tree search on the task's mixed-observability form."""
+    """The belief-tree search on the task's mixed-observability form, then (when
+    ``config.dual_paths``) the dual upper bound at b0 in the time left."""
     from stack.planning.momdp import MixedSearch, mixed_from_task
 
     t0 = clock.now() if start is None else start
     alphas = np.vstack([blind_lower_bound(pomdp), seeds[0]])
     actions = np.concatenate([np.arange(pomdp.n_actions), seeds[1]])
+    search_config = config
+    if config.dual_paths and config.time_limit_s is not None:
+        search_config = replace(config, time_limit_s=config.time_limit_s * (1 - DUAL_SHARE))
+    m = mixed_from_task(model)
     search = MixedSearch(
-        mixed_from_task(model),
-        _search_config(config),
+        m,
+        _search_config(search_config),
         (alphas, actions),
         task_starts(model, pomdp),
         start=t0,
@@ -247,13 +283,78 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     )
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
+    if config.dual_paths:
+        deadline = math.inf if config.time_limit_s is None else t0 + config.time_limit_s
+        x, b = m.split(pomdp.b0)
+        result.dual, result.dual_note = _dual_batches(
+            m, search.Q_upper, x, b, config, deadline, progress
+        )
+        result.seconds = clock.now() - t0
     r.policy.meta.update({"config": asdict(config), **result.summary(), **r.summary()})
     r.policy.meta["model_sha256"] = pomdp.fingerprint()
     return result
 
 
+def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
+    """The dual bound in batches of DUAL_BATCH paths (batch k seeded config.seed + k)
+    until config.dual_paths or the deadline; (DualBound or None, note)."""
+    from stack.planning.dual import DualBound, dual_upper_bound
+    from stack.planning.momdp import factored_fib
+
+    # the penalty's table: the search's fast informed bound iterated closer to its fixed
+    # point (the closer the penalty is to V*, the tighter the bound; r1: 199.93 -> 199.85)
+    Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=deadline, start=Q)
+    values: list[np.ndarray] = []
+    seconds = 0.0
+    horizon = 0
+    for k in range(config.dual_paths // DUAL_BATCH):
+        if clock.now() >= deadline:
+            break
+        try:
+            d = dual_upper_bound(
+                m,
+                Q,
+                x,
+                b,
+                paths=DUAL_BATCH,
+                seed=config.seed + k,
+                deadline=deadline,
+                now=clock.now,
+                progress=progress,
+            )
+        except TimeoutError:
+            break
+        values.append(d.values)
+        seconds += d.seconds
+        horizon = d.horizon
+        if progress is not None:
+            progress(
+                f"dual bound: {len(values) * DUAL_BATCH} paths, "
+                f"mean {np.concatenate(values).mean():.3f}, {seconds:.1f} s"
+            )
+    if not values:
+        return None, f"dual bound: not {DUAL_BATCH} paths within the time limit"
+    v = np.concatenate(values)
+    sd = float(v.std(ddof=1))
+    return (
+        DualBound(
+            values=v,
+            mean=float(v.mean()),
+            ci95=1.96 * sd / math.sqrt(len(v)),
+            sd=sd,
+            paths=len(v),
+            horizon=horizon,
+            seconds=seconds,
+            penalty_value_b0=float((b @ Q[x]).max()),
+        ),
+        "",
+    )
+
+
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
     """Lower-bound seeds for the task model: "walk to a cell and wait" plans."""
+    from stack.planning.model import guard_plans
+
     plans, stay = guard_plans(model)
     alphas = plan_alphas(pomdp, plans, stay)
     actions = np.array([p[0] if p else stay for p in plans])
@@ -261,7 +362,9 @@ def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np
 
 
 def format_progress(stats) -> str:
-    """One progress line for either solver's statistics."""
+    """One progress line for either solver's statistics (a text line passes as is)."""
+    if isinstance(stats, str):
+        return stats
     if not isinstance(stats, IterationStats):
         from stack.planning.sarsop import format_search_progress
 

@@ -13,11 +13,13 @@ import ctypes
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import cache
 
 _SETTERS = ("scipy_openblas_set_num_threads64_", "openblas_set_num_threads")
 _GETTERS = ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads")
 
 
+@cache  # the library numpy loaded does not change; reading the maps costs ~1 ms
 def _openblas() -> tuple | None:
     import numpy  # noqa: F401  (loads its OpenBLAS)
 
