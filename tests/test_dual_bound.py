@@ -91,7 +91,8 @@ def test_task_r1_solve_reports_a_dual_bound_between_its_bounds():
     from stack.planning.task import load_task
 
     task = load_task(Path(__file__).resolve().parents[1] / "config" / "task-r1.yaml")
-    r = solve_task_model(task, SolverConfig(algorithm="sarsop", trials=30, dual_paths=32)).result
+    config = SolverConfig(algorithm="sarsop", trials=30, beliefs=20, iterations=2, dual_paths=32)
+    r = solve_task_model(task, config).result
     assert r.dual is not None and r.dual.paths == 32
     # an upper bound on V*: above the policy's value, below the fast informed bound
     assert r.lower_bound <= r.dual.upper

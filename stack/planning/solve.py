@@ -104,8 +104,9 @@ class SolveResult(BoundedResult):
         out = super().summary()
         if self.dual is not None:
             out |= self.dual.summary()
+            # the same measure as relative_gap, with the dual bound as the upper
             out["dual_relative_gap"] = (self.dual.upper - self.lower_bound) / max(
-                abs(self.lower_bound), 1e-12
+                abs(self.lower_bound), abs(self.dual.upper), 1e-12
             )
         elif self.dual_note:
             out["dual_note"] = self.dual_note
