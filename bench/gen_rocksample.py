@@ -17,7 +17,7 @@ the rocks at distinct random squares (``--seed``), start at (0, N // 2), d0 = 20
     python bench/gen_rocksample.py 7 8 -o /tmp/RockSample_7_8.pomdp
 
 Generated 4_4 and 5_7 are byte for byte the files in ../shared/pomdp/
-(tests/test_rocksample_gen.py).
+(tests/test_heldout_rocksample.py).
 """
 
 from __future__ import annotations

@@ -56,6 +56,7 @@ def test_same_seed_same_bound_other_seed_other_paths():
     again = dual_upper_bound(m, Q, 0, b, paths=8, horizon=30, seed=1)
     assert (again.mean, again.sd) == (a.mean, a.sd)
     assert dual_upper_bound(m, Q, 0, b, paths=8, horizon=30, seed=2).mean != a.mean
+    assert dual_upper_bound(m, Q, 0, b, paths=8, horizon=30, seed=(1, 1)).mean != a.mean
     assert a.horizon == 30 and a.paths == 8
 
 
@@ -80,9 +81,22 @@ def test_bad_input_is_named():
 def test_solver_config_checks_the_dual_paths():
     from stack.planning.solve import SolverConfig
 
-    with pytest.raises(ValueError, match="dual_paths"):
-        SolverConfig(dual_paths=15)
+    for bad in (15, 24, -16):
+        with pytest.raises(ValueError, match="dual_paths"):
+            SolverConfig(dual_paths=bad)
     assert SolverConfig(dual_paths=0).dual_paths == 0
+    assert SolverConfig(dual_paths=32).dual_paths == 32
+
+
+def test_t_quantile_widens_the_interval_for_few_paths():
+    from stack.planning.dual import t95
+
+    assert t95(15) == pytest.approx(2.1314, abs=1e-3)
+    assert t95(63) == pytest.approx(1.9983, abs=1e-3)
+    assert t95(3) == pytest.approx(3.182)
+    assert t95(10_000) == pytest.approx(1.96, abs=1e-3)
+    with pytest.raises(ValueError, match="dof"):
+        t95(0)
 
 
 @pytest.mark.slow

@@ -448,7 +448,7 @@ def test_the_solve_pomdp_path_loads_no_robot_stack_and_no_sparse_solver(tmp_path
     if not POMDP_DIR.is_dir():
         pytest.skip(f"{POMDP_DIR} not present")
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300
     ).stdout
     rc, modules = json.loads(out.strip().splitlines()[-1])
     assert rc == 0 and (tmp_path / "t.policy").is_file()

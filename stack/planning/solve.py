@@ -84,9 +84,9 @@ class SolverConfig:
             raise ValueError(f"perseus_share must be in [0, 1), got {self.perseus_share}")
         if self.trials is not None and self.trials < 1:
             raise ValueError(f"trials must be >= 1, got {self.trials}")
-        if self.dual_paths != 0 and self.dual_paths < DUAL_BATCH:
+        if self.dual_paths < 0 or self.dual_paths % DUAL_BATCH:
             raise ValueError(
-                f"dual_paths must be 0 (off) or at least {DUAL_BATCH}, got {self.dual_paths}"
+                f"dual_paths must be 0 (off) or a multiple of {DUAL_BATCH}, got {self.dual_paths}"
             )
 
 
@@ -285,55 +285,58 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
     if config.dual_paths:
-        deadline = math.inf if config.time_limit_s is None else t0 + config.time_limit_s
+        deadline = math.inf
+        if config.time_limit_s is not None:
+            # the time the search kept for writing the policy stays kept
+            write_s = r.policy.alphas.size * search._write_s_per_value()
+            deadline = t0 + config.time_limit_s - write_s
         x, b = m.split(pomdp.b0)
-        result.dual, result.dual_note = _dual_batches(
-            m, search.Q_upper, x, b, config, deadline, progress
-        )
+        with blas_threads(1):  # a second BLAS thread costs 2-6x on these small products
+            result.dual, result.dual_note = _dual_batches(
+                m, search.Q_upper, x, b, config, deadline, progress
+            )
         result.seconds = clock.now() - t0
-    r.policy.meta.update({"config": asdict(config), **result.summary(), **r.summary()})
+    r.policy.meta.update({"config": asdict(config), **r.summary(), **result.summary()})
     r.policy.meta["model_sha256"] = pomdp.fingerprint()
     return result
 
 
 def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
-    """The dual bound in batches of DUAL_BATCH paths (batch k seeded config.seed + k)
+    """The dual bound in batches of DUAL_BATCH paths (batch k seeded (config.seed, k))
     until config.dual_paths or the deadline; (DualBound or None, note)."""
-    from stack.planning.dual import DualBound, dual_upper_bound
+    from stack.planning.dual import DualBound, dual_upper_bound, t95
     from stack.planning.momdp import factored_fib
 
+    t0 = clock.now()
     # the penalty's table: the search's fast informed bound iterated closer to its fixed
     # point (the closer the penalty is to V*, the tighter the bound; r1: 199.93 -> 199.85)
     Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=deadline, start=Q)
     values: list[np.ndarray] = []
-    seconds = 0.0
-    horizon = 0
+    last = None
     for k in range(config.dual_paths // DUAL_BATCH):
         if clock.now() >= deadline:
             break
         try:
-            d = dual_upper_bound(
+            last = dual_upper_bound(
                 m,
                 Q,
                 x,
                 b,
                 paths=DUAL_BATCH,
-                seed=config.seed + k,
+                seed=(config.seed, k),
                 deadline=deadline,
                 now=clock.now,
                 progress=progress,
             )
         except TimeoutError:
             break
-        values.append(d.values)
-        seconds += d.seconds
-        horizon = d.horizon
+        values.append(last.values)
         if progress is not None:
             progress(
                 f"dual bound: {len(values) * DUAL_BATCH} paths, "
-                f"mean {np.concatenate(values).mean():.3f}, {seconds:.1f} s"
+                f"mean {np.concatenate(values).mean():.3f}, {clock.now() - t0:.1f} s"
             )
-    if not values:
+    if last is None:
         return None, f"dual bound: not {DUAL_BATCH} paths within the time limit"
     v = np.concatenate(values)
     sd = float(v.std(ddof=1))
@@ -341,12 +344,12 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
         DualBound(
             values=v,
             mean=float(v.mean()),
-            ci95=1.96 * sd / math.sqrt(len(v)),
+            ci95=t95(len(v) - 1) * sd / math.sqrt(len(v)),
             sd=sd,
             paths=len(v),
-            horizon=horizon,
-            seconds=seconds,
-            penalty_value_b0=float((b @ Q[x]).max()),
+            horizon=last.horizon,
+            seconds=clock.now() - t0,
+            penalty_value_b0=last.penalty_value_b0,
         ),
         "",
     )
@@ -445,6 +448,8 @@ def solve_task_model(
         result = _solve_mixed(model, pomdp, config, seeds, progress, start)
     else:
         result = solve(pomdp, config, task_starts(model, pomdp), seeds, progress, start)
+        if config.dual_paths:
+            result.dual_note = "dual bound: only for one-person tasks searched by sarsop"
     initial = float((np.vstack([blind_lower_bound(pomdp), seeds[0]]) @ pomdp.b0).max())
     if require_progress and result.lower_bound <= initial + 1e-9 * max(1.0, abs(initial)):
         raise DegenerateSolveError(
