@@ -281,7 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=64,
         help="one-person tasks: sampled paths (a multiple of 16) of the statistical "
         "(information-relaxation) upper bound at b0 reported beside the search's bounds; "
-        "it takes 20%% of --time-limit after the search; 0 = off (default 64)",
+        "it takes 10%% of --time-limit after the search; 0 = off (default 64)",
     )
     p.add_argument(
         "--cpu-time",
