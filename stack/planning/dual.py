@@ -57,6 +57,25 @@ class DualBound:
     penalty_value_b0: float  # F(x0, b0): the bound never exceeds it when F is a supersolution
     values: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.empty(0))
 
+    @classmethod
+    def of_paths(
+        cls, values: np.ndarray, horizon: int, seconds: float, penalty_value_b0: float
+    ) -> DualBound:
+        """The estimate from every path's value (at least 2): mean, sd, and the 95 %
+        half-width with Student's t."""
+        n = len(values)
+        sd = float(values.std(ddof=1))
+        return cls(
+            mean=float(values.mean()),
+            ci95=t95(n - 1) * sd / math.sqrt(n),
+            sd=sd,
+            paths=n,
+            horizon=horizon,
+            seconds=seconds,
+            penalty_value_b0=penalty_value_b0,
+            values=values,
+        )
+
     @property
     def upper(self) -> float:
         """The upper end of the 95 % interval: the figure to compare a lower bound with."""
@@ -198,18 +217,7 @@ def dual_upper_bound(
         V = (term[t] + g * np.take_along_axis(V, nxt[t].reshape(N, X * A), 1).reshape(N, X, A)).max(
             axis=2
         )
-    v = V[:, x0]
-    sd = float(v.std(ddof=1))
-    return DualBound(
-        values=v,
-        mean=float(v.mean()),
-        ci95=t95(N - 1) * sd / math.sqrt(N),
-        sd=sd,
-        paths=N,
-        horizon=T,
-        seconds=now() - t_start,
-        penalty_value_b0=F0,
-    )
+    return DualBound.of_paths(V[:, x0], T, now() - t_start, F0)
 
 
 _T95: tuple[float, ...] = (math.nan, 12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365)

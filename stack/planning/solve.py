@@ -304,7 +304,7 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
 def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
     """The dual bound in batches of DUAL_BATCH paths (batch k seeded (config.seed, k))
     until config.dual_paths or the deadline; (DualBound or None, note)."""
-    from stack.planning.dual import DualBound, dual_upper_bound, t95
+    from stack.planning.dual import DualBound, dual_upper_bound
     from stack.planning.momdp import factored_fib
 
     t0 = clock.now()
@@ -338,21 +338,10 @@ def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
             )
     if last is None:
         return None, f"dual bound: not {DUAL_BATCH} paths within the time limit"
-    v = np.concatenate(values)
-    sd = float(v.std(ddof=1))
-    return (
-        DualBound(
-            values=v,
-            mean=float(v.mean()),
-            ci95=t95(len(v) - 1) * sd / math.sqrt(len(v)),
-            sd=sd,
-            paths=len(v),
-            horizon=last.horizon,
-            seconds=clock.now() - t0,
-            penalty_value_b0=last.penalty_value_b0,
-        ),
-        "",
+    bound = DualBound.of_paths(
+        np.concatenate(values), last.horizon, clock.now() - t0, last.penalty_value_b0
     )
+    return bound, ""
 
 
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
