@@ -44,6 +44,7 @@ def solver_config(args: argparse.Namespace):
         trials=getattr(args, "trials", None),
         perseus_share=getattr(args, "perseus_share", 0.0),
         dual_paths=getattr(args, "dual_paths", 0),
+        delayed_bound=getattr(args, "delayed_bound", False),
         # writing a vector entry as XML text takes ~0.4 us on an idle core, more under
         # load (the search measures it and scales this up); it stops that much earlier.
         # Without a time limit there is nothing to keep time from, and no measuring

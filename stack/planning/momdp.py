@@ -440,6 +440,11 @@ class MixedSearch(StoppingRules):
                 self.roots.append(_Root(self._node(by), x))
         self.root = self.roots[0]
         self.initial_lower = self.root.lb
+        # upper bounds at the roots found elsewhere (solve._DelayedWorker sets them from
+        # its thread); taken at the next stopping check
+        self.root_caps: np.ndarray | None = None
+        self.search_upper: float | None = None
+        self.delayed_note = ""
 
     # -- bounds at beliefs ----------------------------------------------------------
     def _lower_all(self, b: np.ndarray) -> np.ndarray:
@@ -660,6 +665,21 @@ class MixedSearch(StoppingRules):
 
     def _values_to_write(self) -> int:
         return self.n_alphas * self.m.X * self.m.Y
+
+    def take_root_caps(self) -> None:
+        """Lower each root's upper bound to its cap, when caps have arrived."""
+        caps, self.root_caps = self.root_caps, None
+        if caps is None:
+            return
+        self.search_upper = self.root.ub  # the search's own bound when the caps came
+        for r, cap in zip(self.roots, caps, strict=True):
+            n = r.node
+            n.ub[r.x] = min(n.ub[r.x], float(cap))
+            n.lb[r.x] = min(n.lb[r.x], n.ub[r.x])
+
+    def _done(self) -> str:
+        self.take_root_caps()
+        return super()._done()
 
     def _trial(self) -> None:
         g = self.g

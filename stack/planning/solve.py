@@ -31,6 +31,8 @@ ALGORITHMS = ("sarsop", "perseus")
 DUAL_SHARE = 0.1  # of a time limit, kept for the dual bound after the search (64 paths: ~3 s idle)
 DUAL_BATCH = 16  # paths of the dual bound per batch (each batch seeded on its own)
 DUAL_FIB_TOL = 1e-6  # the fast informed bound behind the dual bound's penalty
+DELAYED_MIN_S = 20.0  # the delayed bound's set-up alone takes ~5 s, a sweep ~1 s
+DELAYED_END_SHARE = 0.05  # of the time limit: the delayed bound ends this much earlier
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,11 @@ class SolverConfig:
     # upper bound at b0 (stack/planning/dual.py), a statistical bound reported beside
     # the search's; 0 = not computed. Under a time limit it gets DUAL_SHARE of it.
     dual_paths: int = 0
+    # sarsop on a one-person task model under a time limit of DELAYED_MIN_S or more:
+    # the certified delay-2 revelation upper bound (stack/planning/delayed.py) computed
+    # in a thread beside the search (the second core), which caps the roots' upper
+    # bounds when it is done (~1.2 GB; 35-45 s for r1 on a loaded core)
+    delayed_bound: bool = False
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
@@ -99,6 +106,9 @@ class SolveResult(BoundedResult):
     history: list[Any] = field(default_factory=list)  # IterationStats or SearchStats
     dual: Any = None  # a DualBound at b0 (stack/planning/dual.py), when computed
     dual_note: str = ""  # why it was not, when asked for
+    delayed: Any = None  # a DelayedResult (stack/planning/delayed.py), when computed
+    delayed_note: str = ""  # why it was not, when asked for
+    search_upper: float | None = None  # the search's own upper bound, when capped
 
     def summary(self) -> dict:
         out = super().summary()
@@ -110,6 +120,11 @@ class SolveResult(BoundedResult):
             )
         elif self.dual_note:
             out["dual_note"] = self.dual_note
+        if self.delayed is not None:
+            out |= self.delayed.summary()
+            out["search_upper"] = self.search_upper
+        elif self.delayed_note:
+            out["delayed_note"] = self.delayed_note
         return out
 
     @property
@@ -282,8 +297,16 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
         rounds=config.iterations,
         grow=config.time_limit_s is not None,
     )
+    worker = _DelayedWorker.start(search, config, t0, progress)
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
+    result.delayed_note = search.delayed_note
+    if worker is not None:
+        result.delayed, result.delayed_note = worker.finish(search)
+        if result.delayed is not None:
+            result.search_upper = search.search_upper
+            result.upper_bound = r.upper_bound = search.root.ub
+            result.lower_bound = r.lower_bound = search.root.lb
     if config.dual_paths:
         deadline = math.inf
         if config.time_limit_s is not None:
@@ -299,6 +322,59 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     r.policy.meta.update({"config": asdict(config), **r.summary(), **result.summary()})
     r.policy.meta["model_sha256"] = pomdp.fingerprint()
     return result
+
+
+class _DelayedWorker:
+    """The delayed bound (stack/planning/delayed.py) in a thread beside the search: it
+    starts from the search's fast informed bound, ends by the search's deadline, and
+    caps the roots' upper bounds (the search takes them at its next stopping check)."""
+
+    def __init__(self, search, deadline: float, progress):
+        import threading
+
+        self.result: Any = None  # a DelayedResult once done
+        self.error = ""
+        self.deadline = deadline
+        self.thread = threading.Thread(
+            target=self._run, args=(search, progress), name="delayed-bound", daemon=True
+        )
+
+    @classmethod
+    def start(cls, search, config: SolverConfig, t0: float, progress):
+        if not config.delayed_bound:
+            return None
+        if config.time_limit_s is not None and config.time_limit_s < DELAYED_MIN_S:
+            search.delayed_note = (
+                f"delayed bound: needs a time limit of {DELAYED_MIN_S:.0f} s or more, "
+                f"got {config.time_limit_s:.1f} s"
+            )
+            return None
+        # done before the search's end less the time it keeps for writing its policy
+        limit = config.time_limit_s or 0.0
+        w = cls(search, search.deadline - DELAYED_END_SHARE * limit, progress)
+        w.thread.start()
+        return w
+
+    def _run(self, search, progress) -> None:
+        from stack.planning.delayed import delayed_bound
+
+        try:
+            roots = [(r.x, r.node.b) for r in search.roots]
+            self.result = delayed_bound(
+                search.m, search.Q_upper, roots, deadline=self.deadline, progress=progress
+            )
+            if self.result is None:
+                self.error = "delayed bound: not certified within the time limit"
+            else:
+                search.root_caps = self.result.upper  # the search applies them
+        except MemoryError:
+            self.error = "delayed bound: out of memory (it needs ~1.2 GB on the task)"
+
+    def finish(self, search):
+        """(DelayedResult or None, note) once the thread is done; the caps applied."""
+        self.thread.join()
+        search.take_root_caps()
+        return self.result, self.error
 
 
 def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
