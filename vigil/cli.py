@@ -278,10 +278,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--dual-paths",
         type=int,
-        default=64,
-        help="one-person tasks: sampled paths (a multiple of 16) of the statistical "
-        "(information-relaxation) upper bound at b0 reported beside the search's bounds; "
-        "it takes 10%% of --time-limit after the search; 0 = off (default 64)",
+        default=0,
+        help="one-person tasks: sampled paths (a multiple of 16, e.g. 64) of the "
+        "statistical (information-relaxation) upper bound at b0 reported beside the "
+        "search's bounds; it takes 10%% of --time-limit after the search; 0 = off "
+        "(default: off, the certified delayed bound is the tighter deterministic one)",
     )
     p.add_argument(
         "--delayed-bound",
