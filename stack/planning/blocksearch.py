@@ -209,6 +209,11 @@ class BlockTreeSearch(BeliefTreeSearch):
         self._all_blk.append(x)
 
     def _compact(self, kept: np.ndarray) -> None:
+        # a block where the search has backed up no belief keeps its vectors: dominance
+        # is judged at the sampled beliefs, and every block needs a vector (a successor
+        # after an observation the beliefs cannot produce)
+        empty = ~np.isin(self._blk[: self.K], self._blk[kept])
+        kept = np.union1d(kept, np.flatnonzero(empty))
         m = kept.size
         for arr in (self._act, self._gid, self._blk, self._col):
             arr[:m] = arr[kept]
