@@ -95,8 +95,12 @@ class BlockTreeSearch(BeliefTreeSearch):
         same = bool((order == np.arange(S)).all())
         self._Tb = self.T if same else [T[order] for T in self.T]
         self._Ob = self.O if same else [O[order] for O in self.O]
-        self._Tb_rows = [np.repeat(np.arange(S), np.diff(T.indptr)) for T in self._Tb]
-        self._Ob_rows = [np.repeat(np.arange(S), np.diff(O.indptr)) for O in self._Ob]
+        self._Tb_rows = (
+            self.T_rows if same else [np.repeat(np.arange(S), np.diff(T.indptr)) for T in self._Tb]
+        )
+        self._Ob_rows = (
+            self.O_rows if same else [np.repeat(np.arange(S), np.diff(O.indptr)) for O in self._Ob]
+        )
         self._Rb = self.R[order].reshape(X, n, self.A)
 
     # -- the vectors, per block ---------------------------------------------------------

@@ -33,6 +33,7 @@ one set of cached per-node arrays; split apart they would pass them back and for
 from __future__ import annotations
 
 import gc
+import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,6 +51,13 @@ from stack.planning.threads import blas_threads
 _PROB_EPS = 1e-12  # successor beliefs less likely than this are not expanded
 _CAT_MAX = 4096  # values of one node's concatenated successors (BeliefTreeSearch._concatenate)
 _CAT_BUDGET = 20_000_000  # ... of all nodes' (160 MB)
+
+
+def _belief_key(idx: bytes, val: bytes) -> bytes:
+    """The tree's key of a belief (its states, its probabilities rounded): a 128-bit
+    digest, not the bytes themselves, which were a third copy of every node's arrays
+    (RockSample_11_11: 16 KB a node over ~1,000 states)."""
+    return hashlib.blake2b(idx + val, digest_size=16).digest()
 
 
 class SolveError(RuntimeError):
@@ -633,7 +641,7 @@ class BeliefTreeSearch(StoppingRules):
         return (self.Q_upper[nz].T @ M).max(axis=0)
 
     def _node(self, idx: np.ndarray, val: np.ndarray, ub: float | None = None) -> _Node:
-        key = idx.tobytes() + np.round(val, 10).tobytes()
+        key = _belief_key(idx.tobytes(), np.round(val, 10).tobytes())
         node = self.nodes.get(key)
         if node is None:
             M = val[:, None]
@@ -698,7 +706,7 @@ class BeliefTreeSearch(StoppingRules):
         nodes = []
         lo = 0
         for j, hi in enumerate(ends.tolist()):
-            key = idxs[lo:hi].tobytes() + keys[lo:hi].tobytes()
+            key = _belief_key(idxs[lo:hi].tobytes(), keys[lo:hi].tobytes())
             child = self.nodes.get(key)
             if child is None:
                 if lbs is None:  # every column's best vector, one product
