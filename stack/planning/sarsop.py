@@ -712,7 +712,14 @@ class BeliefTreeSearch(StoppingRules):
                 if lbs is None:  # every column's best vector, one product
                     lbs = self._best_cols(nz, M)[1]
                 u = float(ub[j])
-                child = _Node(idxs[lo:hi], vals[lo:hi], u, min(float(lbs[j]), u))
+                # a belief over all of nz is a view of M's column and nz (which its
+                # parent keeps): no copy; any other its own arrays (a slice would keep
+                # the whole of vals and idxs alive)
+                if hi - lo == nz.size:
+                    idx, val = nz, M[:, j]
+                else:
+                    idx, val = idxs[lo:hi].copy(), vals[lo:hi].copy()
+                child = _Node(idx, val, u, min(float(lbs[j]), u))
                 self.nodes[key] = child
             nodes.append(child)
             lo = hi
