@@ -20,7 +20,10 @@ and propagates the matching targets (L, U) down the tree. The nodes of the trial
 then backed up deepest first. Beliefs are sparse (index, probability) arrays, so a
 model whose beliefs cover a small part of its states (the robot's own cell observed
 exactly, as in the task model and RockSample) costs in proportion to that part: the
-mixed-observability saving of SARSOP's MOMDP solver falls out of the sparsity.
+mixed-observability saving of SARSOP's MOMDP solver falls out of the sparsity for the
+beliefs. Its vectors are flat here; :mod:`stack.planning.blocksearch` is this search
+with vectors per observed block (a ``.pomdpx`` with fully observed variables), through
+the vector-store methods below (``_init_store``, ``_best_at``, ``_best_cols``, ...).
 
 The search stops when the root's gap is below the target, or at the deadline, which
 is checked between backups (a backup costs milliseconds), so the time limit holds.
