@@ -134,3 +134,39 @@ def test_block_policy_must_fit_its_blocks():
             blocks=np.array([[0, 1], [1, 2]]),
             obs=np.array([0]),
         )
+
+
+@pytest.mark.slow
+def test_rocksample_7_8_pomdpx_policy_in_sarsop_layout(tmp_path, capsys):
+    """SARSOP's RockSample_7_8.pomdpx: solve-pomdp writes vectors per robot cell over the
+    256 rock values, read back onto the flat states they value b0 at the lower bound;
+    SARSOP's pomdpsim (when built) simulates the file as written."""
+    import json
+    import shutil
+    import subprocess
+
+    from test_heldout_rocksample import SARSOP_EXAMPLES
+
+    from vigil.cli import main as vigil
+
+    model = SARSOP_EXAMPLES / "RockSample_7_8.pomdpx"
+    if not model.is_file():
+        pytest.skip("SARSOP's examples are not here")
+    out = tmp_path / "rs.policy"
+    assert vigil(["solve-pomdp", str(model), "--trials", "20", "-o", str(out), "--json"]) == 0
+    lower = json.loads(capsys.readouterr().out)["lower_bound"]
+    assert 'vectorLength="256" numObsValue="50"' in out.read_text()[:400]
+    m = read_pomdpx(model)
+    back = AlphaPolicy.load(out, n_states=m.n_states, obs_blocks=observed_blocks(m))
+    assert back.value(m.b0) == pytest.approx(lower, abs=1e-6)
+    sim = SARSOP_EXAMPLES.parents[1] / "src" / "pomdpsim"
+    if not sim.is_file() or shutil.which(str(sim)) is None:
+        return
+    run = subprocess.run(
+        [str(sim), str(model), "--policy-file", str(out), "--simLen", "20", "--simNum", "5"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "Exp Total Reward" in run.stdout, run.stdout
