@@ -101,9 +101,6 @@ class AlphaPolicy:
                 mine = np.flatnonzero(self.obs == x[0])
                 out[mine] = self.alphas[np.ix_(mine, pos[nz])] @ belief[nz]
             return out
-        if self.meta.get("blocks"):  # -inf outside a vector's block: read the support only
-            nz = np.flatnonzero(belief)
-            return self.alphas[:, nz] @ belief[nz]
         return self.alphas @ belief
 
     def value(self, belief: np.ndarray) -> float:
@@ -318,9 +315,10 @@ def read_policy_xml(
         path: the file.
         n_states: the model's state count, checked against the vectors.
         obs_blocks: for a factored model, the flat state indices of each value of
-            the fully observed variable (vector ``obsValue=x`` covers
-            ``obs_blocks[x]``; other states get -inf, so the vector never wins there);
-            ignored for vectors over all the model's states.
+            the fully observed variables (vector ``obsValue=x`` covers
+            ``obs_blocks[x]``): the policy keeps them per block (``AlphaPolicy.blocks``,
+            a value only at beliefs within its block); ignored for vectors over all
+            the model's states.
 
     Raises:
         PolicyFileError: not a policy file, or vectors that do not fit the model.
@@ -360,32 +358,31 @@ def read_policy_xml(
     alphas = np.vstack(vectors)
     if not np.all(np.isfinite(alphas)):
         raise PolicyFileError(f"{path}: the policy holds non-finite values")
+    blocks = None
     if obs_blocks is not None and length != sum(len(b) for b in obs_blocks):
-        # factored vectors (a flat policy for the same model has vectorLength S)
-        S = sum(len(b) for b in obs_blocks)
-        flat = np.full((len(vectors), S), -np.inf)
-        for k, (x, vals) in enumerate(zip(obs, vectors, strict=True)):
-            if not 0 <= x < len(obs_blocks) or len(obs_blocks[x]) != vals.size:
+        # factored vectors (a flat policy for the same model has vectorLength S): kept
+        # per block (RockSample_11_11: 2,048 values a vector, not 249,856)
+        for k, x in enumerate(obs):
+            if not 0 <= x < len(obs_blocks) or len(obs_blocks[x]) != length:
                 raise PolicyFileError(f"{path}: vector {k} does not fit observed value {x}")
-            flat[k, obs_blocks[x]] = vals
-        alphas = flat
+        blocks = np.vstack(obs_blocks)
     elif any(x != 0 for x in obs):
         raise PolicyFileError(
             f"{path}: vectors for several observed values (a factored .pomdpx policy); "
             "evaluate it on its .pomdpx model"
         )
-    if n_states is not None and alphas.shape[1] != n_states:
-        raise PolicyFileError(
-            f"{path}: policy is for {alphas.shape[1]} states, the model has {n_states}"
-        )
+    width = alphas.shape[1] if blocks is None else blocks.size
+    if n_states is not None and width != n_states:
+        raise PolicyFileError(f"{path}: policy is for {width} states, the model has {n_states}")
     meta: dict[str, Any] = {
         "solver": "sarsop-xml",
         "model": root.get("model", ""),
         "file": str(path),
     }
-    if not np.isfinite(alphas).all():
-        meta["blocks"] = True  # laid onto obs_blocks, -inf elsewhere
-    return AlphaPolicy(alphas=alphas, actions=np.asarray(actions, dtype=int), meta=meta)
+    actions_arr = np.asarray(actions, dtype=int)
+    if blocks is None:
+        return AlphaPolicy(alphas=alphas, actions=actions_arr, meta=meta)
+    return AlphaPolicy(alphas, actions_arr, meta, blocks=blocks, obs=np.asarray(obs, dtype=int))
 
 
 class BoundedResult:
