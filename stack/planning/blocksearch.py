@@ -17,8 +17,9 @@ clock) with the lower bound's vectors stored that way:
   rows of the blocks they lie in;
 - the best vector at a belief is searched among its block's vectors only;
 - the policy is written in SARSOP's factored layout (``obsValue`` x, the vector
-  over block x), which SARSOP's ``pomdpsim`` reads and :func:`read_policy_xml` reads
-  back onto the flat states.
+  over block x), which SARSOP's ``pomdpsim`` reads and
+  :func:`stack.planning.policy.read_policy_xml` reads back per block (given the
+  model's observed blocks).
 
 Unlike :mod:`stack.planning.momdp` (the task model: the hidden factor's dynamics
 and observations independent of x and the action, one node for every cell), this
