@@ -1,9 +1,13 @@
 """Our flat policy of a ``.pomdpx`` model in SARSOP's factored layout, for ``pomdpsim``.
 
-``vigil solve-pomdp MODEL.pomdpx`` writes vectors over the flat states (obsValue 0).
-SARSOP's ``pomdpsim`` reads a .pomdpx model's policy as vectors per joint value x of
-the fully observed variables (obsValue x) over the other variables. This writes every
-flat vector once per x, restricted to the flat states with that x
+``vigil solve-pomdp MODEL.pomdpx`` writes the factored layout itself when it searches
+with vectors per observed block (stack/planning/blocksearch.py: fully observed
+variables, b0 within one of their values). Other policies of such a model (Perseus's,
+the flat search's when b0 spreads over several values) hold vectors over the flat
+states (obsValue 0). SARSOP's ``pomdpsim`` reads a .pomdpx model's policy as vectors
+per joint value x of the fully observed variables (obsValue x) over the other
+variables. This writes every flat vector once per x, restricted to the flat states
+with that x
 (``stack.planning.pomdpx.observed_blocks``): the same values, so each is still the
 value of the same plan from those states.
 

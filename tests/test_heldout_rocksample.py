@@ -323,16 +323,14 @@ def test_sarsop_policy_of_a_pomdpx_file_reads_onto_the_flat_states(tmp_path, cap
     pol_file = tmp_path / "m.policy"
     pol_file.write_text(xml)
     pol = AlphaPolicy.load(pol_file, n_states=12, obs_blocks=blocks)
-    assert pol.alphas[0, 4:8].tolist() == [1, 2, 3, 4] and pol.alphas[1, 8:].tolist() == [
-        5,
-        6,
-        7,
-        8,
-    ]
-    assert np.isneginf(pol.alphas[0, :4]).all() and np.isneginf(pol.alphas[2, 4:]).all()
+    assert pol.obs.tolist() == [1, 2, 0] and pol.alphas[0].tolist() == [1, 2, 3, 4]
     b = np.zeros(12)
     b[[9, 10]] = 0.5  # x = 2: only the obsValue 2 vector counts
     assert pol.action(b) == 1
+    assert pol.values(b)[1] == 6.5 and np.isneginf(pol.values(b)[[0, 2]]).all()
+    b = np.zeros(12)
+    b[5] = 1.0  # x = 1: its second state
+    assert pol.value(b) == 2.0
     assert vigil(["evaluate", str(f), "--policy", str(pol_file), "--episodes", "3", "--json"]) == 0
     assert "mean" in capsys.readouterr().out
 

@@ -78,15 +78,19 @@ def _evaluate(pomdp, policy, episodes, horizon, seed, b0) -> Evaluation:
     OT = [pomdp.OT(a) for a in range(pomdp.n_actions)]  # rows: P(z | s') for one z
     # the vectors by state: a belief over few states (RockSample's rocks, the robot's
     # cell known) reads only their rows, K x |support| instead of K x S a step
-    AT = np.ascontiguousarray(policy.alphas.T)
+    # (a block policy's vectors cover one observed block each: policy.action reads it)
+    AT = np.ascontiguousarray(policy.alphas.T) if policy.blocks is None else None
     returns = []
     for _ in range(episodes):
         b = b0
         s = draw(np.arange(pomdp.n_states), b0, rng)
         total, g = 0.0, 1.0
         for _t in range(horizon):
-            nz = np.flatnonzero(b)
-            a = int(policy.actions[int(np.argmax(b[nz] @ AT[nz]))])
+            if AT is None:
+                a = policy.action(b)
+            else:
+                nz = np.flatnonzero(b)
+                a = int(policy.actions[int(np.argmax(b[nz] @ AT[nz]))])
             total += g * pomdp.R[s, a]
             g *= pomdp.discount
             s = draw_row(T[a], s, rng)

@@ -38,17 +38,25 @@ CORRUPT_ARCHIVE_ERRORS = (
 
 @dataclass(frozen=True, eq=False)
 class AlphaPolicy:
-    """Alpha vectors (K, S) with their actions (K,).
+    """Alpha vectors (K, S) with their actions (K,), or per observed block.
 
     Attributes:
-        alphas: one row per vector.
+        alphas: one row per vector: over the flat states, or with ``blocks`` over the
+            states of the vector's block.
         actions: the action index of each vector.
         meta: free-form facts about how the policy was made (solver, bounds, model).
+        blocks: for a model with fully observed variables (a ``.pomdpx``), (X, n) the
+            flat states of each joint value x of those variables
+            (:func:`stack.planning.pomdpx.observed_blocks`); None: flat vectors.
+        obs: with ``blocks``, (K,) the block x of each vector: it is a value only at
+            beliefs within that block (SARSOP's ``obsValue``; -inf elsewhere).
     """
 
     alphas: np.ndarray
     actions: np.ndarray
     meta: dict[str, Any] = field(default_factory=dict)
+    blocks: np.ndarray | None = None
+    obs: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.alphas.ndim != 2 or self.actions.shape != (self.alphas.shape[0],):
@@ -57,15 +65,42 @@ class AlphaPolicy:
             )
         if self.alphas.shape[0] == 0:
             raise ValueError("a policy needs at least one alpha vector")
+        if (self.blocks is None) != (self.obs is None):
+            raise ValueError("a block policy needs both blocks and obs")
+        if self.blocks is not None and self.obs is not None:
+            if self.blocks.ndim != 2 or self.blocks.shape[1] != self.alphas.shape[1]:
+                raise ValueError(
+                    f"blocks {self.blocks.shape} do not fit vectors of {self.alphas.shape[1]}"
+                )
+            if (
+                self.obs.shape != self.actions.shape
+                or not ((self.obs >= 0) & (self.obs < len(self.blocks))).all()
+            ):
+                raise ValueError("obs must give each vector a block")
+            X, n = self.blocks.shape
+            where = np.full(self.blocks.size, -1)
+            where[self.blocks.ravel()] = np.repeat(np.arange(X), n)
+            if (where < 0).any():
+                raise ValueError("the blocks must cover every state once")
+            pos = np.empty(self.blocks.size, dtype=int)
+            pos[self.blocks.ravel()] = np.tile(np.arange(n), X)
+            object.__setattr__(self, "_where", (where, pos))
 
     @property
     def n_states(self) -> int:
-        return self.alphas.shape[1]
+        return self.alphas.shape[1] if self.blocks is None else self.blocks.size
 
     def values(self, belief: np.ndarray) -> np.ndarray:
-        if self.meta.get("blocks"):  # -inf outside a vector's block: read the support only
+        if self.blocks is not None:
+            # a vector of block x is a value at beliefs within block x only
+            where, pos = self._where  # type: ignore[attr-defined]
             nz = np.flatnonzero(belief)
-            return self.alphas[:, nz] @ belief[nz]
+            out = np.full(len(self.alphas), -np.inf)
+            x = where[nz]
+            if nz.size and (x == x[0]).all():
+                mine = np.flatnonzero(self.obs == x[0])
+                out[mine] = self.alphas[np.ix_(mine, pos[nz])] @ belief[nz]
+            return out
         return self.alphas @ belief
 
     def value(self, belief: np.ndarray) -> float:
@@ -102,9 +137,16 @@ class AlphaPolicy:
             return write_policy_xml(self, path, model=str(self.meta.get("model", "")))
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
+        layout: dict[str, Any] = {}
+        if self.blocks is not None:
+            layout = {"blocks": self.blocks, "obs": self.obs}
         with open(tmp, "wb") as f:  # a file object: numpy adds no ".npz" to the name
             np.savez_compressed(
-                f, alphas=self.alphas, actions=self.actions, meta=np.array(json.dumps(self.meta))
+                f,
+                alphas=self.alphas,
+                actions=self.actions,
+                meta=np.array(json.dumps(self.meta)),
+                **layout,
             )
         tmp.replace(path)
         return path
@@ -141,6 +183,8 @@ class AlphaPolicy:
             with np.load(path, allow_pickle=False) as data:
                 alphas, actions = data["alphas"], data["actions"]
                 meta = json.loads(str(data["meta"])) if "meta" in data else {}
+                blocks = data["blocks"] if "blocks" in data else None
+                obs = data["obs"] if "obs" in data else None
         except FileNotFoundError:
             raise
         except CORRUPT_ARCHIVE_ERRORS as exc:
@@ -149,10 +193,9 @@ class AlphaPolicy:
             ) from None
         if alphas.ndim != 2 or actions.shape != (alphas.shape[0],) or alphas.shape[0] == 0:
             raise PolicyFileError(f"{path}: alphas {alphas.shape} and actions {actions.shape}")
-        if n_states is not None and alphas.shape[1] != n_states:
-            raise PolicyFileError(
-                f"{path}: policy is for {alphas.shape[1]} states, the model has {n_states}"
-            )
+        width = alphas.shape[1] if blocks is None else blocks.size
+        if n_states is not None and width != n_states:
+            raise PolicyFileError(f"{path}: policy is for {width} states, the model has {n_states}")
         if not np.all(np.isfinite(alphas)):
             raise PolicyFileError(f"{path}: the policy holds non-finite values")
         recorded = meta.get("model_sha256")
@@ -161,7 +204,10 @@ class AlphaPolicy:
                 f"{path}: policy was solved for another model (model hash {recorded[:12]}, "
                 f"this model's is {model_hash[:12]}); solve this model first"
             )
-        return cls(alphas=alphas, actions=actions.astype(int), meta=meta)
+        try:
+            return cls(alphas, actions.astype(int), meta, blocks, obs)
+        except ValueError as exc:
+            raise PolicyFileError(f"{path}: {exc}") from None
 
 
 # -- SARSOP's .policy XML -------------------------------------------------------------
@@ -193,18 +239,21 @@ def write_policy_xml(policy: AlphaPolicy, path: str | os.PathLike, model: str = 
         raise ValueError("the policy holds non-finite values; refusing to write it")
     path = Path(path)
     K, S = policy.alphas.shape
+    # a block policy in SARSOP's layout for a .pomdpx model: obsValue x, the vector over
+    # block x's states in the order of the other variables' joint value
+    n_obs = 1 if policy.blocks is None else len(policy.blocks)
     head = [
         '<?xml version="1.0" encoding="ISO-8859-1"?>',
         f'<Policy version="0.1" type="value" model="{_attr(model)}" '
         'xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
         'xsi:noNamespaceSchemaLocation="policyx.xsd">',
-        f'<AlphaVector vectorLength="{S}" numObsValue="1" numVectors="{K}">',
+        f'<AlphaVector vectorLength="{S}" numObsValue="{n_obs}" numVectors="{K}">',
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w", encoding="ascii") as f:
         f.write("\n".join(head) + "\n")
-        for line in format_vectors(policy.alphas, policy.actions):
+        for line in format_vectors(policy.alphas, policy.actions, obs=policy.obs):
             f.write(line)
         f.write("</AlphaVector> </Policy>\n")
     tmp.replace(path)
@@ -215,15 +264,20 @@ VALUE_FORMAT = "%.12g"  # the written precision; see write_policy_xml
 _ROUNDING = 1e-11  # relative: at least the rounding error of VALUE_FORMAT (5e-12)
 
 
-def format_vectors(alphas: np.ndarray, actions: np.ndarray, chunk: int = 64):
-    """The ``<Vector>`` lines of SARSOP's XML, a block of vectors at a time."""
+def format_vectors(
+    alphas: np.ndarray, actions: np.ndarray, chunk: int = 64, obs: np.ndarray | None = None
+):
+    """The ``<Vector>`` lines of SARSOP's XML, a block of vectors at a time (``obs``:
+    each vector's obsValue, default 0)."""
     S = alphas.shape[1]
-    fmt = '<Vector action="%d" obsValue="0">' + " ".join([VALUE_FORMAT] * S) + " </Vector>\n"
+    fmt = '<Vector action="%d" obsValue="%d">' + " ".join([VALUE_FORMAT] * S) + " </Vector>\n"
+    obs = np.zeros(len(alphas), dtype=int) if obs is None else obs
     for lo in range(0, len(alphas), chunk):
         block = alphas[lo : lo + chunk]
         # lowered by the rounding error: the written value is at most the solved one
         block = block - np.abs(block) * _ROUNDING - 1e-300
-        rows = np.column_stack([actions[lo : lo + chunk].astype(float), block]).tolist()
+        head = [actions[lo : lo + chunk].astype(float), obs[lo : lo + chunk].astype(float)]
+        rows = np.column_stack([*head, block]).tolist()
         yield "".join(fmt % tuple(r) for r in rows)
 
 
@@ -261,9 +315,10 @@ def read_policy_xml(
         path: the file.
         n_states: the model's state count, checked against the vectors.
         obs_blocks: for a factored model, the flat state indices of each value of
-            the fully observed variable (vector ``obsValue=x`` covers
-            ``obs_blocks[x]``; other states get -inf, so the vector never wins there);
-            ignored for vectors over all the model's states.
+            the fully observed variables (vector ``obsValue=x`` covers
+            ``obs_blocks[x]``): the policy keeps them per block (``AlphaPolicy.blocks``,
+            a value only at beliefs within its block); ignored for vectors over all
+            the model's states.
 
     Raises:
         PolicyFileError: not a policy file, or vectors that do not fit the model.
@@ -303,32 +358,31 @@ def read_policy_xml(
     alphas = np.vstack(vectors)
     if not np.all(np.isfinite(alphas)):
         raise PolicyFileError(f"{path}: the policy holds non-finite values")
+    blocks = None
     if obs_blocks is not None and length != sum(len(b) for b in obs_blocks):
-        # factored vectors (a flat policy for the same model has vectorLength S)
-        S = sum(len(b) for b in obs_blocks)
-        flat = np.full((len(vectors), S), -np.inf)
-        for k, (x, vals) in enumerate(zip(obs, vectors, strict=True)):
-            if not 0 <= x < len(obs_blocks) or len(obs_blocks[x]) != vals.size:
+        # factored vectors (a flat policy for the same model has vectorLength S): kept
+        # per block (RockSample_11_11: 2,048 values a vector, not 249,856)
+        for k, x in enumerate(obs):
+            if not 0 <= x < len(obs_blocks) or len(obs_blocks[x]) != length:
                 raise PolicyFileError(f"{path}: vector {k} does not fit observed value {x}")
-            flat[k, obs_blocks[x]] = vals
-        alphas = flat
+        blocks = np.vstack(obs_blocks)
     elif any(x != 0 for x in obs):
         raise PolicyFileError(
             f"{path}: vectors for several observed values (a factored .pomdpx policy); "
             "evaluate it on its .pomdpx model"
         )
-    if n_states is not None and alphas.shape[1] != n_states:
-        raise PolicyFileError(
-            f"{path}: policy is for {alphas.shape[1]} states, the model has {n_states}"
-        )
+    width = alphas.shape[1] if blocks is None else blocks.size
+    if n_states is not None and width != n_states:
+        raise PolicyFileError(f"{path}: policy is for {width} states, the model has {n_states}")
     meta: dict[str, Any] = {
         "solver": "sarsop-xml",
         "model": root.get("model", ""),
         "file": str(path),
     }
-    if not np.isfinite(alphas).all():
-        meta["blocks"] = True  # laid onto obs_blocks, -inf elsewhere
-    return AlphaPolicy(alphas=alphas, actions=np.asarray(actions, dtype=int), meta=meta)
+    actions_arr = np.asarray(actions, dtype=int)
+    if blocks is None:
+        return AlphaPolicy(alphas=alphas, actions=actions_arr, meta=meta)
+    return AlphaPolicy(alphas, actions_arr, meta, blocks=blocks, obs=np.asarray(obs, dtype=int))
 
 
 class BoundedResult:

@@ -20,7 +20,10 @@ and propagates the matching targets (L, U) down the tree. The nodes of the trial
 then backed up deepest first. Beliefs are sparse (index, probability) arrays, so a
 model whose beliefs cover a small part of its states (the robot's own cell observed
 exactly, as in the task model and RockSample) costs in proportion to that part: the
-mixed-observability saving of SARSOP's MOMDP solver falls out of the sparsity.
+mixed-observability saving of SARSOP's MOMDP solver falls out of the sparsity for the
+beliefs. Its vectors are flat here; :mod:`stack.planning.blocksearch` is this search
+with vectors per observed block (a ``.pomdpx`` with fully observed variables), through
+the vector-store methods below (``_init_store``, ``_best_at``, ``_best_cols``, ...).
 
 The search stops when the root's gap is below the target, or at the deadline, which
 is checked between backups (a backup costs milliseconds), so the time limit holds.
@@ -33,6 +36,7 @@ one set of cached per-node arrays; split apart they would pass them back and for
 from __future__ import annotations
 
 import gc
+import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,6 +54,13 @@ from stack.planning.threads import blas_threads
 _PROB_EPS = 1e-12  # successor beliefs less likely than this are not expanded
 _CAT_MAX = 4096  # values of one node's concatenated successors (BeliefTreeSearch._concatenate)
 _CAT_BUDGET = 20_000_000  # ... of all nodes' (160 MB)
+
+
+def _belief_key(idx: bytes, val: bytes) -> bytes:
+    """The tree's key of a belief (its states, its probabilities rounded): a 128-bit
+    digest, not the bytes themselves, which were a third copy of every node's arrays
+    (RockSample_11_11: 16 KB a node over ~1,000 states)."""
+    return hashlib.blake2b(idx + val, digest_size=16).digest()
 
 
 class SolveError(RuntimeError):
@@ -518,20 +529,14 @@ class BeliefTreeSearch(StoppingRules):
             # a fourth entry: only the first n seeds are active, the rest are archived
             # successors (Perseus's earlier vectors)
             n_active += int(seed_alphas[3]) if len(seed_alphas) > 3 else n_seeds  # type: ignore[misc]
-        # the vectors are stored transposed, (S, capacity): a gather of the states a
-        # belief covers then reads contiguous rows
-        self.K = n_active
-        self._AT = np.empty((S, max(64, 2 * self.K)))
-        self._AT[:, : self.K] = np.asarray(alphas[: self.K], dtype=float).T
-        self._act = np.zeros(self._AT.shape[1], dtype=int)
-        self._act[: self.K] = actions[: self.K]
         # every vector ever made, by global id (alphas, actions, successors' ids); the
-        # active set's ids; pruning drops vectors from the active set only
-        self._all_alpha: list[np.ndarray | None] = list(np.asarray(alphas, dtype=float))
-        self._all_act: list[int] = [int(a) for a in actions]
-        self._all_succ: list[np.ndarray] = list(succ)
-        self._gid = np.zeros(self._AT.shape[1], dtype=int)
-        self._gid[: self.K] = np.arange(self.K)
+        # active set's ids (_gid) and actions (_act) by position; pruning drops vectors
+        # from the active set only
+        self._all_alpha: list[np.ndarray | None] = []
+        self._all_act: list[int] = []
+        self._all_succ: list[np.ndarray] = []
+        self._values_per_vector = S  # what writing a vector costs, in values
+        self._init_store(np.asarray(alphas, dtype=float), actions, succ, n_active)
         self._n_archived = 0  # archived vectors the policy will hold (at the last pruning)
         self._write_factor = 1.0
         self._measure_writing()
@@ -554,6 +559,77 @@ class BeliefTreeSearch(StoppingRules):
             if all(node is not r for r in self.roots):
                 self.roots.append(node)
 
+    # -- the lower bound's vectors: stored, valued at beliefs, pruned -------------------
+    # (BlockTreeSearch, stack/planning/blocksearch.py, stores them per observed block)
+    def _init_store(
+        self, alphas: np.ndarray, actions: np.ndarray, succ: np.ndarray, n_active: int
+    ) -> None:
+        """The initial vectors (blind, seeds): the first ``n_active`` are active."""
+        # the vectors are stored transposed, (S, capacity): a gather of the states a
+        # belief covers then reads contiguous rows
+        self.K = n_active
+        self._AT = np.empty((self.S, max(64, 2 * self.K)))
+        self._AT[:, : self.K] = alphas[: self.K].T
+        self._act = np.zeros(self._AT.shape[1], dtype=int)
+        self._act[: self.K] = actions[: self.K]
+        self._all_alpha.extend(alphas)
+        self._all_act.extend(int(a) for a in actions)
+        self._all_succ.extend(succ)
+        self._gid = np.zeros(self._AT.shape[1], dtype=int)
+        self._gid[: self.K] = np.arange(self.K)
+
+    def _best_at(self, idx: np.ndarray, val: np.ndarray) -> tuple[int, float]:
+        """The active vector best at the belief ``val`` over states ``idx`` (its
+        position) and its value there."""
+        v = val @ self._AT[idx, : self.K]
+        k = int(v.argmax())
+        return k, float(v[k])
+
+    def _best_cols(self, nz: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The best active vector (position) at every belief M[:, j] (over states nz),
+        and its value there."""
+        G = M.T @ self._AT[nz, : self.K]  # (beliefs, K)
+        best = G.argmax(axis=1)
+        return best, G[np.arange(best.size), best]
+
+    def _best_nodes(self, nodes: list[_Node]) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_best_cols` at the beliefs of ``nodes``, as one sparse product."""
+        indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in nodes])])
+        B = sp.csr_matrix(
+            (
+                np.concatenate([n.val for n in nodes]),
+                np.concatenate([n.idx for n in nodes]),
+                indptr,
+            ),
+            shape=(len(nodes), self.S),
+        )
+        V = np.asarray(B @ self._AT[:, : self.K])
+        best = V.argmax(axis=1)
+        return best, V[np.arange(len(nodes)), best]
+
+    def _store(self, alpha: np.ndarray, action: int, node: _Node) -> None:
+        """Put a new vector (made at ``node``) at active position K."""
+        if self.K == self._AT.shape[1]:
+            grown = np.empty((self.S, 2 * self.K))
+            grown[:, : self.K] = self._AT
+            self._AT = grown
+            self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
+            self._gid = np.concatenate([self._gid, np.zeros(self.K, dtype=int)])
+        self._AT[:, self.K] = alpha
+        self._act[self.K] = action
+        self._gid[self.K] = len(self._all_alpha)
+
+    def _compact(self, kept: np.ndarray) -> None:
+        """Keep the active vectors at positions ``kept`` (ascending), in that order."""
+        self._AT[:, : kept.size] = self._AT[:, kept]
+        self._act[: kept.size] = self._act[kept]
+        self._gid[: kept.size] = self._gid[kept]
+        self.K = kept.size
+
+    def _sample_vectors(self) -> np.ndarray:
+        """A block of stored values (at most 64 vectors x 512 states) to time writing."""
+        return self._AT[: min(self.S, 512), : min(self.K, 64)].T
+
     @property
     def alphas(self) -> np.ndarray:
         """The lower bound's vectors, (K, S)."""
@@ -568,13 +644,13 @@ class BeliefTreeSearch(StoppingRules):
         return (self.Q_upper[nz].T @ M).max(axis=0)
 
     def _node(self, idx: np.ndarray, val: np.ndarray, ub: float | None = None) -> _Node:
-        key = idx.tobytes() + np.round(val, 10).tobytes()
+        key = _belief_key(idx.tobytes(), np.round(val, 10).tobytes())
         node = self.nodes.get(key)
         if node is None:
             M = val[:, None]
             if ub is None:
                 ub = float(min(self._upper_vectors(idx, M)[0], self.points.values(idx, M)[0]))
-            lb = float((val @ self._AT[idx, : self.K]).max())
+            lb = self._best_at(idx, val)[1]
             node = _Node(idx, val, ub, min(lb, ub))
             self.nodes[key] = node
         return node
@@ -633,13 +709,20 @@ class BeliefTreeSearch(StoppingRules):
         nodes = []
         lo = 0
         for j, hi in enumerate(ends.tolist()):
-            key = idxs[lo:hi].tobytes() + keys[lo:hi].tobytes()
+            key = _belief_key(idxs[lo:hi].tobytes(), keys[lo:hi].tobytes())
             child = self.nodes.get(key)
             if child is None:
                 if lbs is None:  # every column's best vector, one product
-                    lbs = (M.T @ self._AT[nz, : self.K]).max(axis=1)
+                    lbs = self._best_cols(nz, M)[1]
                 u = float(ub[j])
-                child = _Node(idxs[lo:hi], vals[lo:hi], u, min(float(lbs[j]), u))
+                # a belief over all of nz is a view of M's column and nz (which its
+                # parent keeps): no copy; any other its own arrays (a slice would keep
+                # the whole of vals and idxs alive)
+                if hi - lo == nz.size:
+                    idx, val = nz, M[:, j]
+                else:
+                    idx, val = idxs[lo:hi].copy(), vals[lo:hi].copy()
+                child = _Node(idx, val, u, min(float(lbs[j]), u))
                 self.nodes[key] = child
             nodes.append(child)
             lo = hi
@@ -747,9 +830,7 @@ class BeliefTreeSearch(StoppingRules):
         cat = self._concatenate(node, kids)
         if cat is not None:
             nz, M, seg, pz, reward, starts, children, leaf = cat
-            G = M.T @ self._AT[nz, : self.K]  # (successors, K)
-            best = G.argmax(axis=1)
-            lbs = G[np.arange(best.size), best]
+            best, lbs = self._best_cols(nz, M)
             if leaf.any():  # a leaf's bound is just its best vector's value
                 values = lbs.tolist()
                 for j in leaf.nonzero()[0].tolist():
@@ -763,10 +844,7 @@ class BeliefTreeSearch(StoppingRules):
         q_lower = np.empty(self.A)
         choice = []
         for a, k in enumerate(kids):
-            # (Z', K): the value of every vector at every successor
-            G = k.M.T @ self._AT[k.nz, : self.K]
-            best = G.argmax(axis=1)
-            lbs = G[np.arange(best.size), best]
+            best, lbs = self._best_cols(k.nz, k.M)  # the best vector at every successor
             for c, v in zip(k.nodes, lbs, strict=True):
                 if c.kids is None:  # a leaf's bound is just its best vector's value
                     c.lb = min(float(v), c.ub)
@@ -792,7 +870,7 @@ class BeliefTreeSearch(StoppingRules):
         a = int(q_lower.argmax())
         if q_lower[a] > node.lb + 1e-12 * max(1.0, abs(node.lb)):
             choice = best[starts[a] : starts[a + 1]]
-            self._add_alpha(*self._alpha(kids[a], a, choice, node), a)
+            self._add_alpha(*self._alpha(kids[a], a, choice, node), a, node)
             node.lb = float(q_lower[a])
         node.lb = min(node.lb, node.ub)
 
@@ -804,7 +882,7 @@ class BeliefTreeSearch(StoppingRules):
         O = self.O[a]
         # observations that b cannot produce: any vector keeps the bound valid; take the
         # best one at b so the new vector is good near b too
-        kstar = np.full(O.shape[1], int((node.val @ self._AT[node.idx, : self.K]).argmax()))
+        kstar = np.full(O.shape[1], self._best_at(node.idx, node.val)[0])
         kstar[kids.zs] = best
         rows = self.O_rows[a]
         v = np.bincount(rows, weights=O.data * self._AT[rows, kstar[O.indices]], minlength=self.S)
@@ -812,16 +890,8 @@ class BeliefTreeSearch(StoppingRules):
         Tv = np.bincount(self.T_rows[a], weights=T.data * v[T.indices], minlength=self.S)
         return self.R[:, a] + self.gamma * Tv, self._gid[kstar]
 
-    def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int) -> None:
-        if self.K == self._AT.shape[1]:
-            grown = np.empty((self.S, 2 * self.K))
-            grown[:, : self.K] = self._AT
-            self._AT = grown
-            self._act = np.concatenate([self._act, np.zeros(self.K, dtype=int)])
-            self._gid = np.concatenate([self._gid, np.zeros(self.K, dtype=int)])
-        self._AT[:, self.K] = alpha
-        self._act[self.K] = action
-        self._gid[self.K] = len(self._all_alpha)
+    def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int, node: _Node) -> None:
+        self._store(alpha, action, node)
         self._all_alpha.append(alpha)
         self._all_act.append(action)
         self._all_succ.append(succ)
@@ -845,28 +915,25 @@ class BeliefTreeSearch(StoppingRules):
             if self._late() if until is None else clock.now() >= until:
                 return  # a long pruning (many nodes, many vectors) is abandoned whole
             part = nodes[lo : lo + chunk]
-            indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in part])])
-            B = sp.csr_matrix(
-                (
-                    np.concatenate([n.val for n in part]),
-                    np.concatenate([n.idx for n in part]),
-                    indptr,
-                ),
-                shape=(len(part), self.S),
-            )
-            V = np.asarray(B @ self._AT[:, : self.K])
-            best = V.argmax(axis=1)
+            best, values = self._best_nodes(part)
             keep[best] = True
-            for n, v in zip(part, V[np.arange(len(part)), best], strict=True):
-                n.lb = min(max(n.lb, float(v)), n.ub)
-        kept = np.flatnonzero(keep)
-        self._AT[:, : kept.size] = self._AT[:, kept]
-        self._act[: kept.size] = self._act[kept]
-        self._gid[: kept.size] = self._gid[kept]
-        self.K = kept.size
+            for n, v in zip(part, values.tolist(), strict=True):
+                n.lb = min(max(n.lb, v), n.ub)
+        self._compact(np.flatnonzero(keep))
         self._measure_writing()
         self._pruned_at = self.K
         self._prune_s = clock.now() - t0
+
+    def _policy(self) -> AlphaPolicy:
+        """The policy written: the closed set of :meth:`_closed_policy`, less its
+        pointwise dominated vectors in the time kept for it (a smaller file written
+        sooner; the best vector's value is unchanged, the set stays closed)."""
+        alphas, actions, succ = self._closed_policy()
+        budget = self.deadline - clock.now() - alphas.size * self._write_s_per_value()
+        if budget > 0:
+            alphas, actions, succ = prune_closed(alphas, actions, succ, self._n_first, budget)
+        self.successors = succ
+        return AlphaPolicy(alphas, actions, meta={"solver": "sarsop"})
 
     def _closed_policy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The active vectors and, from the archive, every successor they lead to:
@@ -883,7 +950,6 @@ class BeliefTreeSearch(StoppingRules):
     def _reached(self) -> list[int]:
         """Positions in the active set of the best vector at every tree node the best
         vector's policy reaches from the roots (following its action into the tree)."""
-        AT = self._AT[:, : self.K]
         used: dict[int, None] = {}
         seen: set[int] = set()
         stack = list(self.roots)
@@ -892,7 +958,7 @@ class BeliefTreeSearch(StoppingRules):
             if id(n) in seen:
                 continue
             seen.add(id(n))
-            k = int((n.val @ AT[n.idx]).argmax())
+            k = self._best_at(n.idx, n.val)[0]
             used[k] = None
             if n.kids is not None:
                 stack.extend(n.kids[int(self._act[k])].nodes)
@@ -929,7 +995,7 @@ class BeliefTreeSearch(StoppingRules):
         # 5.5 s at load 10, 7 us a value against the 1 us assumed), and the share of
         # them the policy writes (reached_only)
         n = (self.K + self._n_archived) * self._write_share
-        return int(n * self.S * self._write_factor)
+        return int(n * self._values_per_vector * self._write_factor)
 
     def _measure_writing(self) -> None:
         """How much slower than ``config.write_s_per_value`` writing a value is now,
@@ -941,7 +1007,7 @@ class BeliefTreeSearch(StoppingRules):
             return
         self._write_share = _written_share(self)
         # a sample block (at most 512 states x 64 vectors): the speed per value, cheaply
-        per_value = seconds_per_value(self._AT[: min(self.S, 512), : min(self.K, 64)].T)
+        per_value = seconds_per_value(self._sample_vectors())
         self._write_factor = max(1.0, per_value / self.config.write_s_per_value)
 
     def _trial(self) -> None:
@@ -1051,14 +1117,7 @@ class BeliefTreeSearch(StoppingRules):
         # time kept for it (fewer active vectors: fewer archived successors written)
         self._prune(until=self.deadline - self._values_to_write() * self.config.write_s_per_value)
         self._report(force=True)
-        alphas, actions, succ = self._closed_policy()
-        # pointwise dominated vectors out, in the time kept for it: a smaller file
-        # written sooner (the best vector's value is unchanged, the set stays closed)
-        budget = self.deadline - clock.now() - alphas.size * self._write_s_per_value()
-        if budget > 0:
-            alphas, actions, succ = prune_closed(alphas, actions, succ, self._n_first, budget)
-        self.successors = succ
-        policy = AlphaPolicy(alphas, actions, meta={"solver": "sarsop"})
+        policy = self._policy()
         result = SearchResult(
             policy=policy,
             lower_bound=self.root.lb,
