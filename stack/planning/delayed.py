@@ -38,6 +38,7 @@ run in a thread beside the search (numpy releases the GIL in these products).
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -50,6 +51,8 @@ from stack.planning.momdp import MixedModel
 # sweeps (1 / P would overflow float32); the float64 certificate covers every J
 _TINY = 1e-30
 PLAIN_SWEEPS = 20  # from the fast informed bound's values, before the extrapolation
+DELAYED_MIN_S = 20.0  # the bound's set-up alone takes ~5 s, a sweep 0.3-2 s
+DELAYED_END_SHARE = 0.05  # of the time limit: the worker ends this much before the search
 _CHUNK = 16384  # columns of J per product in a sweep's robot step
 MAX_UPWARD = 30  # upward sweeps in a cycle at most
 MAX_CYCLES = 8
@@ -303,3 +306,52 @@ def delayed_bound(
     c = g * g * max(eps, 0.0) / (1 - g)
     upper = np.array([db.at(D, x, b) + c for x, b in roots])
     return DelayedResult(upper, eps, sweeps, clock.now() - t0)
+
+
+class DelayedWorker:
+    """The delayed bound (stack/planning/delayed.py) in a thread beside the search: it
+    starts from the search's fast informed bound, ends by the search's deadline, and
+    caps the roots' upper bounds (the search takes them at its next stopping check)."""
+
+    def __init__(self, search, deadline: float, progress):
+        self.result: DelayedResult | None = None
+        self.error = ""
+        self.deadline = deadline
+        self.thread = threading.Thread(
+            target=self._run, args=(search, progress), name="delayed-bound", daemon=True
+        )
+
+    @classmethod
+    def start(cls, search, time_limit_s: float | None, progress) -> DelayedWorker | None:
+        """A started worker for a :class:`~stack.planning.momdp.MixedSearch` whose time
+        limit is ``time_limit_s`` (None: no limit); None, with the search's
+        ``delayed_note`` saying why, when the limit is too short for the bound."""
+        if time_limit_s is not None and time_limit_s < DELAYED_MIN_S:
+            search.delayed_note = (
+                f"delayed bound: needs a time limit of {DELAYED_MIN_S:.0f} s or more, "
+                f"got {time_limit_s:.1f} s"
+            )
+            return None
+        # done before the search's end less the time it keeps for writing its policy
+        w = cls(search, search.deadline - DELAYED_END_SHARE * (time_limit_s or 0.0), progress)
+        w.thread.start()
+        return w
+
+    def _run(self, search, progress) -> None:
+        try:
+            roots = [(r.x, r.node.b) for r in search.roots]
+            self.result = delayed_bound(
+                search.m, search.Q_upper, roots, deadline=self.deadline, progress=progress
+            )
+            if self.result is None:
+                self.error = "delayed bound: not certified within the time limit"
+            else:
+                search.root_caps = self.result.upper  # the search applies them
+        except MemoryError:
+            self.error = "delayed bound: out of memory (it needs ~1.2 GB on the task)"
+
+    def finish(self, search):
+        """(DelayedResult or None, note) once the thread is done; the caps applied."""
+        self.thread.join()
+        search.take_root_caps()
+        return self.result, self.error

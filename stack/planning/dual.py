@@ -43,6 +43,9 @@ import numpy as np
 
 from stack.planning.momdp import MixedModel
 
+DUAL_BATCH = 16  # paths per batch of dual_batches (each batch seeded on its own)
+DUAL_FIB_TOL = 1e-6  # the fast informed bound behind dual_batches' penalty
+
 
 @dataclass(frozen=True)
 class DualBound:
@@ -245,3 +248,47 @@ def _draw(rng: np.random.Generator, cdf: np.ndarray) -> np.ndarray:
     """One index per row of the cumulative distributions ``cdf`` (n, k)."""
     u = rng.random(len(cdf))
     return np.minimum((u[:, None] >= cdf).sum(axis=1), cdf.shape[1] - 1)
+
+
+def dual_batches(m: MixedModel, Q, x: int, b, config, deadline: float, progress):
+    """The dual bound in batches of DUAL_BATCH paths (batch k seeded (config.seed, k))
+    until config.dual_paths or the deadline; (DualBound or None, note). ``config`` is
+    the solve's SolverConfig (dual_paths, seed)."""
+    from stack.planning import clock
+    from stack.planning.momdp import factored_fib
+
+    t0 = clock.now()
+    # the penalty's table: the search's fast informed bound iterated closer to its fixed
+    # point (the closer the penalty is to V*, the tighter the bound; r1: 199.93 -> 199.85)
+    Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=deadline, start=Q)
+    values: list[np.ndarray] = []
+    last = None
+    for k in range(config.dual_paths // DUAL_BATCH):
+        if clock.now() >= deadline:
+            break
+        try:
+            last = dual_upper_bound(
+                m,
+                Q,
+                x,
+                b,
+                paths=DUAL_BATCH,
+                seed=(config.seed, k),
+                deadline=deadline,
+                now=clock.now,
+                progress=progress,
+            )
+        except TimeoutError:
+            break
+        values.append(last.values)
+        if progress is not None:
+            progress(
+                f"dual bound: {len(values) * DUAL_BATCH} paths, "
+                f"mean {np.concatenate(values).mean():.3f}, {clock.now() - t0:.1f} s"
+            )
+    if last is None:
+        return None, f"dual bound: not {DUAL_BATCH} paths within the time limit"
+    bound = DualBound.of_paths(
+        np.concatenate(values), last.horizon, clock.now() - t0, last.penalty_value_b0
+    )
+    return bound, ""

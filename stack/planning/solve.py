@@ -18,6 +18,7 @@ import numpy as np
 
 from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
+from stack.planning.dual import DUAL_BATCH
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
 from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
@@ -29,10 +30,6 @@ if TYPE_CHECKING:  # the task model (yaml, cells) is imported where a task is so
 
 ALGORITHMS = ("sarsop", "perseus")
 DUAL_SHARE = 0.1  # of a time limit, kept for the dual bound after the search (64 paths: ~3 s idle)
-DUAL_BATCH = 16  # paths of the dual bound per batch (each batch seeded on its own)
-DUAL_FIB_TOL = 1e-6  # the fast informed bound behind the dual bound's penalty
-DELAYED_MIN_S = 20.0  # the delayed bound's set-up alone takes ~5 s, a sweep ~1 s
-DELAYED_END_SHARE = 0.05  # of the time limit: the delayed bound ends this much earlier
 
 
 @dataclass(frozen=True)
@@ -72,10 +69,9 @@ class SolverConfig:
     # upper bound at b0 (stack/planning/dual.py), a statistical bound reported beside
     # the search's; 0 = not computed. Under a time limit it gets DUAL_SHARE of it.
     dual_paths: int = 0
-    # sarsop on a one-person task model under a time limit of DELAYED_MIN_S or more:
-    # the certified delay-2 revelation upper bound (stack/planning/delayed.py) computed
-    # in a thread beside the search (the second core), which caps the roots' upper
-    # bounds when it is done (~1.2 GB; 35-45 s for r1 on a loaded core)
+    # sarsop on a one-person task model, time limit >= delayed.DELAYED_MIN_S: the
+    # certified delay-2 revelation upper bound (stack/planning/delayed.py) in a thread
+    # beside the search, capping the roots' upper bounds when done (~2 GB)
     delayed_bound: bool = False
 
     def __post_init__(self) -> None:
@@ -297,6 +293,7 @@ def _search_config(config: SolverConfig):
 def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     """The belief-tree search on the task's mixed-observability form, then (when
     ``config.dual_paths``) the dual upper bound at b0 in the time left."""
+    from stack.planning.delayed import DelayedWorker
     from stack.planning.momdp import MixedSearch, mixed_from_task
 
     t0 = clock.now() if start is None else start
@@ -317,7 +314,9 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
         rounds=config.iterations,
         grow=config.time_limit_s is not None,
     )
-    worker = _DelayedWorker.start(search, config, t0, progress)
+    worker = (
+        DelayedWorker.start(search, config.time_limit_s, progress) if config.delayed_bound else None
+    )
     r = search.run()
     result = SolveResult(r.policy, r.lower_bound, r.upper_bound, r.seconds, r.history)
     result.delayed_note = search.delayed_note
@@ -328,6 +327,8 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
             result.upper_bound = r.upper_bound = search.root.ub
             result.lower_bound = r.lower_bound = search.root.lb
     if config.dual_paths:
+        from stack.planning.dual import dual_batches
+
         deadline = math.inf
         if config.time_limit_s is not None:
             # the time the search kept for writing the policy stays kept
@@ -335,109 +336,13 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
             deadline = t0 + config.time_limit_s - write_s
         x, b = m.split(pomdp.b0)
         with blas_threads(1):  # a second BLAS thread costs 2-6x on these small products
-            result.dual, result.dual_note = _dual_batches(
+            result.dual, result.dual_note = dual_batches(
                 m, search.Q_upper, x, b, config, deadline, progress
             )
         result.seconds = clock.now() - t0
     r.policy.meta.update({"config": asdict(config), **r.summary(), **result.summary()})
     r.policy.meta["model_sha256"] = pomdp.fingerprint()
     return result
-
-
-class _DelayedWorker:
-    """The delayed bound (stack/planning/delayed.py) in a thread beside the search: it
-    starts from the search's fast informed bound, ends by the search's deadline, and
-    caps the roots' upper bounds (the search takes them at its next stopping check)."""
-
-    def __init__(self, search, deadline: float, progress):
-        import threading
-
-        self.result: Any = None  # a DelayedResult once done
-        self.error = ""
-        self.deadline = deadline
-        self.thread = threading.Thread(
-            target=self._run, args=(search, progress), name="delayed-bound", daemon=True
-        )
-
-    @classmethod
-    def start(cls, search, config: SolverConfig, t0: float, progress):
-        if not config.delayed_bound:
-            return None
-        if config.time_limit_s is not None and config.time_limit_s < DELAYED_MIN_S:
-            search.delayed_note = (
-                f"delayed bound: needs a time limit of {DELAYED_MIN_S:.0f} s or more, "
-                f"got {config.time_limit_s:.1f} s"
-            )
-            return None
-        # done before the search's end less the time it keeps for writing its policy
-        limit = config.time_limit_s or 0.0
-        w = cls(search, search.deadline - DELAYED_END_SHARE * limit, progress)
-        w.thread.start()
-        return w
-
-    def _run(self, search, progress) -> None:
-        from stack.planning.delayed import delayed_bound
-
-        try:
-            roots = [(r.x, r.node.b) for r in search.roots]
-            self.result = delayed_bound(
-                search.m, search.Q_upper, roots, deadline=self.deadline, progress=progress
-            )
-            if self.result is None:
-                self.error = "delayed bound: not certified within the time limit"
-            else:
-                search.root_caps = self.result.upper  # the search applies them
-        except MemoryError:
-            self.error = "delayed bound: out of memory (it needs ~1.2 GB on the task)"
-
-    def finish(self, search):
-        """(DelayedResult or None, note) once the thread is done; the caps applied."""
-        self.thread.join()
-        search.take_root_caps()
-        return self.result, self.error
-
-
-def _dual_batches(m, Q, x, b, config: SolverConfig, deadline: float, progress):
-    """The dual bound in batches of DUAL_BATCH paths (batch k seeded (config.seed, k))
-    until config.dual_paths or the deadline; (DualBound or None, note)."""
-    from stack.planning.dual import DualBound, dual_upper_bound
-    from stack.planning.momdp import factored_fib
-
-    t0 = clock.now()
-    # the penalty's table: the search's fast informed bound iterated closer to its fixed
-    # point (the closer the penalty is to V*, the tighter the bound; r1: 199.93 -> 199.85)
-    Q = factored_fib(m, tol=DUAL_FIB_TOL, deadline=deadline, start=Q)
-    values: list[np.ndarray] = []
-    last = None
-    for k in range(config.dual_paths // DUAL_BATCH):
-        if clock.now() >= deadline:
-            break
-        try:
-            last = dual_upper_bound(
-                m,
-                Q,
-                x,
-                b,
-                paths=DUAL_BATCH,
-                seed=(config.seed, k),
-                deadline=deadline,
-                now=clock.now,
-                progress=progress,
-            )
-        except TimeoutError:
-            break
-        values.append(last.values)
-        if progress is not None:
-            progress(
-                f"dual bound: {len(values) * DUAL_BATCH} paths, "
-                f"mean {np.concatenate(values).mean():.3f}, {clock.now() - t0:.1f} s"
-            )
-    if last is None:
-        return None, f"dual bound: not {DUAL_BATCH} paths within the time limit"
-    bound = DualBound.of_paths(
-        np.concatenate(values), last.horizon, clock.now() - t0, last.penalty_value_b0
-    )
-    return bound, ""
 
 
 def task_seed_alphas(model: FactoredModel, pomdp: POMDP) -> tuple[np.ndarray, np.ndarray]:
