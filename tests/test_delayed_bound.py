@@ -130,3 +130,30 @@ def test_a_short_time_limit_says_why_there_is_no_delayed_bound(tmp_path):
     res = solve_task_model(task, cfg, require_progress=False).result
     assert res.delayed is None
     assert "20 s or more" in res.summary()["delayed_note"]
+
+
+def test_a_failure_in_the_worker_thread_is_reported_not_lost(monkeypatch):
+    import stack.planning.delayed as delayed
+    from stack.planning.momdp import MixedSearch
+
+    m = _mixed(0, X=3, Y=3, A=2, Z=2)
+    b0 = _b0(m)
+    pomdp = _flat(m, b0)
+    from stack.planning.bounds import blind_lower_bound
+
+    search = MixedSearch(
+        m,
+        SearchConfig(time_limit_s=30.0, max_trials=3, progress_every_s=0.0),
+        (blind_lower_bound(pomdp), np.arange(m.A)),
+        [b0],
+    )
+
+    def broken(*a, **k):
+        raise ValueError("a broken table")
+
+    monkeypatch.setattr(delayed, "delayed_bound", broken)
+    w = delayed.DelayedWorker.start(search, 30.0, None)
+    search.run()
+    result, note = w.finish(search)
+    assert result is None
+    assert "ValueError: a broken table" in note

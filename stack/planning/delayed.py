@@ -348,7 +348,9 @@ class DelayedWorker:
             else:
                 search.root_caps = self.result.upper  # the search applies them
         except MemoryError:
-            self.error = "delayed bound: out of memory (it needs ~1.2 GB on the task)"
+            self.error = "delayed bound: out of memory (it needs ~2 GB on the task)"
+        except Exception as e:  # reported in the result, never lost with the thread
+            self.error = f"delayed bound: failed: {type(e).__name__}: {e}"
 
     def finish(self, search):
         """(DelayedResult or None, note) once the thread is done; the caps applied."""
