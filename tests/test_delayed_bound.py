@@ -153,7 +153,19 @@ def test_a_failure_in_the_worker_thread_is_reported_not_lost(monkeypatch):
 
     monkeypatch.setattr(delayed, "delayed_bound", broken)
     w = delayed.DelayedWorker.start(search, 30.0, None)
+    assert w is not None
     search.run()
     result, note = w.finish(search)
     assert result is None
     assert "ValueError: a broken table" in note
+
+
+def test_a_solve_without_a_time_limit_stays_deterministic_and_says_so():
+    from stack.planning.solve import SolverConfig, solve_task_model
+    from stack.planning.task import load_task
+
+    task = load_task(REPO / "config" / "task-r1.yaml")
+    cfg = SolverConfig(trials=2, beliefs=20, iterations=2, delayed_bound=True)
+    res = solve_task_model(task, cfg, require_progress=False).result
+    assert res.delayed is None
+    assert res.summary()["delayed_note"] == "delayed bound: only under a time limit"

@@ -219,6 +219,7 @@ def delayed_bound(
     roots: list[tuple[int, np.ndarray]],
     deadline: float = math.inf,
     progress: Callable[[str], None] | None = None,
+    stop: threading.Event | None = None,
     plain: int = PLAIN_SWEEPS,
     upward: int = MAX_UPWARD,
 ) -> DelayedResult | None:
@@ -227,7 +228,8 @@ def delayed_bound(
     Runs cycles of plain sweeps, an extrapolation and upward sweeps in float32 while
     time allows (each sweep is timed; the float64 certificate is kept time for), then
     certifies the table with the best float32 estimate. None when not even the
-    certificate fits before ``deadline``.
+    certificate fits before ``deadline``. ``stop`` (set from another thread) ends the
+    sweeps early: the table reached is certified.
     """
     t0 = clock.now()
     db = DelayedBound(m, Q)
@@ -241,6 +243,8 @@ def delayed_bound(
 
     def time_left(k: float) -> bool:
         # k more float32 sweeps and the certificate (about 4 sweeps) before the deadline
+        if stop is not None and stop.is_set():
+            return False
         return clock.now() + (k + 4.0) * sweep_s < deadline
 
     best: tuple[float, np.ndarray] = (math.inf, W)
@@ -317,6 +321,7 @@ class DelayedWorker:
         self.result: DelayedResult | None = None
         self.error = ""
         self.deadline = deadline
+        self.stop = threading.Event()
         self.thread = threading.Thread(
             target=self._run, args=(search, progress), name="delayed-bound", daemon=True
         )
@@ -324,16 +329,21 @@ class DelayedWorker:
     @classmethod
     def start(cls, search, time_limit_s: float | None, progress) -> DelayedWorker | None:
         """A started worker for a :class:`~stack.planning.momdp.MixedSearch` whose time
-        limit is ``time_limit_s`` (None: no limit); None, with the search's
-        ``delayed_note`` saying why, when the limit is too short for the bound."""
-        if time_limit_s is not None and time_limit_s < DELAYED_MIN_S:
+        limit is ``time_limit_s``; None, with the search's ``delayed_note`` saying why,
+        without a limit or with one too short for the bound."""
+        if time_limit_s is None:
+            # its sweeps end with the search: without a time limit the bound would
+            # depend on the machine's speed, and a solve by trials is deterministic
+            search.delayed_note = "delayed bound: only under a time limit"
+            return None
+        if time_limit_s < DELAYED_MIN_S:
             search.delayed_note = (
                 f"delayed bound: needs a time limit of {DELAYED_MIN_S:.0f} s or more, "
                 f"got {time_limit_s:.1f} s"
             )
             return None
         # done before the search's end less the time it keeps for writing its policy
-        w = cls(search, search.deadline - DELAYED_END_SHARE * (time_limit_s or 0.0), progress)
+        w = cls(search, search.deadline - DELAYED_END_SHARE * time_limit_s, progress)
         w.thread.start()
         return w
 
@@ -341,7 +351,12 @@ class DelayedWorker:
         try:
             roots = [(r.x, r.node.b) for r in search.roots]
             self.result = delayed_bound(
-                search.m, search.Q_upper, roots, deadline=self.deadline, progress=progress
+                search.m,
+                search.Q_upper,
+                roots,
+                deadline=self.deadline,
+                progress=progress,
+                stop=self.stop,
             )
             if self.result is None:
                 self.error = "delayed bound: not certified within the time limit"
@@ -353,7 +368,10 @@ class DelayedWorker:
             self.error = f"delayed bound: failed: {type(e).__name__}: {e}"
 
     def finish(self, search):
-        """(DelayedResult or None, note) once the thread is done; the caps applied."""
+        """(DelayedResult or None, note) once the thread is done; the caps applied. A
+        search that ended first (trials, gap) stops the sweeps: the table reached is
+        certified (a few seconds), not swept on to the deadline."""
+        self.stop.set()
         self.thread.join()
         search.take_root_caps()
         return self.result, self.error
