@@ -169,3 +169,47 @@ def test_a_solve_without_a_time_limit_stays_deterministic_and_says_so():
     res = solve_task_model(task, cfg, require_progress=False).result
     assert res.delayed is None
     assert res.summary()["delayed_note"] == "delayed bound: only under a time limit"
+
+
+def test_a_probability_too_small_for_float64_gives_no_bound_not_a_wrong_one():
+    # P(z1, z2 | y) ~ 1e-320 (subnormal): 1 / P overflows; the bound must not come out
+    # as a number (a NaN cap would be ignored silently, a finite one unproven)
+    rng = np.random.default_rng(0)
+    X, Y, A = 2, 3, 2
+    TY = rng.dirichlet(np.ones(Y), size=Y)
+    TY[0] = [1e-160, 0.5, 0.5 - 1e-160]
+    OY = np.array([[1e-160, 1 - 1e-160], [0.0, 1.0], [0.0, 1.0]])
+    m = MixedModel(
+        TX=rng.dirichlet(np.ones(X), size=(A, X)),
+        TY=TY,
+        OY=OY,
+        R=rng.normal(size=(X, Y, A)),
+        discount=0.9,
+    )
+    Q = factored_fib(m, tol=1e-12, max_iterations=20000)
+    with np.errstate(all="ignore"):
+        r = delayed_bound(m, Q, [(0, np.array([0.5, 0.25, 0.25]))], plain=20, upward=20)
+    assert r is None or np.isfinite(r.upper).all()
+
+
+def test_a_cap_below_a_root_s_lower_bound_is_refused():
+    from stack.planning.bounds import blind_lower_bound
+    from stack.planning.momdp import MixedSearch
+
+    m = _mixed(0, X=3, Y=3, A=2, Z=2)
+    b0 = _b0(m)
+    search = MixedSearch(
+        m,
+        SearchConfig(time_limit_s=None, max_trials=5, progress_every_s=0.0),
+        (blind_lower_bound(_flat(m, b0)), np.arange(m.A)),
+        [b0],
+    )
+    search.run()
+    lb, ub = search.root.lb, search.root.ub
+    search.root_caps = np.array([lb - 1.0])
+    assert "below root 0's lower bound" in search.take_root_caps()
+    assert search.root.ub == ub  # not taken
+    search.root_caps = np.array([(lb + ub) / 2])
+    assert search.take_root_caps() == ""
+    assert search.root.ub == (lb + ub) / 2
+    assert search.search_upper == ub

@@ -51,7 +51,9 @@ from stack.planning.momdp import MixedModel
 # sweeps (1 / P would overflow float32); the float64 certificate covers every J
 _TINY = 1e-30
 PLAIN_SWEEPS = 20  # from the fast informed bound's values, before the extrapolation
-DELAYED_MIN_S = 20.0  # the bound's set-up alone takes ~5 s, a sweep 0.3-2 s
+# the bound's set-up alone takes ~3-8 s, a sweep 0.3-3 s: a --time-limit of 20 s at
+# least (19.6 s left after the 2 % kept for writing)
+DELAYED_MIN_S = 19.5
 DELAYED_END_SHARE = 0.05  # of the time limit: the worker ends this much before the search
 _CHUNK = 16384  # columns of J per product in a sweep's robot step
 MAX_UPWARD = 30  # upward sweeps in a cycle at most
@@ -174,6 +176,8 @@ class DelayedBound:
             for _, q in self._q64(W, x):
                 np.maximum(best, q, out=best)
             r = (best - W[x])[live]
+            if not np.isfinite(r).all():  # e.g. 1 / P(J) overflowed: nothing certified
+                return math.inf
             if r.size:
                 eps = max(eps, float(r.max()))
         return eps
@@ -234,7 +238,12 @@ def delayed_bound(
     t0 = clock.now()
     db = DelayedBound(m, Q)
     db.prepare32()
+    s0 = clock.now()
     Rb = db.relative_rewards32()
+    # the certificate is the same float64 work as the relative rewards
+    certify_s = 1.2 * (clock.now() - s0)
+    if clock.now() + 1.5 * certify_s > deadline:
+        return None
     g = m.discount
     W = np.zeros(db.start.shape, dtype=np.float32)  # the sweeps' D = W - start
     sweep_s = 0.0
@@ -242,10 +251,10 @@ def delayed_bound(
     sweeps = 0
 
     def time_left(k: float) -> bool:
-        # k more float32 sweeps and the certificate (about 4 sweeps) before the deadline
+        # k more float32 sweeps and the certificate before the deadline
         if stop is not None and stop.is_set():
             return False
-        return clock.now() + (k + 4.0) * sweep_s < deadline
+        return clock.now() + k * sweep_s + certify_s < deadline
 
     best: tuple[float, np.ndarray] = (math.inf, W)
 
@@ -271,7 +280,7 @@ def delayed_bound(
             HW = np.minimum(HW, W)
             step = W - HW
             W = HW
-            if progress is not None:
+            if progress is not None and sweeps % 5 == 0:
                 progress(f"delayed bound: down sweep {sweeps}, estimate {est:.3f}")
         if step is None:
             break
@@ -297,18 +306,23 @@ def delayed_bound(
                 rho = min(JUMP_RHO, total / prev)
                 W += np.float32(rho / (1.0 - rho)) * rise
             prev = total
-            if progress is not None:
+            if progress is not None and sweeps % 5 == 0:
                 progress(f"delayed bound: up sweep {sweeps}, estimate {est:.3f}")
             if eps32 < UP_TOL:
                 break
         if not time_left(plain // 2 + 10):
             break
-    if clock.now() + 3.0 * sweep_s > deadline and sweeps:
+    if clock.now() + certify_s > deadline and sweeps:
         return None
     D = best[1].astype(np.float64)
-    eps = db.residual64(db.start + D)
-    c = g * g * max(eps, 0.0) / (1 - g)
+    W64 = db.start + D
+    eps = db.residual64(W64)
+    # plus float64's own rounding in the residual (~1e-13 |W|; 3e-8 on the task)
+    eps = max(eps, 0.0) + 1e-12 * float(np.abs(W64).max())
+    c = g * g * eps / (1 - g)
     upper = np.array([db.at(D, x, b) + c for x, b in roots])
+    if not np.isfinite(upper).all():
+        return None
     return DelayedResult(upper, eps, sweeps, clock.now() - t0)
 
 
@@ -322,6 +336,7 @@ class DelayedWorker:
         self.error = ""
         self.deadline = deadline
         self.stop = threading.Event()
+        self.grace = 0.0
         self.thread = threading.Thread(
             target=self._run, args=(search, progress), name="delayed-bound", daemon=True
         )
@@ -344,6 +359,7 @@ class DelayedWorker:
             return None
         # done before the search's end less the time it keeps for writing its policy
         w = cls(search, search.deadline - DELAYED_END_SHARE * time_limit_s, progress)
+        w.grace = DELAYED_END_SHARE * time_limit_s
         w.thread.start()
         return w
 
@@ -363,7 +379,7 @@ class DelayedWorker:
             else:
                 search.root_caps = self.result.upper  # the search applies them
         except MemoryError:
-            self.error = "delayed bound: out of memory (it needs ~2 GB on the task)"
+            self.error = "delayed bound: out of memory (~2 GB for the process on the task)"
         except Exception as e:  # reported in the result, never lost with the thread
             self.error = f"delayed bound: failed: {type(e).__name__}: {e}"
 
@@ -372,6 +388,16 @@ class DelayedWorker:
         search that ended first (trials, gap) stops the sweeps: the table reached is
         certified (a few seconds), not swept on to the deadline."""
         self.stop.set()
-        self.thread.join()
-        search.take_root_caps()
+        # the worker ends by its deadline; one still running after a grace period (a
+        # machine far slower than measured) is left behind, its bound not taken
+        self.thread.join(timeout=max(1.0, self.grace + self.deadline - clock.now()))
+        if self.thread.is_alive():
+            return None, "delayed bound: not certified within the time limit"
+        if self.result is not None:
+            search.root_caps = self.result.upper  # again: a cap is taken at most once
+            bad = search.take_root_caps()
+            if bad:
+                return None, bad
+        else:
+            search.take_root_caps()
         return self.result, self.error

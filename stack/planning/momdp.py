@@ -666,19 +666,28 @@ class MixedSearch(StoppingRules):
     def _values_to_write(self) -> int:
         return self.n_alphas * self.m.X * self.m.Y
 
-    def take_root_caps(self) -> None:
-        """Lower each root's upper bound to its cap, when caps have arrived."""
+    def take_root_caps(self) -> str:
+        """Lower each root's upper bound to its cap, when caps have arrived; a cap
+        below a root's lower bound is a broken bound: none is taken, and the returned
+        text says so ("" otherwise)."""
         caps, self.root_caps = self.root_caps, None
         if caps is None:
-            return
-        self.search_upper = self.root.ub  # the search's own bound when the caps came
+            return ""
+        for i, (r, cap) in enumerate(zip(self.roots, caps, strict=True)):
+            if cap < r.lb - 1e-9 * max(1.0, abs(r.lb)):
+                return (
+                    f"delayed bound {float(cap):.6f} below root {i}'s lower bound "
+                    f"{r.lb:.6f}: not taken"
+                )
+        if self.search_upper is None:
+            self.search_upper = self.root.ub  # the search's own bound when the caps came
         for r, cap in zip(self.roots, caps, strict=True):
-            n = r.node
-            n.ub[r.x] = min(n.ub[r.x], float(cap))
-            n.lb[r.x] = min(n.lb[r.x], n.ub[r.x])
+            r.node.ub[r.x] = min(r.node.ub[r.x], float(cap))
+        return ""
 
     def _done(self) -> str:
-        self.take_root_caps()
+        if self.root_caps is not None:
+            self.delayed_note = self.take_root_caps() or self.delayed_note
         return super()._done()
 
     def _trial(self) -> None:
