@@ -290,7 +290,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=True,
         help="one-person tasks under a --time-limit of 20 s or more: compute the "
         "certified delay-2 revelation upper bound in a thread beside the search (the "
-        "second core, ~1.2 GB) and report the tighter upper bound (default on)",
+        "second core, ~2 GB for the process; under --cpu-time its CPU counts too) and report the "
+        "tighter upper bound (default on)",
     )
     p.add_argument(
         "--cpu-time",
