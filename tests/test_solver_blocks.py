@@ -4,6 +4,7 @@ the action and on the hidden variables (unlike the task's mixed search, momdp.py
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -111,7 +112,8 @@ def test_cli_writes_the_factored_layout_and_evaluates_it(tmp_path, capsys):
     f, _ = _model(tmp_path, 3)
     out = tmp_path / "m.policy"
     assert vigil(["solve-pomdp", str(f), "--trials", "30", "-o", str(out), "--json"]) == 0
-    capsys.readouterr()
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["backups"] > summary["iterations"] > 0  # the root, then each trial
     assert 'numObsValue="3"' in out.read_text()[:400]
     assert vigil(["evaluate", str(f), "--policy", str(out), "--episodes", "5", "--json"]) == 0
     assert "mean" in capsys.readouterr().out
