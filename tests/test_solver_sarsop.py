@@ -479,11 +479,20 @@ def test_row_gather_equals_scipy_row_indexing():
     assert not (np.diff(r) < 0).any()
 
 
-def test_sparse_observation_path_gives_the_dense_paths_successors():
-    pomdp = _random_pomdp(7, S=6, A=3, Z=4)
+@pytest.mark.parametrize("sparse_obs", [True, False])
+def test_sparse_observation_path_gives_the_dense_paths_successors(sparse_obs):
+    """The expansion from sparse T (and O) rows, as on models too large for dense
+    tables, gives the successors of the dense expansion."""
+    rng = np.random.default_rng(7)
+    T = rng.dirichlet(np.ones(6), size=(3, 6))
+    T[1, :, 2] = 0.0  # a state action 1 never reaches
+    T[1] /= T[1].sum(axis=1, keepdims=True)
+    O = rng.dirichlet(np.ones(4), size=(3, 6))
+    pomdp = dense_to_pomdp(T, O, rng.normal(size=(6, 3)), 0.9, b0=rng.dirichlet(np.ones(6)))
     dense = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None))
     sparse = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None))
-    sparse.O_dense = [None] * pomdp.n_actions  # as on a model too large for dense tables
+    if sparse_obs:
+        sparse.O_dense = [None] * pomdp.n_actions
     sparse.O_stack = None
     sparse.T_all_dense = None
     a_kids = dense._expand(dense._node(pomdp.b0.nonzero()[0], pomdp.b0[pomdp.b0 > 0]))
@@ -493,3 +502,4 @@ def test_sparse_observation_path_gives_the_dense_paths_successors():
         np.testing.assert_allclose(ka.pz, kb.pz)
         np.testing.assert_allclose(ka.M, kb.M)
         np.testing.assert_array_equal(ka.nz, kb.nz)
+        assert kb.nz.dtype == ka.nz.dtype  # a belief's key hashes its index bytes

@@ -684,15 +684,28 @@ class BeliefTreeSearch(StoppingRules):
             return node.kids
         if self.T_all_dense is not None:
             pred_all = node.val @ self.T_all_dense[node.idx]
+            starts = None
         else:
-            pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
+            # the predictions over the states reached only (all actions: A x S columns,
+            # most never reached; RockSample_11_11: 4 million): from T_all's rows at the
+            # belief's states, summed per column in row order as the product does
+            r, c, v = _gather_rows(self.T_all, node.idx)
+            cols, inv = np.unique(c, return_inverse=True)
+            pv = np.bincount(inv, weights=v * node.val[r], minlength=cols.size)
+            cols, pv = cols[pv > 0].astype(np.int64), pv[pv > 0]  # keys hash int64 indices
+            starts = np.searchsorted(cols, np.arange(self.A + 1) * S).tolist()
         kids = []
         for a in range(self.A):
-            pred = pred_all[a * S : (a + 1) * S]
-            nz = np.flatnonzero(pred > 0)
+            if starts is None:
+                pred = pred_all[a * S : (a + 1) * S]
+                nz = np.flatnonzero(pred > 0)
+                pn = pred[nz]
+            else:
+                nz = cols[starts[a] : starts[a + 1]] - a * S
+                pn = pv[starts[a] : starts[a + 1]]
             o_dense = self.O_dense[a]
             if o_dense is not None:
-                joint = o_dense[nz] * pred[nz][:, None]
+                joint = o_dense[nz] * pn[:, None]
                 pz = joint.sum(axis=0)
                 zs = np.flatnonzero(pz > _PROB_EPS)
                 M = joint[:, zs] / pz[zs]
@@ -700,7 +713,7 @@ class BeliefTreeSearch(StoppingRules):
                 # the rows of O[a] at nz gathered with numpy (scipy's fancy indexing and
                 # sparse products cost more than the arithmetic on block models)
                 r, z, p = _gather_rows(self.O[a], nz)
-                p = p * pred[nz][r]
+                p = p * pn[r]
                 pz = np.bincount(z, weights=p, minlength=self.O[a].shape[1])
                 zs = np.flatnonzero(pz > _PROB_EPS)
                 col = np.full(pz.size, -1)
