@@ -4,6 +4,7 @@ the action and on the hidden variables (unlike the task's mixed search, momdp.py
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -111,7 +112,8 @@ def test_cli_writes_the_factored_layout_and_evaluates_it(tmp_path, capsys):
     f, _ = _model(tmp_path, 3)
     out = tmp_path / "m.policy"
     assert vigil(["solve-pomdp", str(f), "--trials", "30", "-o", str(out), "--json"]) == 0
-    capsys.readouterr()
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["backups"] > summary["iterations"] > 0  # the root, then each trial
     assert 'numObsValue="3"' in out.read_text()[:400]
     assert vigil(["evaluate", str(f), "--policy", str(out), "--episodes", "5", "--json"]) == 0
     assert "mean" in capsys.readouterr().out
@@ -170,3 +172,34 @@ def test_rocksample_7_8_pomdpx_policy_in_sarsop_layout(tmp_path, capsys):
     )
     assert run.returncode == 0, run.stderr
     assert "Exp Total Reward" in run.stdout, run.stdout
+
+
+def test_best_vectors_of_beliefs_within_one_block_and_across_blocks(tmp_path):
+    """_best_cols: the best vector of each belief (column) among its block's vectors, the
+    same whether all the beliefs lie in one block or in several."""
+    _, m = _model(tmp_path, 2)
+    blocks = search_blocks(m)
+    s = BlockTreeSearch(m, blocks, SearchConfig(time_limit_s=None, max_trials=20))
+    s.run()
+    rng = np.random.default_rng(0)
+    alphas, blk = s.alphas, s.blocks_of
+
+    def brute(idx, M):
+        x = s._where[idx[0]]
+        vals = M.T @ alphas[blk == x][:, s._pos[idx]].T
+        return vals.max(axis=1)
+
+    one = np.sort(rng.choice(blocks[1], size=3, replace=False))
+    M1 = rng.dirichlet(np.ones(3), size=4).T
+    best, values = s._best_cols(one, M1)
+    np.testing.assert_allclose(values, brute(one, M1))
+    assert (s.blocks_of[best] == 1).all()
+    # two blocks: columns 0-1 in block 0, 2-3 in block 2
+    both = np.concatenate([blocks[0], blocks[2]])
+    M2 = np.zeros((both.size, 4))
+    M2[:4, :2] = rng.dirichlet(np.ones(4), size=2).T
+    M2[4:, 2:] = rng.dirichlet(np.ones(4), size=2).T
+    best, values = s._best_cols(both, M2)
+    np.testing.assert_allclose(values[:2], brute(blocks[0], M2[:4, :2]))
+    np.testing.assert_allclose(values[2:], brute(blocks[2], M2[4:, 2:]))
+    assert (s.blocks_of[best] == [0, 0, 2, 2]).all()

@@ -456,3 +456,50 @@ def test_the_solve_pomdp_path_loads_no_robot_stack_and_no_sparse_solver(tmp_path
     assert not top & {"rclpy", "cv2", "mujoco", "matplotlib", "yaml", "twin"}
     assert "stack.planning.sarsop" in modules  # the solve did run in that process
     assert not {"scipy.sparse.linalg", "stack.planning.model", "stack.planning.task"} & set(modules)
+
+
+def test_row_gather_equals_scipy_row_indexing():
+    import scipy.sparse as sp
+
+    from stack.planning.sarsop import _canonical, _gather_rows
+
+    rng = np.random.default_rng(3)
+    m = sp.random(40, 9, density=0.3, format="csr", random_state=4)
+    indptr = m.indptr.copy()
+    indptr[-1] += 1  # a duplicate (row 39, column 2): summed once made canonical
+    m = sp.csr_matrix((np.r_[m.data, 1.0], np.r_[m.indices, 2], indptr), shape=(40, 9))
+    want = m.toarray()
+    m = _canonical(m)
+    rows = np.sort(rng.choice(40, size=15, replace=False))
+    r, cols, vals = _gather_rows(m, rows)
+    got = np.zeros((rows.size, 9))
+    np.add.at(got, (r, cols), vals)
+    np.testing.assert_allclose(got, want[rows])
+    assert m.has_canonical_format
+    assert not (np.diff(r) < 0).any()
+
+
+@pytest.mark.parametrize("sparse_obs", [True, False])
+def test_sparse_observation_path_gives_the_dense_paths_successors(sparse_obs):
+    """The expansion from sparse T (and O) rows, as on models too large for dense
+    tables, gives the successors of the dense expansion."""
+    rng = np.random.default_rng(7)
+    T = rng.dirichlet(np.ones(6), size=(3, 6))
+    T[1, :, 2] = 0.0  # a state action 1 never reaches
+    T[1] /= T[1].sum(axis=1, keepdims=True)
+    O = rng.dirichlet(np.ones(4), size=(3, 6))
+    pomdp = dense_to_pomdp(T, O, rng.normal(size=(6, 3)), 0.9, b0=rng.dirichlet(np.ones(6)))
+    dense = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None))
+    sparse = BeliefTreeSearch(pomdp, SearchConfig(time_limit_s=None))
+    if sparse_obs:
+        sparse.O_dense = [None] * pomdp.n_actions
+    sparse.O_stack = None
+    sparse.T_all_dense = None
+    a_kids = dense._expand(dense._node(pomdp.b0.nonzero()[0], pomdp.b0[pomdp.b0 > 0]))
+    b_kids = sparse._expand(sparse._node(pomdp.b0.nonzero()[0], pomdp.b0[pomdp.b0 > 0]))
+    for ka, kb in zip(a_kids, b_kids, strict=True):
+        np.testing.assert_array_equal(ka.zs, kb.zs)
+        np.testing.assert_allclose(ka.pz, kb.pz)
+        np.testing.assert_allclose(ka.M, kb.M)
+        np.testing.assert_array_equal(ka.nz, kb.nz)
+        assert kb.nz.dtype == ka.nz.dtype  # a belief's key hashes its index bytes

@@ -136,6 +136,8 @@ def cmd_solve_pomdp(args: argparse.Namespace) -> int:
     out["command_seconds"] = clock.now() - start
     out["clock"] = "cpu" if clock.cpu_time() else "wall"
     out["stopped"] = result.policy.meta.get("stopped", "")  # gap, time or trials (sarsop)
+    if "backups" in result.policy.meta:  # the belief-tree search's count (sarsop)
+        out["backups"] = int(result.policy.meta["backups"])
     print(json.dumps(out, indent=2) if args.json else bounds_line(out))
     if getattr(args, "standalone", False):
         # the search tree (10^5 nodes) takes the interpreter a second or more to free

@@ -164,6 +164,12 @@ class BlockTreeSearch(BeliefTreeSearch):
     def _best_cols(self, nz: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n_cols = M.shape[1]
         row_blk = self._where[nz]
+        if row_blk.size and row_blk.min() == row_blk.max():
+            # all in one block (RockSample: the robot's move is deterministic)
+            x = int(row_blk[0])
+            G = M.T @ self._bAT[x][self._pos[nz], : self._bK[x]]
+            j = G.argmax(axis=1)
+            return self._bpos[x][j], G[np.arange(n_cols), j]
         col_blk = row_blk[(M > 0).argmax(axis=0)]  # each belief lies in one block
         best = np.empty(n_cols, dtype=int)
         values = np.empty(n_cols)

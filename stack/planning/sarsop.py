@@ -56,6 +56,25 @@ _CAT_MAX = 4096  # values of one node's concatenated successors (BeliefTreeSearc
 _CAT_BUDGET = 20_000_000  # ... of all nodes' (160 MB)
 
 
+def _canonical(m: sp.csr_matrix) -> sp.csr_matrix:
+    """``m`` with sorted, summed indices (a copy only where it has not)."""
+    if m.has_canonical_format:
+        return m
+    m = m.copy()
+    m.sum_duplicates()
+    return m
+
+
+def _gather_rows(csr: sp.csr_matrix, rows: np.ndarray) -> tuple:
+    """The non-zeros of ``csr``'s rows ``rows`` (canonical CSR: no duplicates), as
+    (position in ``rows``, column, value) arrays, row by row."""
+    starts = csr.indptr[rows]
+    counts = csr.indptr[rows + 1] - starts
+    r = np.repeat(np.arange(rows.size), counts)
+    pos = np.arange(r.size) + np.repeat(starts - (np.cumsum(counts) - counts), counts)
+    return r, csr.indices[pos], csr.data[pos]
+
+
 def _belief_key(idx: bytes, val: bytes) -> bytes:
     """The tree's key of a belief (its states, its probabilities rounded): a 128-bit
     digest, not the bytes themselves, which were a third copy of every node's arrays
@@ -467,7 +486,7 @@ class BeliefTreeSearch(StoppingRules):
         self.S, self.A = S, A
         self.R = np.ascontiguousarray(pomdp.R, dtype=float)
         self.T = [pomdp.T[a].tocsr() for a in range(A)]
-        self.O = [pomdp.O[a].tocsr() for a in range(A)]
+        self.O = [_canonical(pomdp.O[a].tocsr()) for a in range(A)]
         self.O_rows = [np.repeat(np.arange(S), np.diff(O.indptr)) for O in self.O]
         self.T_rows = [np.repeat(np.arange(S), np.diff(T.indptr)) for T in self.T]
         # dense observation tables where they are small (row gathers are then cheap);
@@ -665,23 +684,44 @@ class BeliefTreeSearch(StoppingRules):
             return node.kids
         if self.T_all_dense is not None:
             pred_all = node.val @ self.T_all_dense[node.idx]
+            starts = None
         else:
-            pred_all = np.asarray(node.val @ self.T_all[node.idx]).ravel()
+            # the predictions over the states reached only (all actions: A x S columns,
+            # most never reached; RockSample_11_11: 4 million): from T_all's rows at the
+            # belief's states, summed per column in row order as the product does
+            r, c, v = _gather_rows(self.T_all, node.idx)
+            cols, inv = np.unique(c, return_inverse=True)
+            pv = np.bincount(inv, weights=v * node.val[r], minlength=cols.size)
+            cols, pv = cols[pv > 0].astype(np.int64), pv[pv > 0]  # keys hash int64 indices
+            starts = np.searchsorted(cols, np.arange(self.A + 1) * S).tolist()
         kids = []
         for a in range(self.A):
-            pred = pred_all[a * S : (a + 1) * S]
-            nz = np.flatnonzero(pred > 0)
+            if starts is None:
+                pred = pred_all[a * S : (a + 1) * S]
+                nz = np.flatnonzero(pred > 0)
+                pn = pred[nz]
+            else:
+                nz = cols[starts[a] : starts[a + 1]] - a * S
+                pn = pv[starts[a] : starts[a + 1]]
             o_dense = self.O_dense[a]
             if o_dense is not None:
-                joint = o_dense[nz] * pred[nz][:, None]
+                joint = o_dense[nz] * pn[:, None]
                 pz = joint.sum(axis=0)
                 zs = np.flatnonzero(pz > _PROB_EPS)
                 M = joint[:, zs] / pz[zs]
             else:
-                joint = self.O[a][nz].multiply(pred[nz][:, None]).tocsc()
-                pz = np.asarray(joint.sum(axis=0)).ravel()
+                # the rows of O[a] at nz gathered with numpy (scipy's fancy indexing and
+                # sparse products cost more than the arithmetic on block models)
+                r, z, p = _gather_rows(self.O[a], nz)
+                p = p * pn[r]
+                pz = np.bincount(z, weights=p, minlength=self.O[a].shape[1])
                 zs = np.flatnonzero(pz > _PROB_EPS)
-                M = joint[:, zs].toarray() / pz[zs]
+                col = np.full(pz.size, -1)
+                col[zs] = np.arange(zs.size)
+                keep = col[z] >= 0
+                M = np.zeros((nz.size, zs.size))
+                M[r[keep], col[z[keep]]] = p[keep]
+                M /= pz[zs]
             reward = float(self.R[node.idx, a] @ node.val)
             # the fast informed bound only: the sawtooth is interpolated when an action's
             # successors matter (see _q_upper)
