@@ -102,8 +102,15 @@ class DelayedBound:
         self.P12 = (self.K1f @ self.pz).reshape(Y, Z, Z)  # P(z1, z2 | y)
         p = self.P12.reshape(Y * Z, Z)
         self.inv64 = np.where(p > 0, 1.0 / np.where(p > 0, p, 1.0), 0.0)
+        # the sweeps' float32 tables
         self.live32 = p > _TINY
         self.inv32 = np.where(self.live32, self.inv64, 0.0).astype(np.float32)
+        self.K1f32 = self.K1f.astype(np.float32)
+        self.P12_32 = self.P12.astype(np.float32)
+        # [(x, a), x']: P(x' | x, a), a row per (cell, action)
+        self.TXall32 = np.ascontiguousarray(
+            m.TX.transpose(1, 0, 2).reshape(X * A, X).astype(np.float32)
+        )
         # E[R(x, y2, a) | y1, z2] * P(z2 | y1): [x, a, y1, z2]
         M2 = TY[:, None, :] * OY.T[None, :, :]  # [y1, z2, y2]
         self.RRp = np.einsum("kzy,xya->xakz", M2, m.R, optimize=True)
@@ -119,8 +126,8 @@ class DelayedBound:
         F must already carry P(z2 | y1) (it is a joint weight over (y1, z2))."""
         X, Y, Z = self.shape
         G = F.transpose(1, 0, 2).reshape(Y, -1).astype(dt)
-        out = (self.K1f.astype(dt) @ G).reshape(Y * Z, X, Z).transpose(1, 0, 2)
-        inv = self.inv64 if dt == np.float64 else self.inv32
+        K1f, inv = (self.K1f, self.inv64) if dt == np.float64 else (self.K1f32, self.inv32)
+        out = (K1f @ G).reshape(Y * Z, X, Z).transpose(1, 0, 2)
         return np.ascontiguousarray(out) * inv[None]
 
     def _q64(self, W: np.ndarray, x: int):
@@ -149,8 +156,7 @@ class DelayedBound:
         """H W in float32 (W: (X, Y*Z, Z) float32)."""
         X, Y, Z = self.shape
         g = np.float32(self.m.discount)
-        P12 = self._P12_32
-        T2 = (P12[None] * W.reshape(X, Y, Z, Z)).sum(axis=3)  # [x', y1, z2]
+        T2 = (self.P12_32[None] * W.reshape(X, Y, Z, Z)).sum(axis=3)  # [x', y1, z2]
         U = self._expect(T2, np.float32)
         U *= g
         Uf = U.reshape(X, -1)
@@ -161,7 +167,7 @@ class DelayedBound:
         n = Uf.shape[1]
         for s in range(0, n, _CHUNK):
             e = min(n, s + _CHUNK)
-            q = (self._TXall @ Uf[:, s:e]).reshape(X, self.m.A, e - s)
+            q = (self.TXall32 @ Uf[:, s:e]).reshape(X, self.m.A, e - s)
             q += Rbf[:, :, s:e]
             q.max(axis=1, out=out[:, s:e])
         return out.reshape(W.shape)
@@ -208,14 +214,6 @@ class DelayedBound:
         U0 = V1[:, ok] @ Pz1[ok]
         return float((b @ m.R[x] + g * m.TX[:, x, :] @ U0).max())
 
-    def prepare32(self) -> None:
-        X = self.shape[0]
-        self._P12_32 = self.P12.astype(np.float32)
-        # [(x, a), x']: P(x' | x, a), a row per (cell, action)
-        self._TXall = np.ascontiguousarray(
-            self.m.TX.transpose(1, 0, 2).reshape(X * self.m.A, X).astype(np.float32)
-        )
-
 
 def delayed_bound(
     m: MixedModel,
@@ -237,7 +235,6 @@ def delayed_bound(
     """
     t0 = clock.now()
     db = DelayedBound(m, Q)
-    db.prepare32()
     s0 = clock.now()
     Rb = db.relative_rewards32()
     # the certificate is the same float64 work as the relative rewards
@@ -258,6 +255,16 @@ def delayed_bound(
 
     best: tuple[float, np.ndarray] = (math.inf, W)
 
+    def keep_if_best(D: np.ndarray, HD: np.ndarray) -> tuple[float, float]:
+        """The float32 estimate of D's certified bound at the first root (D kept if it
+        is the best so far) and D's residual max (H D - D)."""
+        nonlocal best
+        eps32 = float((HD - D).max())  # 0 where float32 skips J (D stays 0 there)
+        est = db.at(D, *roots[0]) + g * g * max(eps32, 0.0) / (1 - g)
+        if est < best[0]:
+            best = (est, D)
+        return est, eps32
+
     def sweep(D: np.ndarray) -> np.ndarray:
         nonlocal sweeps, sweep_s
         s0 = clock.now()
@@ -274,9 +281,7 @@ def delayed_bound(
             if sweeps and not time_left(1):
                 break
             HW = sweep(W)
-            est = db.at(W, *roots[0]) + g * g * max(float((HW - W).max()), 0.0) / (1 - g)
-            if est < best[0]:
-                best = (est, W)
+            est, _ = keep_if_best(W, HW)
             HW = np.minimum(HW, W)
             step = W - HW
             W = HW
@@ -295,10 +300,7 @@ def delayed_bound(
             if not time_left(1):
                 break
             HW = sweep(W)
-            eps32 = float((HW - W).max())  # 0 where float32 skips J (D stays 0 there)
-            est = db.at(W, *roots[0]) + g * g * max(eps32, 0.0) / (1 - g)
-            if est < best[0]:
-                best = (est, W)
+            est, eps32 = keep_if_best(W, HW)
             rise = np.maximum(HW - W, 0.0)
             total = float(rise.sum(dtype=np.float64))
             W = W + rise
@@ -331,12 +333,12 @@ class DelayedWorker:
     starts from the search's fast informed bound, ends by the search's deadline, and
     caps the roots' upper bounds (the search takes them at its next stopping check)."""
 
-    def __init__(self, search, deadline: float, progress):
+    def __init__(self, search, deadline: float, grace: float, progress):
         self.result: DelayedResult | None = None
         self.error = ""
         self.deadline = deadline
+        self.grace = grace  # how long past the deadline finish() waits for the thread
         self.stop = threading.Event()
-        self.grace = 0.0
         self.thread = threading.Thread(
             target=self._run, args=(search, progress), name="delayed-bound", daemon=True
         )
@@ -358,8 +360,8 @@ class DelayedWorker:
             )
             return None
         # done before the search's end less the time it keeps for writing its policy
-        w = cls(search, search.deadline - DELAYED_END_SHARE * time_limit_s, progress)
-        w.grace = DELAYED_END_SHARE * time_limit_s
+        end = DELAYED_END_SHARE * time_limit_s
+        w = cls(search, search.deadline - end, end, progress)
         w.thread.start()
         return w
 
@@ -398,6 +400,4 @@ class DelayedWorker:
             bad = search.take_root_caps()
             if bad:
                 return None, bad
-        else:
-            search.take_root_caps()
         return self.result, self.error

@@ -440,7 +440,7 @@ class MixedSearch(StoppingRules):
                 self.roots.append(_Root(self._node(by), x))
         self.root = self.roots[0]
         self.initial_lower = self.root.lb
-        # upper bounds at the roots found elsewhere (solve._DelayedWorker sets them from
+        # upper bounds at the roots found elsewhere (delayed.DelayedWorker sets them from
         # its thread); taken at the next stopping check
         self.root_caps: np.ndarray | None = None
         self.search_upper: float | None = None
