@@ -142,6 +142,9 @@ class GuardTask(control.Task):
             earned over this long (``vigil.system`` gives the planner ``min_step_s`` 2.5).
         tail_s: the episode runs this long after the person's script has ended.
         odom_rate_hz: odometry rate (the deployment's ``odom_rate_hz``).
+        render: render the camera image at its instants; False: only its stamp moves
+            (a model of the camera pipeline draws the detections from the truth,
+            :mod:`stack.perception.model`).
     """
 
     def __init__(
@@ -152,8 +155,10 @@ class GuardTask(control.Task):
         decision_step_s: float = 2.5,
         tail_s: float = 5.0,
         odom_rate_hz: float = 25.0,
+        render: bool = True,
     ):
         super().__init__()
+        self.render = bool(render)
         if not decision_step_s > 0 or not tail_s >= 0 or not odom_rate_hz > 0:
             raise ConfigError(
                 "decision_step_s/tail_s/odom_rate_hz",
@@ -256,7 +261,8 @@ class GuardTask(control.Task):
             o["scan"][:] = twin.scan().ranges_m
             o["scan_stamp"][...] = t
         if "camera" in self.due_now and not sched.out("camera", t):
-            o["camera"][:] = twin.render_camera()
+            if self.render:
+                o["camera"][:] = twin.render_camera()
             o["camera_stamp"][...] = t
 
 
@@ -269,6 +275,7 @@ def make_environment(
     tail_s: float = 5.0,
     odom_rate_hz: float = 25.0,
     time_limit_s: float = float("inf"),
+    render: bool = True,
 ) -> GuardEnvironment:
     """The twin as a ``dm_env.Environment`` (one step = one twin control period).
 
@@ -276,7 +283,7 @@ def make_environment(
         config: the twin's scene (with the person's script).
         model: the task model (rewards, grid).
         seed: the twin's noise seed.
-        outages, decision_step_s, tail_s, odom_rate_hz: see :class:`GuardTask`.
+        outages, decision_step_s, tail_s, odom_rate_hz, render: see :class:`GuardTask`.
         time_limit_s: an upper bound on the episode (the script's end comes first).
 
     Raises:
@@ -284,7 +291,7 @@ def make_environment(
     """
     twin = Twin(config, seed=seed)
     physics = TwinPhysics.of_twin(twin)
-    task = GuardTask(model, seed, outages, decision_step_s, tail_s, odom_rate_hz)
+    task = GuardTask(model, seed, outages, decision_step_s, tail_s, odom_rate_hz, render)
     return GuardEnvironment(physics, task, time_limit=time_limit_s, n_sub_steps=1)
 
 

@@ -409,6 +409,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_experiments)
 
     p = _command(
+        sub, "fit-perception", "fit the camera pipeline's model to rendered in-process runs"
+    )
+    p.add_argument("folders", nargs="*", type=Path, help="folders of rendered runs to fit on")
+    p.add_argument("-o", "--output", type=Path, default=None,
+                   help="model file (default config/perception-model.yaml)")  # fmt: skip
+    p.add_argument("--task", type=Path, default=None, help="first run rendered walks of it")
+    p.add_argument("--episodes", type=int, default=30, help="rendered walks to run first")
+    p.add_argument("--seed", type=int, default=101, help="seed of those walks")
+    p.add_argument("--workers", type=int, default=2, help="local processes")
+    p.add_argument("--out", type=Path, default=Path("runs/fit-perception"), help="their folder")
+    p.set_defaults(func=cmd_fit_perception)
+
+    p = _command(
         sub, "montecarlo", "the whole loop in-process (dm-control) over randomised walks and faults"
     )
     p.add_argument("task", type=Path, help="task file, e.g. config/task-r1.yaml")
@@ -420,6 +433,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None, help="deployment file")
     p.add_argument("--p-fault", type=float, default=0.25, help="chance of a sensor outage")
     p.add_argument("--max-sim-s", type=float, default=60.0, help="episode length bound")
+    p.add_argument(
+        "--perception",
+        choices=("model", "rendered"),
+        default="model",
+        help="the camera: its fitted model (fast, default) or rendered + HOG (the reference)",
+    )
+    p.add_argument("--perception-model", type=Path, default=None, help="the model file")
     p.set_defaults(func=cmd_montecarlo)
 
     p = _command(sub, "launch", "start the whole system from a deployment file; Ctrl-C stops it")
@@ -509,12 +529,40 @@ def cmd_experiments(args: argparse.Namespace) -> int:
     return 1 if any(e["error"] for e in record["scenarios"]) else 0
 
 
+def cmd_fit_perception(args: argparse.Namespace) -> int:
+    from vigil.fit_perception import fit_folders
+    from vigil.inprocess import DEFAULT_PERCEPTION_MODEL
+
+    folders = list(args.folders)
+    if args.task is not None:
+        from vigil.montecarlo import run_study
+
+        run_study(args.task, args.episodes, args.out, args.seed, args.workers,
+                  perception="rendered")  # fmt: skip
+        folders.append(args.out)
+    if not folders:
+        from stack.cells import ConfigError
+
+        raise ConfigError("folders", [], "give rendered run folders, or --task to run some")
+    fit_folders(folders, args.output or DEFAULT_PERCEPTION_MODEL)
+    return 0
+
+
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     from vigil.montecarlo import StudyConfig, run_study
 
     study = StudyConfig(p_fault=args.p_fault, max_sim_s=args.max_sim_s)
     record = run_study(
-        args.task, args.episodes, args.out, args.seed, args.workers, args.ray, args.config, study
+        args.task,
+        args.episodes,
+        args.out,
+        args.seed,
+        args.workers,
+        args.ray,
+        args.config,
+        study,
+        perception=args.perception,
+        perception_model=args.perception_model,
     )
     print(json.dumps(record["summary"], sort_keys=True))
     return 1 if record["summary"]["failed_episodes"] else 0

@@ -64,6 +64,7 @@ from stack.perception.errors import BadScanError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs
 from stack.perception.messages import camera_state_from_json, legs_to_dict, tracks_from_dict
+from stack.perception.model import ModelCamera, PerceptionModel, PersonFrame
 from stack.perception.observation import CombinerConfig, ObservationCombiner
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
@@ -81,11 +82,15 @@ from vigil.system import System, prepare
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
+DEFAULT_PERCEPTION_MODEL = REPO / "config" / "perception-model.yaml"
 CMD_TIMEOUT_S = 0.5  # the bridge's cmd_timeout_s
 FRAME_TIMEOUT_S = 2.0  # the camera node's frame_timeout_s
 MAX_POSE_AGE_S = 0.5  # the legs node's max_pose_age_s
 PROGRESS_HZ = 2.0  # navigation's progress_rate_hz
 SPEECH_POLL_S = 0.1  # the speech node's poll_rate_hz 10
+PERCEPTION_MODES = ("rendered", "model")
+DETECTIONS_FILE = "detections.jsonl"  # rendered runs: each frame's truth and detections
+MODEL_STREAM = 0x5EE  # the model camera's random stream, beside the twin's seed
 
 
 def ros_time(t_s: float) -> float:
@@ -142,6 +147,11 @@ class InProcessSystem:
         tail_s: the episode's time after the person's script ends.
         video: also store the camera frames (``camera_frames.bin``) for the report's video.
         say: progress lines (about one per simulated decision step).
+        perception: ``"rendered"`` (the camera rendered through EGL and read by HOG;
+            each frame's truth and detections go to ``detections.jsonl``, the data
+            ``vigil fit-perception`` fits) or ``"model"`` (no rendering: the detections
+            are drawn from ``perception_model`` and fed to the same tracker).
+        perception_model: the fitted model (``"model"`` only).
     """
 
     def __init__(
@@ -151,7 +161,15 @@ class InProcessSystem:
         tail_s: float = 5.0,
         video: bool = False,
         say: Callable[[str], None] | None = None,
+        perception: str = "rendered",
+        perception_model: PerceptionModel | None = None,
     ):
+        if perception not in PERCEPTION_MODES:
+            raise ConfigError("perception", perception, f"must be one of {PERCEPTION_MODES}")
+        if perception == "model" and perception_model is None:
+            raise ConfigError("perception_model", None, "needed with perception: model")
+        if perception == "model" and video:
+            raise ConfigError("video", video, "needs rendered perception (no frames to show)")
         p = system.params
         self.run_dir = system.run_dir
         self.say = say or (lambda _s: None)
@@ -198,6 +216,7 @@ class InProcessSystem:
             tail_s=tail_s,
             odom_rate_hz=float(bp["odom_rate_hz"]),
             time_limit_s=max_sim_s,
+            render=perception == "rendered",
         )
         twin = self.env.twin
         occ = twin.occupancy_map()
@@ -242,6 +261,14 @@ class InProcessSystem:
         self.combiner = ObservationCombiner(
             ogrid, CombinerConfig.from_dict(osec.get("observations")), visibility
         )
+        self.model_camera: ModelCamera | None = None
+        self.detections = None
+        if perception == "model":
+            assert perception_model is not None
+            rng = np.random.default_rng([int(bp["seed"]), MODEL_STREAM])
+            self.model_camera = ModelCamera(perception_model, visibility, rng)
+        else:
+            self.detections = open(self.run_dir / DETECTIONS_FILE, "w")
         self.obs_camera = None
         self.obs_tracks: tuple = ()
         self.obs_pose: Pose2D | None = None
@@ -395,7 +422,25 @@ class InProcessSystem:
     def camera_on_image(self, msg: tuple[float, np.ndarray]) -> None:
         stamp, rgb = msg
         self._last_frame_s = self.now_s
-        state = self.camera.process_frame(rgb[:, :, ::-1].copy(), stamp)  # rgb8 -> BGR
+        gt = self.env.twin.ground_truth()
+        people = tuple(
+            PersonFrame(p.pose.x_m, p.pose.y_m, *p.velocity_mps, p.in_room) for p in gt.people
+        )
+        if self.model_camera is not None:
+            points = self.model_camera.frame(people, gt.robot)
+            state = self.camera.update_points(tuple(points), stamp)
+        else:
+            state = self.camera.process_frame(rgb[:, :, ::-1].copy(), stamp)  # rgb8 -> BGR
+            if self.detections is not None:
+                record = {
+                    "t": round(gt.time_s, 4),
+                    "robot": [round(gt.robot.x_m, 4), round(gt.robot.y_m, 4),
+                              round(gt.robot.yaw_rad, 4)],
+                    "people": [[round(p.x_m, 4), round(p.y_m, 4), round(p.vx_mps, 4),
+                                round(p.vy_mps, 4), p.in_room] for p in people],
+                    "detections": [[round(x, 4), round(y, 4)] for x, y in state.people_m],
+                }  # fmt: skip
+                self.detections.write(json.dumps(record) + "\n")
         self.publish(topic.PERSON, json.dumps(state.to_dict()))
 
     def camera_watchdog(self) -> None:
@@ -579,6 +624,8 @@ class InProcessSystem:
         if self.speaker is not None:
             self.speaker.stop()
         self.trace.close()
+        if self.detections is not None:
+            self.detections.close()
         if self.frames is not None:
             self.frames.close()
         self.env.close()
@@ -597,6 +644,8 @@ def run_inprocess(
     plots: bool = False,
     video: bool = False,
     say: Callable[[str], None] = print,
+    perception: str = "rendered",
+    perception_model: PerceptionModel | str | Path | None = None,
 ) -> dict:
     """Run a scenario through the in-process loop and score it; returns the summary.
 
@@ -611,6 +660,9 @@ def run_inprocess(
         tail_s: the episode runs this long after the person's script ends.
         report: write the report (``vigil.report.write_report``: metrics, tables).
         plots, video: the report's figures and video.
+        perception: ``"rendered"`` or ``"model"`` (:class:`InProcessSystem`).
+        perception_model: the model, or its file (default
+            ``config/perception-model.yaml``), for ``perception="model"``.
 
     Returns:
         The report's summary (``summary.json``) with an ``inprocess`` entry (steps,
@@ -632,7 +684,17 @@ def run_inprocess(
     quiet = lambda _s: None  # noqa: E731 - prepare's calibration line is not progress
     system = prepare(dep, run_dir, scenario, say=quiet)
     system.params["planner"]["max_steps"] = scenario.steps
-    loop = InProcessSystem(system, max_sim_s=max_sim_s, tail_s=tail_s, video=video, say=say)
+    if perception == "model" and not isinstance(perception_model, PerceptionModel):
+        perception_model = PerceptionModel.load(perception_model or DEFAULT_PERCEPTION_MODEL)
+    loop = InProcessSystem(
+        system,
+        max_sim_s=max_sim_s,
+        tail_s=tail_s,
+        video=video,
+        say=say,
+        perception=perception,
+        perception_model=perception_model if perception == "model" else None,
+    )
     result = loop.run()
     info = {
         "scenario": scenario.name,
@@ -641,6 +703,7 @@ def run_inprocess(
         "sim_s": round(result.sim_s, 3),
         "wall_s": round(result.wall_s, 2),
         "done": result.done,
+        "perception": perception,
     }
     (run_dir / "inprocess.json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
     if not report:

@@ -159,7 +159,14 @@ def episode_scenarios(task_path: Path, n: int, seed: int, study: StudyConfig) ->
     ]
 
 
-def run_episode(scenario: Scenario, out_dir: str, config_path: str | None, study: StudyConfig):
+def run_episode(
+    scenario: Scenario,
+    out_dir: str,
+    config_path: str | None,
+    study: StudyConfig,
+    perception: str = "model",
+    perception_model: str | None = None,
+):
     """One episode through the in-process loop; the metrics that matter (JSON-ready).
 
     Runs in a worker process (local or Ray): only picklable arguments and results.
@@ -178,6 +185,8 @@ def run_episode(scenario: Scenario, out_dir: str, config_path: str | None, study
         plots=False,
         video=False,
         say=lambda _s: None,
+        perception=perception,
+        perception_model=perception_model,
     )
     m = summary["metrics"]
     return {
@@ -437,6 +446,8 @@ def run_study(
     config_path: str | Path | None = None,
     study: StudyConfig | None = None,
     say: Callable[[str], None] = print,
+    perception: str = "model",
+    perception_model: str | Path | None = None,
 ) -> dict[str, Any]:
     """Run the study and write its JSON, Markdown and figure; returns the JSON record.
 
@@ -450,6 +461,9 @@ def run_study(
         config_path: the deployment file (default ``config/twin.yaml``).
         study: the randomisation.
         say: progress, one line per finished episode.
+        perception: ``"model"`` (the camera pipeline's fitted model: no rendering) or
+            ``"rendered"`` (EGL and HOG, the fidelity reference).
+        perception_model: the model file (default ``config/perception-model.yaml``).
 
     Raises:
         ConfigError: bad arguments (named).
@@ -469,8 +483,16 @@ def run_study(
     policy_for(task_path, say)  # solved once here, not by every worker at the same time
     scenarios = episode_scenarios(task_path, episodes, seed, study)
     cfg = None if config_path is None else str(Path(config_path).resolve())
+    model_file = None
+    if perception == "model":
+        from stack.perception.model import PerceptionModel
+        from vigil.inprocess import DEFAULT_PERCEPTION_MODEL
+
+        model_file = str(Path(perception_model or DEFAULT_PERCEPTION_MODEL).resolve())
+        PerceptionModel.load(model_file)  # a bad file is refused before any episode runs
     jobs = [
-        (k, (sc, str(out / "episodes" / f"{k:03d}"), cfg, study)) for k, sc in enumerate(scenarios)
+        (k, (sc, str(out / "episodes" / f"{k:03d}"), cfg, study, perception, model_file))
+        for k, sc in enumerate(scenarios)
     ]
     where = f"Ray ({ray})" if ray else f"{workers} local process(es)"
     say(f"[montecarlo] {episodes} episodes of {task_path.name}, seed {seed}, on {where}")
@@ -488,6 +510,8 @@ def run_study(
         "study": asdict(study),
         "workers": workers,
         "ray": ray,
+        "perception": perception,
+        "perception_model": model_file,
         "wall_s": round(time.monotonic() - t0, 1),
         "summary": summary,
         "episodes": eps,

@@ -382,6 +382,27 @@ class CameraPeopleTracker:
             if pos is not None and self._plausible(box, pos, image_size_px):
                 candidates.append((box, (u, v), pos))
         people = _suppress(candidates, cfg.nms_iou, cfg.nested_box_frac)
+        return self._track(candidates, people, stamp_s, boxes)
+
+    def update_points(
+        self, points_m: tuple[tuple[float, float], ...], stamp_s: float
+    ) -> CameraPersonState:
+        """Track the person from one frame's people given as floor points [m] (strongest
+        first), not boxes: the same rules (association gate, two missed frames,
+        direction, cell) as :meth:`update`. This is how a model of the detector
+        (:mod:`stack.perception.model`) feeds the tracker; the state has no boxes.
+        """
+        if stamp_s <= self._state.stamp_s:
+            return replace(
+                self._state, warning=f"frozen frame: stamp {stamp_s} repeats or goes back"
+            )
+        candidates = [(None, None, (float(x), float(y))) for x, y in points_m]
+        return self._track(candidates, candidates, stamp_s, ())
+
+    def _track(
+        self, candidates: list, people: list, stamp_s: float, boxes: tuple[PersonBox, ...]
+    ) -> CameraPersonState:
+        """The tracking rules on one frame's (box, foot, position) candidates."""
         chosen = self._choose(candidates)
         if chosen is None:  # no candidates: nobody in people_m either
             return self._missed_frame(stamp_s, boxes, bad=None)
@@ -398,7 +419,7 @@ class CameraPeopleTracker:
             box=box,
             boxes=boxes,
             people_m=tuple(c[2] for c in people),
-            people_boxes=tuple(c[0] for c in people),
+            people_boxes=tuple(c[0] for c in people if c[0] is not None),
         )
         return self._state
 

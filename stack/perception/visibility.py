@@ -107,6 +107,19 @@ class PointVisibility:
     hidden: bool
 
 
+@dataclass
+class _SampleTable:
+    """The sample points' silhouettes, for :meth:`CameraVisibility.hidden_fractions`."""
+
+    spans: dict[int, tuple[int, int]]  # cell -> its rows
+    whole: np.ndarray  # (P, H*W) float32 0/1 silhouette masks
+    legs: np.ndarray  # (P, H*W) their legs
+    inside: np.ndarray  # (P,) silhouette pixels in the image
+    n_legs: np.ndarray  # (P,) legs pixels in the image
+    dist: np.ndarray  # (P,) distance from the camera's foot point [m]
+    static_hidden: np.ndarray  # (P,) hidden whatever the robot (image edge)
+
+
 class CameraVisibility:
     """Which floor the camera sees, given where the robot stands.
 
@@ -143,6 +156,7 @@ class CameraVisibility:
         self._mask_pose: Pose2D | None = None
         self._mask = np.zeros(self.shape, np.uint8)
         self._static = self._static_fractions()
+        self._table: _SampleTable | None = None
 
     # -- projection --------------------------------------------------------------
     def _project(self, pts: np.ndarray) -> np.ndarray | None:
@@ -254,12 +268,58 @@ class CameraVisibility:
         robot = self._robot(robot_pose)
         if not robot.any():
             return dict(self._static)
-        rxy = (robot_pose.x_m, robot_pose.y_m)
-        out = {}
-        for cell in self.grid.cells:
-            pts = self._samples(cell)
-            out[cell] = sum(self.point(x, y, robot, rxy).hidden for x, y in pts) / len(pts)
-        return out
+        # :meth:`point` for every sample at once: the silhouettes do not move, only the
+        # robot does, so its overlap with each is one product with the stacked masks.
+        t = self._sample_table()
+        r = robot.ravel().astype(np.float32)
+        nearer = math.dist((robot_pose.x_m, robot_pose.y_m), self.centre_m[:2]) < t.dist
+        use = (t.inside > 0) & nearer
+        covered = np.where(use, (t.whole @ r) / np.maximum(t.inside, 1), 0.0)
+        legs = np.where(use & (t.n_legs > 0), (t.legs @ r) / np.maximum(t.n_legs, 1), 0.0)
+        cfg = self.config
+        hidden = (
+            t.static_hidden | (covered > cfg.max_covered_frac) | (legs > cfg.max_legs_covered_frac)
+        )
+        return {cell: float(hidden[i0:i1].sum()) / (i1 - i0) for cell, (i0, i1) in t.spans.items()}
+
+    def _sample_table(self) -> _SampleTable:
+        """Every cell's sample silhouettes as stacked raster masks (made once)."""
+        if self._table is None:
+            cfg = self.config
+            spans: dict[int, tuple[int, int]] = {}
+            whole: list[np.ndarray] = []
+            legs: list[np.ndarray] = []
+            inside: list[int] = []
+            n_legs: list[int] = []
+            dist: list[float] = []
+            static: list[bool] = []
+            for cell in self.grid.cells:
+                i0 = len(whole)
+                for x, y in self._samples(cell):
+                    wm = np.zeros(self.shape, np.uint8)
+                    lm = np.zeros(self.shape, np.uint8)
+                    quads = self._person_quads(x, y)
+                    if quads is not None:
+                        self._fill(wm, quads[0])
+                        self._fill(lm, quads[1])
+                    whole.append(wm.ravel())
+                    legs.append(lm.ravel())
+                    inside.append(int(wm.sum()))
+                    n_legs.append(int(lm.sum()))
+                    dist.append(math.dist((x, y), self.centre_m[:2]))
+                    p = self.point(x, y, None)
+                    static.append(quads is None or p.in_image_frac < cfg.min_in_image_frac)
+                spans[cell] = (i0, len(whole))
+            self._table = _SampleTable(
+                spans=spans,
+                whole=np.array(whole, np.float32),
+                legs=np.array(legs, np.float32),
+                inside=np.array(inside, float),
+                n_legs=np.array(n_legs, float),
+                dist=np.array(dist, float),
+                static_hidden=np.array(static, bool),
+            )
+        return self._table
 
     def point_hidden(self, x: float, y: float, robot_pose: Pose2D | None) -> bool:
         """Whether a person at floor point (x, y) is hidden from the camera."""
