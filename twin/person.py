@@ -166,6 +166,7 @@ class PersonScript:
                 t = end
             p0 = p1
         self._starts = [ph.t0 for ph in self._phases]
+        self._last: tuple[float, PersonPose] | None = None
         self.end_time_s = self._phases[-1].t0  # when the person stops for good
 
     def pose(self, t: float) -> PersonPose:
@@ -177,6 +178,13 @@ class PersonScript:
         Returns:
             The pose of every segment at ``t``.
         """
+        if self._last is not None and self._last[0] == t:
+            return self._last[1]  # the physics step, its sensors and its truth ask alike
+        pose = self._pose(t)
+        self._last = (t, pose)
+        return pose
+
+    def _pose(self, t: float) -> PersonPose:
         i = max(0, bisect.bisect_right(self._starts, t) - 1)
         ph = self._phases[i]
         f = np.array([math.cos(ph.heading), math.sin(ph.heading)])

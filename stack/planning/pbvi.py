@@ -66,6 +66,23 @@ class Backup:
             choice.append((zs, k))
         return q, choice
 
+    def lookahead_values(self, alphas: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Q(b, a) of :meth:`action_values` alone, for choosing an action at run time:
+        the observations reachable from ``b`` are found first and the vectors are
+        scored only on them (a dense (K, n) x (n, |Z_b|) product instead of a sparse
+        one over every observation; the same sums in another order)."""
+        q = np.empty(self.A)
+        for a in range(self.A):
+            pred = self.TT[a] @ b
+            idx = np.flatnonzero(pred)
+            Osub = self.O[a][idx]  # (n, Z) rows of the reachable next states
+            pz = Osub.T @ pred[idx]
+            zs = np.flatnonzero(pz > 0)
+            weighted = Osub[:, zs].toarray() * pred[idx][:, None]  # (n, |Z_b|)
+            G = alphas[:, idx] @ weighted  # (K, |Z_b|)
+            q[a] = self.R[:, a] @ b + self.gamma * G.max(axis=0).sum()
+        return q
+
     def __call__(self, alphas: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int, float]:
         """Back up ``alphas`` at belief ``b``.
 

@@ -338,7 +338,7 @@ def policy_chooser(
 
     def choose(b: np.ndarray) -> tuple[int, np.ndarray]:
         if lookahead:
-            q, _ = backup.action_values(policy.alphas, b)
+            q = backup.lookahead_values(policy.alphas, b)
         else:
             q = policy.action_values(b, pomdp.n_actions)
         best = q.max()
