@@ -50,8 +50,9 @@ def test_perseus_lower_bound_rises_and_stays_below_upper(tiger_solution):
 
 
 def test_tiger_reaches_the_known_optimum(tiger_solution):
-    # SARSOP converges to 19.371 on this file (../shared/pomdp/README.md)
-    assert tiger_solution.lower_bound == pytest.approx(19.37, abs=0.05)
+    # SARSOP: 19.371 <= V* <= 19.372 on this file (../shared/pomdp/README.md); a lower
+    # bound is never above V*, and 300 Perseus iterations come within 0.05 of it
+    assert 19.32 <= tiger_solution.lower_bound <= 19.3721
 
 
 def test_backup_never_lowers_value_at_its_belief(tiger):
@@ -101,7 +102,7 @@ def test_cli_solve_pomdp_prints_bounds(capsys):
     assert out["lower_bound"] <= out["upper_bound"]
     # SARSOP: 1.8899 <= V* <= 1.8909
     assert out["lower_bound"] <= 1.8909 and out["upper_bound"] >= 1.8899
-    assert out["gap"] <= 1e-3
+    assert out["stopped"] == "gap" and out["gap"] <= 1e-3  # no time limit: the gap rule
 
 
 def test_cli_reports_bad_input_without_a_traceback(tmp_path, capsys):
