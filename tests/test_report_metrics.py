@@ -11,6 +11,7 @@ from vigil.report.metrics import (
     false_trips,
     find_visits,
     guard_metrics,
+    needless_trips,
     step_counts,
     step_outcome,
     timeline_from_trace,
@@ -112,11 +113,17 @@ def test_visit_still_going_at_the_end():
 def test_warnings_timely_or_late():
     tl = timeline({(5, 12): 1, (12, 30): 4}, {(0, 30): 1})
     w = classify_warnings(tl, [1], [3.0, 6.0, 14.5, 15.5, 25.0])
-    assert [x["timely"] for x in w] == [False, True, True, False, False]
+    # 3.0 is 2 s before the entry: ahead of it (issue 26), so timely
+    assert [x["timely"] for x in w] == [True, True, True, False, False]
+    assert [x["ahead"] for x in w] == [True, False, False, False, False]
+    assert w[0]["visit_cell"] == 1 and w[0]["person_cell"] is None
     assert w[1]["visit_cell"] == 1 and w[1]["person_cell"] == 1 and w[1]["robot_cell"] == 1
     assert w[3]["person_cell"] == 4
     m = guard_metrics(tl, [1], [3.0, 6.0, 14.5, 15.5, 25.0], [])
-    assert (m["timely_warnings"], m["late_warnings"]) == (2, 3)
+    assert (m["timely_warnings"], m["late_warnings"], m["ahead_warnings"]) == (3, 2, 1)
+    # more than WARNING_BEFORE_S (10 s) before the entry is late
+    far = timeline({(15, 20): 1}, {(0, 30): 1})
+    assert [x["timely"] for x in classify_warnings(far, [1], [4.0, 5.0])] == [False, True]
 
 
 def test_false_trips_need_an_empty_room_before_and_after():
@@ -194,3 +201,97 @@ def test_timeline_rejects_bad_input():
         Timeline((0.0, 1.0), (1,), (True, True), (None, None), (False, False))
     with pytest.raises(ValueError, match="must not decrease"):
         Timeline.of([1.0, 0.0], [1, 1], [None, None])
+
+
+def test_warning_lead_time_per_visit():
+    tl = timeline({(5, 12): 1, (12, 16): 3, (16, 22): 1}, {(0, 30): 7})
+    # before the entry: positive lead; the first warning of the window counts
+    first, second = find_visits(tl, [1], warning_starts=[3.0, 6.0])
+    assert (first.first_warning_t, first.warning_lead_s) == (3.0, 2.0)
+    # the second visit's window starts where the first visit ended (12 s)
+    assert second.first_warning_t is None and second.warning_lead_s is None
+    # after the entry: negative; 13.0 is timely for the first visit and 3 s ahead of the
+    # second, so it is the second's first warning
+    first, second = find_visits(tl, [1], warning_starts=[7.5, 13.0])
+    assert first.warning_lead_s == -2.5 and second.warning_lead_s == 3.0
+    # a warning up to WARNING_AFTER_S after the exit still counts (late lead), later not
+    (v,) = find_visits(timeline({(5, 8): 1}, {(0, 30): 7}), [1], warning_starts=[10.0, 11.5])
+    assert v.warning_lead_s == -5.0
+    (v,) = find_visits(timeline({(5, 8): 1}, {(0, 30): 7}), [1], warning_starts=[11.5])
+    assert v.warning_lead_s is None
+    # more than 10 s before the entry is no lead; no warning times: None
+    (v,) = find_visits(timeline({(15, 20): 1}, {(0, 30): 7}), [1], warning_starts=[4.0])
+    assert v.warning_lead_s is None
+    assert find_visits(tl, [1])[0].warning_lead_s is None
+    m = guard_metrics(tl, [1], [7.5, 13.0], [])
+    assert [v["warning_lead_s"] for v in m["visits"]] == [-2.5, 3.0]
+    assert (m["warned_visits"], m["warned_before_entry"]) == (2, 1)
+    assert (m["min_warning_lead_s"], m["mean_warning_lead_s"]) == (-2.5, 0.25)
+    m = guard_metrics(tl, [1], [], [])
+    assert m["warned_visits"] == 0 and m["min_warning_lead_s"] is None
+
+
+def test_robot_first_when_in_the_cell_at_the_entry():
+    tl = timeline({(5, 12): 1, (12, 16): 3, (16, 22): 1}, {(0, 4): 3, (4, 13): 1, (13, 30): 5})
+    first, second = find_visits(tl, [1])
+    assert first.robot_first and first.delay_s == 0.0
+    assert not second.robot_first and not second.guarded
+    late = timeline({(5, 12): 1}, {(0, 6): 3, (6, 30): 1})
+    (v,) = find_visits(late, [1])
+    assert v.guarded and not v.robot_first and v.delay_s == 1.0
+    assert guard_metrics(tl, [1], [], [])["robot_first"] == 1
+
+
+def test_needless_trips_need_nobody_in_the_cell_before_and_after():
+    # the person is in the room (cell 4) but never in cell 1: the trip at 12 is needless,
+    # not false (the room was not empty)
+    tl = timeline({(0, 40): 4}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert needless_trips(tl, [1]) == [{"t": 12.0, "cell": 1}]
+    assert false_trips(tl, [1]) == []
+    # the person in cell 1 8 s after the robot arrived: not needless
+    tl = timeline({(0, 20): 4, (20, 25): 1}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert needless_trips(tl, [1]) == []
+    # ... or until 2.5 s (the window starts at 2 s); until 1.5 s is outside it
+    tl = timeline({(0, 2.5): 1, (2.5, 40): 4}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert needless_trips(tl, [1]) == []
+    tl = timeline({(0, 1.5): 1, (1.5, 40): 4}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert needless_trips(tl, [1]) == [{"t": 12.0, "cell": 1}]
+    # an empty room: false and needless; starting in the cell is no arrival
+    empty = timeline({}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert len(needless_trips(empty, [1])) == len(false_trips(empty, [1])) == 1
+    assert needless_trips(timeline({}, {(0, 40): 1}, end=40.0), [1]) == []
+    # a second walker in the cell makes it needed
+    other = timeline({(10, 15): 1}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    assert needless_trips(empty, [1], others=[other]) == []
+    # each arrival counts: out and back in
+    tl = timeline({(0, 40): 4}, {(0, 12): 1, (12, 14): 3, (14, 40): 1}, end=40.0)
+    assert [x["t"] for x in needless_trips(tl, [1])] == [14.0]
+    m = guard_metrics(tl, [1], [], [])
+    assert m["n_needless_trips"] == 1 and m["n_false_trips"] == 0
+
+
+def test_people_metrics_count_needless_trips_over_every_walker():
+    from vigil.report.people import people_metrics
+
+    a = timeline({(0, 40): 4}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    b = timeline({(15, 20): 1}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    m = people_metrics([a, b], [1], warning_starts=[14.0])
+    assert m["n_needless_trips"] == 0 and m["robot_first"] == 1
+    assert m["per_person"][1]["visits"][0]["warning_lead_s"] == 1.0
+    assert people_metrics([a], [1])["n_needless_trips"] == 1
+
+
+def test_set_totals_add_the_new_metrics_and_read_old_records():
+    from vigil.report.metrics import set_totals
+
+    tl = timeline({(5, 12): 1, (12, 40): 4}, {(0, 4): 3, (4, 30): 1, (30, 40): 3}, end=40.0)
+    new = guard_metrics(tl, [1], [3.0], [])
+    trip = timeline({(0, 40): 4}, {(0, 12): 3, (12, 40): 1}, end=40.0)
+    other = guard_metrics(trip, [1], [], [])
+    old = {k: v for k, v in other.items() if k not in ("n_needless_trips", "robot_first")}
+    old["visits"] = [{"cell": 1}]  # an old record's visit: no lead
+    t = set_totals([new, other, old])
+    assert (t["n_needless_trips"], t["robot_first"]) == (1, 1)
+    assert (t["warned_visits"], t["warned_before_entry"], t["ahead_warnings"]) == (1, 1, 1)
+    assert t["min_warning_lead_s"] == t["mean_warning_lead_s"] == 2.0
+    assert set_totals([])["min_warning_lead_s"] is None

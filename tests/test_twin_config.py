@@ -41,7 +41,7 @@ def test_sections_are_parsed_into_frozen_dataclasses():
         ({"lidar": {"beams": True}}, "lidar.beams", "integer"),
         ({"lidar": {"range_min_m": 5, "range_max_m": 4}}, "lidar.range_max_m", "exceed"),
         (
-            {"person": {"waypoints": [{"x_m": 0, "y_m": 0}, {"x_m": 1, "y_m": 0, "speed_mps": 2}]}},
+            {"person": {"waypoints": [{"x_m": 0, "y_m": 0}, {"x_m": 1, "y_m": 0, "speed_mps": 3}]}},
             "person.waypoints[1].speed_mps",
             "walking speeds",
         ),

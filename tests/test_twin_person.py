@@ -94,3 +94,57 @@ def test_default_script_enters_tours_the_region_and_leaves():
         twin.person.pose(twin.time_s).ankles_m[0],
     )
     assert shin == pytest.approx((knee + ankle) / 2, abs=0.03)
+
+
+def test_a_walker_at_2_m_per_s_validates_and_moves_at_that_speed_in_the_twin():
+    """Issue 26: walkers up to 2.0 m/s (ISO 13855 designs for 1.6 m/s); faster is refused."""
+    from stack.cells import ConfigError
+    from twin.config import MAX_WALK_SPEED_MPS
+    from twin.person import max_step_length_m
+
+    assert MAX_WALK_SPEED_MPS == 2.0
+    with pytest.raises(ConfigError) as err:
+        TwinConfig.from_dict({"person": {"waypoints": [{}, {"x_m": 1, "speed_mps": 2.1}]}})
+    assert err.value.key == "person.waypoints[1].speed_mps"
+    # the step lengthens past the brisk walk's 0.72 m: 0.78 m at 1.6 m/s, 0.90 m at 2.0
+    assert max_step_length_m(1.4) == pytest.approx(0.72)
+    assert max_step_length_m(1.6) == pytest.approx(0.78)
+    assert max_step_length_m(2.0) == pytest.approx(0.90)
+    cfg = TwinConfig.from_dict(
+        {
+            "room": {"furniture": False},
+            "person": {
+                "waypoints": [
+                    {"x_m": -1.0, "y_m": 0.75, "pause_s": 0.5},
+                    {"x_m": 6.5, "y_m": 0.75, "speed_mps": 2.0},
+                ]
+            },
+        }
+    )
+    script = PersonScript(cfg.person)
+    assert script.end_time_s == pytest.approx(0.5 + 7.5 / 2.0)
+    # the gait at a jog: planted feet stay put, legs keep their length, the pelvis dips
+    # but the person stays upright
+    ground = script.dims.ankle_height_m + 1e-9
+    prev, slides, drops = script.pose(0.5), [], []
+    for t in np.arange(0.5, script.end_time_s, 0.01):
+        p = script.pose(t)
+        drops.append(p.pelvis_drop_m)
+        for k in range(2):
+            assert np.linalg.norm(p.knees_m[k] - p.hips_m[k]) == pytest.approx(script.dims.thigh_m)
+            if p.ankles_m[k, 2] <= ground and prev.ankles_m[k, 2] <= ground:
+                slides.append(np.linalg.norm(p.ankles_m[k, :2] - prev.ankles_m[k, :2]))
+        prev = p
+    assert max(slides) < 1e-9 and max(drops) < 0.15
+    # in the twin: the mocap person covers 2.0 m per second
+    twin = Twin(cfg, seed=0)
+    twin.run(1.0)
+    a = twin.ground_truth()
+    twin.run(1.0)
+    b = twin.ground_truth()
+    dt = b.time_s - a.time_s
+    dist = math.hypot(b.person.pose.x_m - a.person.pose.x_m, b.person.pose.y_m - a.person.pose.y_m)
+    assert dist / dt == pytest.approx(2.0, rel=0.01)
+    assert b.person.velocity_mps == pytest.approx((2.0, 0.0), abs=1e-6)
+    torso = twin.data.xpos[twin.model.body("person/torso").id]
+    assert torso[:2] == pytest.approx([b.person.pose.x_m, b.person.pose.y_m], abs=0.03)

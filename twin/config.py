@@ -41,6 +41,10 @@ POSITIVE: Rule = (_positive, "must be > 0")
 NON_NEGATIVE: Rule = (_non_negative, "must be >= 0")
 RGB: Rule = (_unit_rgb, "must be three numbers in [0, 1]")
 
+# The fastest walker the twin animates: beyond ISO 13855's 1.6 m/s walking speed, up to
+# a fast walk or a jog (issue 26). The gait's steps lengthen with speed (twin/person.py).
+MAX_WALK_SPEED_MPS = 2.0
+
 
 class _FromDict(Config):
     """The twin's configurations: :class:`stack.config.Config` (checked whenever built,
@@ -197,7 +201,10 @@ class Waypoint(_FromDict):
     pause_s: float = 0.0
 
     _rules: ClassVar[dict[str, Rule]] = {
-        "speed_mps": (lambda v: 0.1 <= v <= 1.4, "must be in [0.1, 1.4] m/s (walking speeds)"),
+        "speed_mps": (
+            lambda v: 0.1 <= v <= MAX_WALK_SPEED_MPS,
+            f"must be in [0.1, {MAX_WALK_SPEED_MPS}] m/s (walking speeds, up to a jog)",
+        ),
         "pause_s": NON_NEGATIVE,
     }
 

@@ -28,10 +28,14 @@ from stack.cells import CellGrid
 from twin.config import PersonConfig, Waypoint
 
 # Maximum step length as a function of speed: 0.33 m at 0.1 m/s, 0.72 m at 1.4 m/s,
-# i.e. about 0.3 steps/s when strolling and 1.9 steps/s at a brisk walk.
+# i.e. about 0.3 steps/s when strolling and 1.9 steps/s at a brisk walk; then on up to
+# 0.90 m at 2.0 m/s (2.2 steps/s: a fast walk or a jog, issue 26; ISO 13855's walking
+# speed 1.6 m/s takes 0.78 m steps). Measured gaits lengthen the step and quicken the
+# cadence together; without a flight phase the pelvis dips lower on the longest steps.
 _STEP_BASE_M = 0.30
 _STEP_PER_SPEED_S = 0.30
-_STEP_MAX_M = 0.72
+_STEP_MAX_M = 0.90
+_ARM_STRIDE_M = 0.72  # the step at which the arms swing fully (the brisk walk's)
 _LIFT_M = 0.07  # swing-foot clearance
 
 
@@ -242,7 +246,7 @@ class PersonScript:
             xy = pelvis_xy + side[k] * d.shoulder_half_width_m * left
             shoulders[k] = (xy[0], xy[1], d.shoulder_height_m - drop)
             # arms swing against the same-side leg, about 25 deg at a full stride
-            swing = -0.45 * (feet_u[k] - u) / (0.5 * _STEP_MAX_M)
+            swing = -0.45 * (feet_u[k] - u) / (0.5 * _ARM_STRIDE_M)
             swing = max(-0.45, min(0.45, swing))
             direction = np.array([math.sin(swing) * f[0], math.sin(swing) * f[1], -math.cos(swing)])
             # hands a little away from the hips, as a relaxed arm hangs

@@ -53,6 +53,7 @@ from typing import Any
 
 from stack.cells import CellGrid, ConfigError
 from stack.config import read_yaml
+from twin.config import MAX_WALK_SPEED_MPS
 
 FAULT_KINDS = ("camera_off", "lidar_off", "kill", "obstacle")
 # the twin-mode nodes a kill fault may name (vigil.system starts them; the bridge and the
@@ -286,8 +287,10 @@ def _walker(data: Any, prefix: str) -> Walker:
         key = f"{prefix}.walk[{i}]"
         leg = _check_keys(leg, {"to", "speed_mps", "pause_s"}, key)
         speed = _number(leg, "speed_mps", 1.0, key, 0.1)
-        if speed > 1.4:
-            raise ConfigError(f"{key}.speed_mps", speed, "must be in [0.1, 1.4] m/s")
+        if speed > MAX_WALK_SPEED_MPS:
+            raise ConfigError(
+                f"{key}.speed_mps", speed, f"must be in [0.1, {MAX_WALK_SPEED_MPS}] m/s"
+            )
         walk.append(Leg(_where(leg.get("to"), f"{key}.to"), speed, _number(leg, "pause_s", 0, key)))
     return Walker(start, tuple(walk))
 

@@ -4,6 +4,7 @@ Modules, each one concern:
 
 - :mod:`~vigil.report.records`: read and check ``steps.jsonl``, ``trace.jsonl``, the
   speech log (formats in its docstring);
+- :mod:`~vigil.report.timeline`: the ground truth as cells over time (pure);
 - :mod:`~vigil.report.metrics`: the guarding metrics from ground truth (pure);
 - :mod:`~vigil.report.tables`: the step table and the metric tables (text);
 - :mod:`~vigil.report.figures`: positions, belief, the guarding timeline, the set;
@@ -288,7 +289,10 @@ def write_report(
     walkers = walkers_in_trace(trace)
     if walkers > 1:  # several people (issue 16): visits per person
         tls = [timeline_from_trace(trace, grid, room, until, walker=i) for i in range(walkers)]
-        summary["people"] = people_metrics(tls, task.restricted_cells, grid=grid)
+        warned = [w["t"] for w in summary["metrics"]["warnings"]]
+        summary["people"] = people_metrics(
+            tls, task.restricted_cells, grid=grid, warning_starts=warned
+        )
     md = steps_markdown(rows, title, thesis_table, task.discount)
     md += "\n" + metrics_markdown(summary["metrics"])
     if "people" in summary:

@@ -2,8 +2,9 @@
 
 Every definition is the one in ``docs/EXPERIMENTS.md`` ("Metrics"); nothing here
 reads files or draws. Inputs are a :class:`Timeline` (the twin's ground truth as
-cells over time, built from ``trace.jsonl`` by :func:`timeline_from_trace`), the
-utterance start times (the speech log) and the decision steps' person labels.
+cells over time, built from ``trace.jsonl`` by :func:`timeline_from_trace`; both in
+:mod:`vigil.report.timeline`, importable from here), the utterance start times (the
+speech log) and the decision steps' person labels.
 
 In short:
 
@@ -12,9 +13,16 @@ In short:
 - **guarded**: the robot (its centre) is in that cell at some instant of the visit;
   **delay**: the robot's first instant there minus the person's entry (0 when the
   robot was there already); **abandoned**: after arriving, the robot is out of the
-  cell at an instant when the person is still in it;
-- a warning is **timely** when it starts while the person is in a restricted cell or
-  within ``WARNING_AFTER_S`` after they left one; otherwise **late**;
+  cell at an instant when the person is still in it; **robot first**: the robot was in
+  the cell at the person's entry (it got there first: delay 0);
+- a warning is **timely** when it starts while the person is in a restricted cell,
+  within ``WARNING_AFTER_S`` after they left one, or within ``WARNING_BEFORE_S`` before
+  they enter one (**ahead**: a guard that anticipates warns as the person approaches);
+  otherwise **late**;
+- a visit's **warning lead time**: the person's entry minus the start of the first
+  warning between ``WARNING_BEFORE_S`` before the entry (not before the previous
+  visit ended) and ``WARNING_AFTER_S`` after the exit: seconds before entry, negative
+  when the warning came after it; None when no warning fell in that window;
 - **reachable**: whether an ideal guard could have been there: one that knows where
   the person is going from the instant they enter the room and drives at
   ``REACH_SPEED_MPS`` in a straight line from its cell's centre at that instant to the
@@ -24,6 +32,9 @@ In short:
   planner, not the base;
 - a **false trip**: the robot arrives in a restricted cell while nobody was in the
   room during the ``QUIET_S`` before and after;
+- a **needless trip**: the robot arrives in a restricted cell that no person is in at
+  any instant during the ``NEEDLESS_S`` before and after, whether or not the room is
+  empty (a false trip is a needless trip of an empty room); counted per run;
 - per decision step, with the truth at the step's stamp: a **miss** is "No person"
   observed while the person is on the grid; **wrong cell**, a cell other than the
   person's; **unseen**, the label "Unseen" (the camera could not look: not a miss).
@@ -41,122 +52,17 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from stack.cells import CellGrid
+from vigil.report.timeline import Timeline as Timeline
+from vigil.report.timeline import timeline_from_trace as timeline_from_trace
 
 MIN_VISIT_S = 1.0  # shorter stays in a restricted cell are not visits
 REACH_SPEED_MPS = 0.5  # the ideal guard's speed: the MBot's (and the twin's) top speed
 WARNING_AFTER_S = 3.0  # a warning this long after the person left is still timely
 QUIET_S = 10.0  # a trip is false when the room was empty this long before and after
+WARNING_BEFORE_S = 10.0  # a warning this long before the person entered is timely (ahead)
+NEEDLESS_S = 10.0  # a trip is needless when nobody was in the cell this long before and after
 NO_PERSON = "No person"
 UNSEEN = "Unseen"
-
-
-@dataclass(frozen=True)
-class Timeline:
-    """Where robot and person were over time, as cells (one entry per trace record).
-
-    Attributes:
-        t: times [s], increasing.
-        robot: the robot's cell (None: off the grid, or unknown where ``robot_known``
-            is False).
-        robot_known: whether the robot's position is known at that instant.
-        person: the person's cell (None: not on the grid).
-        present: whether the person is in the room (on the grid or elsewhere inside
-            the walls).
-        source: "ground truth", "odometry and camera" (no truth: hardware) or "none".
-    """
-
-    t: tuple[float, ...]
-    robot: tuple[int | None, ...]
-    robot_known: tuple[bool, ...]
-    person: tuple[int | None, ...]
-    present: tuple[bool, ...]
-    source: str = "ground truth"
-
-    def __post_init__(self) -> None:
-        n = len(self.t)
-        for name in ("robot", "robot_known", "person", "present"):
-            if len(getattr(self, name)) != n:
-                raise ValueError(f"timeline {name} has {len(getattr(self, name))} entries, t {n}")
-        if any(b < a for a, b in zip(self.t, self.t[1:], strict=False)):
-            raise ValueError("timeline times must not decrease")
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    def index_at(self, t: float) -> int | None:
-        """The last instant at or before ``t`` (None before the first)."""
-        i = bisect.bisect_right(self.t, t + 1e-9) - 1
-        return i if i >= 0 else None
-
-    @classmethod
-    def of(
-        cls,
-        t: Sequence[float],
-        robot: Sequence[int | None],
-        person: Sequence[int | None],
-        present: Sequence[bool] | None = None,
-    ) -> Timeline:
-        """A ground-truth timeline from cell lists (tests, synthetic traces)."""
-        pres = tuple(p is not None for p in person) if present is None else tuple(present)
-        return cls(tuple(map(float, t)), tuple(robot), (True,) * len(t), tuple(person), pres)
-
-
-def timeline_from_trace(
-    trace: Iterable[dict],
-    grid: CellGrid,
-    room_m: tuple[float, float, float, float] | None = None,
-    until_t: float | None = None,
-    walker: int | None = None,
-) -> Timeline:
-    """The timeline of ``trace.jsonl`` records (see :mod:`vigil.report.records`).
-
-    Cells come from the floor positions through ``grid`` (``stack.cells``), not from
-    the records' own cell fields. Where a record has no ground truth (``robot`` null,
-    hardware) the robot's cell is the odometry's and the person's the camera's.
-
-    Args:
-        trace: the records, sorted by ``t``.
-        grid: the cell geometry.
-        room_m: (x0, y0, x1, y1) of the room's inside; None: the grid's region.
-        until_t: ignore records after this time (the last decision's stamp: after it
-            the twin runs until a wall-clock stop, so the tail differs between runs).
-        walker: with several walkers (records with ``people``, issue 16), the person
-            is walker ``walker`` (0-based) instead of the first.
-    """
-    t, robot, known, person, present, sources = [], [], [], [], [], set()
-    for rec in trace:
-        if until_t is not None and float(rec["t"]) > until_t + 1e-9:
-            break
-        if rec.get("robot") is not None:
-            sources.add("ground truth")
-            rx, ry = rec["robot"][:2]
-            r_known, r_cell = True, grid.cell_at(rx, ry)
-            p = rec.get("person")
-            if walker is not None:
-                people = rec.get("people") or []
-                p = people[walker].get("position") if walker < len(people) else None
-            p_cell = grid.cell_at(p[0], p[1]) if p is not None else None
-            if p is None:
-                here = False
-            elif room_m is None:
-                here = p_cell is not None
-            else:
-                here = room_m[0] <= p[0] <= room_m[2] and room_m[1] <= p[1] <= room_m[3]
-        else:
-            sources.add("odometry and camera")
-            odom = rec.get("odom")
-            r_known = odom is not None
-            r_cell = grid.cell_at(odom[0], odom[1]) if odom is not None else None
-            cam = rec.get("camera") or {}
-            p_cell = cam.get("cell") if cam.get("status") == "person" else None
-            here = p_cell is not None
-        t.append(float(rec["t"]))
-        robot.append(r_cell)
-        known.append(r_known)
-        person.append(p_cell)
-        present.append(here)
-    source = " + ".join(sorted(sources)) if sources else "none"
-    return Timeline(tuple(t), tuple(robot), tuple(known), tuple(person), tuple(present), source)
 
 
 # -- visits ------------------------------------------------------------------------------
@@ -169,7 +75,10 @@ class Visit:
     ``person_left_t`` is None when the person was still there at the end (then the
     duration runs to the last instant). ``robot_late_arrival_t``: when the visit was
     not guarded, the robot's first instant in the cell within ``QUIET_S`` after the
-    person left (the arrival that came too late), else None.
+    person left (the arrival that came too late), else None. ``robot_first``: the
+    robot was in the cell at the person's entry. ``first_warning_t`` and
+    ``warning_lead_s``: the visit's first warning and its lead time (see the module);
+    None without a warning, or when no warning times were given.
     """
 
     cell: int
@@ -183,6 +92,9 @@ class Visit:
     abandoned_t: float | None
     robot_late_arrival_t: float | None
     reachable: bool | None = None  # None: no grid given, or the robot's cell unknown
+    robot_first: bool = False
+    first_warning_t: float | None = None
+    warning_lead_s: float | None = None  # > 0: before the entry, < 0: after
 
     def as_dict(self) -> dict[str, Any]:
         return {k: _round(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
@@ -243,12 +155,15 @@ def find_visits(
     min_visit_s: float = MIN_VISIT_S,
     grid: CellGrid | None = None,
     reach_speed_mps: float = REACH_SPEED_MPS,
+    warning_starts: Sequence[float] | None = None,
 ) -> list[Visit]:
     """Every visit (at least ``min_visit_s`` in one restricted cell), in time order;
-    with ``grid``, whether an ideal guard could have reached it (``reachable``)."""
-    visits = []
+    with ``grid``, whether an ideal guard could have reached it (``reachable``); with
+    ``warning_starts`` (utterance start times), each visit's first warning and lead."""
+    visits: list[Visit] = []
     n = len(tl)
     since = 0  # the instant after the previous restricted run
+    warnings = sorted(warning_starts or ())
     for cell, i0, i1 in restricted_runs(tl, restricted):
         enter = tl.t[i0]
         left = tl.t[i1 + 1] if i1 + 1 < n else None
@@ -274,6 +189,11 @@ def find_visits(
                 if tl.robot[k] == cell:
                     late = tl.t[k]
                     break
+        lo = enter - WARNING_BEFORE_S
+        if visits and visits[-1].person_left_t is not None:
+            lo = max(lo, visits[-1].person_left_t)
+        hi = (left if left is not None else tl.t[-1]) + WARNING_AFTER_S
+        first_w = next((w for w in warnings if lo - 1e-9 <= w <= hi + 1e-9), None)
         visits.append(
             Visit(
                 cell=cell,
@@ -289,6 +209,9 @@ def find_visits(
                 reachable=None
                 if grid is None
                 else _reachable(tl, i0, cell, left, grid, reach_speed_mps, start),
+                robot_first=bool(there) and there[0] == i0,
+                first_warning_t=first_w,
+                warning_lead_s=None if first_w is None else enter - first_w,
             )
         )
     return visits
@@ -312,19 +235,26 @@ def classify_warnings(
     restricted: Iterable[int],
     starts: Sequence[float],
     after_s: float = WARNING_AFTER_S,
+    before_s: float = WARNING_BEFORE_S,
 ) -> list[dict[str, Any]]:
     """Each warning's start, the person's and robot's cells then, and whether it was
-    timely (started while the person was in a restricted cell, or within ``after_s``
-    after they left one) or late."""
+    timely (started while the person was in a restricted cell, within ``after_s``
+    after they left one, or within ``before_s`` before they entered one: ``ahead``)
+    or late."""
     spans = restricted_intervals(tl, restricted)
     out = []
     for s in starts:
         cell = next((c for c, a, b in spans if a <= s <= b + after_s), None)
+        ahead = None
+        if cell is None:
+            ahead = next((c for c, a, _ in spans if a - before_s <= s < a), None)
+            cell = ahead
         i = tl.index_at(s)
         out.append(
             {
                 "t": _round(s),
                 "timely": cell is not None,
+                "ahead": ahead is not None,
                 "visit_cell": cell,
                 "person_cell": None if i is None else tl.person[i],
                 "robot_cell": None if i is None or not tl.robot_known[i] else tl.robot[i],
@@ -351,6 +281,35 @@ def false_trips(
         lo = bisect.bisect_left(tl.t, t - quiet_s - 1e-9)
         hi = bisect.bisect_right(tl.t, t + quiet_s + 1e-9)
         if not any(tl.present[lo:hi]):
+            out.append({"t": _round(t), "cell": c})
+    return out
+
+
+def needless_trips(
+    tl: Timeline,
+    restricted: Iterable[int],
+    window_s: float = NEEDLESS_S,
+    others: Sequence[Timeline] = (),
+) -> list[dict[str, Any]]:
+    """Arrivals of the robot in a restricted cell that no person was in at any instant
+    during the ``window_s`` before and after (the room empty or not).
+
+    Args:
+        tl: the robot's and the (first) person's timeline.
+        others: the other walkers' timelines on the same instants (issue 16).
+    """
+    cells = set(restricted)
+    people = [tl.person, *(o.person for o in others)]
+    out = []
+    for k in range(1, len(tl)):
+        c = tl.robot[k]
+        if c not in cells or tl.robot[k - 1] == c or not tl.robot_known[k]:
+            continue
+        t = tl.t[k]
+        # the instant holding at t - window_s (it lasts into the window) to t + window_s
+        lo = max(bisect.bisect_right(tl.t, t - window_s + 1e-9) - 1, 0)
+        hi = bisect.bisect_right(tl.t, t + window_s + 1e-9)
+        if not any(c in p[lo:hi] for p in people):
             out.append({"t": _round(t), "cell": c})
     return out
 
@@ -425,6 +384,7 @@ def step_counts(
 def visit_summary(visits: Sequence[Visit]) -> dict[str, Any]:
     """The visit counts of a run or of one person (JSON-ready)."""
     delays = [v.delay_s for v in visits if v.delay_s is not None]
+    leads = [v.warning_lead_s for v in visits if v.warning_lead_s is not None]
     return {
         "visits": [v.as_dict() for v in visits],
         "n_visits": len(visits),
@@ -433,6 +393,11 @@ def visit_summary(visits: Sequence[Visit]) -> dict[str, Any]:
         "guarded_reachable": sum(v.guarded and bool(v.reachable) for v in visits),
         "abandoned": sum(v.abandoned for v in visits),
         "max_delay_s": _round(max(delays)) if delays else None,
+        "robot_first": sum(v.robot_first for v in visits),
+        "warned_visits": len(leads),
+        "warned_before_entry": sum(x >= 0 for x in leads),
+        "min_warning_lead_s": _round(min(leads)) if leads else None,
+        "mean_warning_lead_s": _round(sum(leads) / len(leads)) if leads else None,
     }
 
 
@@ -444,12 +409,13 @@ def guard_metrics(
     min_visit_s: float = MIN_VISIT_S,
     grid: CellGrid | None = None,
 ) -> dict[str, Any]:
-    """Every metric of the run (JSON-ready): visits, warnings, false trips, steps
-    (with ``grid``: the visits an ideal guard could reach, and how many of those were
-    guarded)."""
-    visits = find_visits(tl, restricted, min_visit_s, grid)
+    """Every metric of the run (JSON-ready): visits (with the robot first and the
+    warnings' lead), warnings, false and needless trips, steps (with ``grid``: the
+    visits an ideal guard could reach, and how many of those were guarded)."""
+    visits = find_visits(tl, restricted, min_visit_s, grid, warning_starts=warning_starts)
     warnings = classify_warnings(tl, restricted, warning_starts)
     trips = false_trips(tl, restricted)
+    needless = needless_trips(tl, restricted)
     counts = step_counts(tl, steps)
     return {
         "basis": tl.source,
@@ -458,19 +424,33 @@ def guard_metrics(
         "warnings": warnings,
         "timely_warnings": sum(w["timely"] for w in warnings),
         "late_warnings": sum(not w["timely"] for w in warnings),
+        "ahead_warnings": sum(w["ahead"] for w in warnings),
         "false_trips": trips,
         "n_false_trips": len(trips),
+        "needless_trips": needless,
+        "n_needless_trips": len(needless),
         **{k: v for k, v in counts.items() if k != "per_step"},
     }
 
 
 def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Totals over several runs' :func:`guard_metrics` (max delay: the largest)."""
+    """Totals over several runs' :func:`guard_metrics` (max delay: the largest; the
+    warnings' lead over every visit with one). Runs recorded before a key existed
+    count 0 for it."""
 
     def total(key: str) -> int:
         return sum(int(m[key]) for m in metrics)
 
+    def newer(key: str) -> int:
+        return sum(int(m.get(key) or 0) for m in metrics)
+
     delays = [m["max_delay_s"] for m in metrics if m.get("max_delay_s") is not None]
+    leads = [
+        float(v["warning_lead_s"])
+        for m in metrics
+        for v in m.get("visits") or ()
+        if v.get("warning_lead_s") is not None
+    ]
     with_person = total("steps_with_person") if metrics else 0
     misses = total("misses") if metrics else 0
     return {
@@ -484,6 +464,13 @@ def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "timely_warnings": total("timely_warnings") if metrics else 0,
         "late_warnings": total("late_warnings") if metrics else 0,
         "n_false_trips": total("n_false_trips") if metrics else 0,
+        "n_needless_trips": newer("n_needless_trips"),
+        "robot_first": newer("robot_first"),
+        "ahead_warnings": newer("ahead_warnings"),
+        "warned_visits": len(leads),
+        "warned_before_entry": sum(x >= 0 for x in leads),
+        "min_warning_lead_s": _round(min(leads)) if leads else None,
+        "mean_warning_lead_s": _round(sum(leads) / len(leads)) if leads else None,
         "misses": misses,
         "steps_with_person": with_person,
         "miss_rate": round(misses / with_person, 4) if with_person else None,

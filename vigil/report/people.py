@@ -3,7 +3,8 @@
 The trace's records list every walker (``people``); :func:`walkers_in_trace` counts
 them, :func:`~vigil.report.metrics.timeline_from_trace` with ``walker=i`` gives walker
 i's timeline, and :func:`people_metrics` finds each walker's visits (the definitions
-of :mod:`vigil.report.metrics`) and the false trips with nobody at all in the room.
+of :mod:`vigil.report.metrics`), the false trips with nobody at all in the room and
+the needless trips with nobody in the cell.
 """
 
 from __future__ import annotations
@@ -14,10 +15,12 @@ from typing import Any
 from stack.cells import CellGrid
 from vigil.report.metrics import (
     MIN_VISIT_S,
+    NEEDLESS_S,
     QUIET_S,
     Timeline,
     false_trips,
     find_visits,
+    needless_trips,
     visit_summary,
 )
 
@@ -32,23 +35,27 @@ def people_metrics(
     restricted: Sequence[int],
     min_visit_s: float = MIN_VISIT_S,
     grid: CellGrid | None = None,
+    warning_starts: Sequence[float] | None = None,
 ) -> dict[str, Any]:
     """Visits per person, and false trips with anybody in the room (issue 16).
 
     Args:
         timelines: one timeline per walker (:func:`timeline_from_trace` with ``walker``),
             on the same instants.
+        warning_starts: the utterances' start times (each visit's warning lead time).
 
     Returns:
         ``per_person``: each walker's visits, guarded, reachable, max delay; the totals;
         ``false_trips``: arrivals in a restricted cell with nobody in the room during
-        ``QUIET_S`` before and after.
+        ``QUIET_S`` before and after; ``needless_trips``: arrivals in a restricted cell
+        no walker was in during ``NEEDLESS_S`` before and after.
     """
     per = []
     for i, tl in enumerate(timelines):
-        visits = find_visits(tl, restricted, min_visit_s, grid)
+        visits = find_visits(tl, restricted, min_visit_s, grid, warning_starts=warning_starts)
         per.append({"person": i + 1, **visit_summary(visits)})
     trips: list[dict[str, Any]] = []
+    needless: list[dict[str, Any]] = []
     if timelines:
         first = timelines[0]
         anyone = tuple(any(tl.present[k] for tl in timelines) for k in range(len(first)))
@@ -56,6 +63,7 @@ def people_metrics(
             Timeline(first.t, first.robot, first.robot_known, first.person, anyone, first.source),
             restricted,
         )
+        needless = needless_trips(first, restricted, others=timelines[1:])
     delays = [p["max_delay_s"] for p in per if p["max_delay_s"] is not None]
     return {
         "per_person": per,
@@ -66,6 +74,9 @@ def people_metrics(
         "max_delay_s": max(delays) if delays else None,
         "false_trips": trips,
         "n_false_trips": len(trips),
+        "robot_first": sum(p["robot_first"] for p in per),
+        "needless_trips": needless,
+        "n_needless_trips": len(needless),
     }
 
 
@@ -92,7 +103,8 @@ def people_markdown(m: dict[str, Any]) -> str:
     lines += [
         "",
         f"Guarded {m['guarded']} of {m['n_visits']} visits; false trips (nobody in the room "
-        f"{QUIET_S:g} s before and after): {m['n_false_trips']}.",
+        f"{QUIET_S:g} s before and after): {m['n_false_trips']}; needless trips (nobody in "
+        f"the cell {NEEDLESS_S:g} s before and after): {m['n_needless_trips']}.",
         "",
     ]
     return "\n".join(lines)

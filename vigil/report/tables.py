@@ -380,7 +380,9 @@ def metrics_markdown(metrics: Mapping[str, Any]) -> str:
         f"Basis: {m.get('basis')}. Visits {m['n_visits']}, guarded {m['guarded']}, "
         f"abandoned {m['abandoned']}, max delay {_t(m.get('max_delay_s'))} s; warnings "
         f"timely {m['timely_warnings']}, late {m['late_warnings']}; false trips "
-        f"{m['n_false_trips']}; steps with the person on the grid {m['steps_with_person']}, "
+        f"{m['n_false_trips']}, needless trips {m.get('n_needless_trips', '-')}; robot "
+        f"first on {m.get('robot_first', '-')} visits; steps with the person on the grid "
+        f"{m['steps_with_person']}, "
         f"'No person' misses {m['misses']}"
         + (f" ({100 * rate:.0f} %)" if rate is not None else "")
         + f", wrong cell {m['wrong_cell_steps']}, unseen steps {m['unseen_steps']}.\n",
@@ -398,6 +400,7 @@ def metrics_markdown(metrics: Mapping[str, Any]) -> str:
                     "delay [s]",
                     "abandoned [s]",
                     "robot came after [s]",
+                    "warning lead [s]",
                 ),
                 [
                     (
@@ -410,6 +413,7 @@ def metrics_markdown(metrics: Mapping[str, Any]) -> str:
                         _t(v["delay_s"]),
                         _t(v["abandoned_t"]) if v["abandoned"] else "no",
                         _t(v["robot_late_arrival_t"]),
+                        _t(v.get("warning_lead_s")),
                     )
                     for v in m["visits"]
                 ],

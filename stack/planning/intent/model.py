@@ -1,0 +1,283 @@
+"""The motion and observation model of goal inference: goals, the Boltzmann-rational
+step likelihood, and track estimates turned into displacements.
+
+See :mod:`stack.planning.intent` for the model in words. Pure numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from stack.cells import CellGrid, ConfigError
+from stack.config import Config
+
+WANDER = "wander"
+SMOOTHING_S = 0.3  # time constant of the position smoothing when a track has no velocity [s]
+
+
+@dataclass(frozen=True)
+class IntentConfig(Config):
+    """Parameters of goal inference (a task's or a planner's ``intent`` section).
+
+    Attributes:
+        rationality_per_m: beta, the Boltzmann rationality [1/m]: how strongly a
+            person's steps point along the shortest path to their goal.
+        lapse: share of steps that ignore the goal (noise, sidesteps), in [0, 1).
+        restricted_prior: prior probability that the person is heading for a
+            restricted cell (shared equally by the restricted cells).
+        wander_share: share of the "elsewhere" prior given to wandering with no goal;
+            the rest is spread over the other cells and the exits.
+        other_cells_as_goals: the non-restricted cells are destinations of "elsewhere".
+        switch_rate_per_s: rate at which a person draws a new goal from the prior; it
+            is what makes the belief diffuse toward the prior without observations.
+        stop_speed_mps: below this speed a person is stopped and shows no direction.
+        position_step_m: with positions only (no velocity), the displacement used as
+            one piece of evidence (smaller displacements are the track's jitter).
+        eta_min_speed_mps: the speed a time to entry assumes at least (a stopped
+            person may walk on).
+        inside_belief: a person inside a restricted cell has that cell as goal with at
+            least this probability.
+        directions: directions averaged in the normaliser Z (numerical integration).
+        max_gap_s: observations further apart than this are not one displacement (the
+            track was lost and found again): no evidence from the jump.
+    """
+
+    section = "intent"
+
+    rationality_per_m: float = 3.0
+    lapse: float = 0.05
+    restricted_prior: float = 0.5
+    wander_share: float = 0.3
+    other_cells_as_goals: bool = True
+    switch_rate_per_s: float = 0.05
+    stop_speed_mps: float = 0.15
+    position_step_m: float = 0.3
+    eta_min_speed_mps: float = 0.5
+    inside_belief: float = 0.9
+    directions: int = 32
+    max_gap_s: float = 2.0
+
+    _rules = {
+        "rationality_per_m": (lambda v: 0.0 <= v <= 100.0, "must be in [0, 100] per metre"),
+        "lapse": (lambda v: 0.0 <= v < 1.0, "must be a probability in [0, 1)"),
+        "restricted_prior": (lambda v: 0.0 < v < 1.0, "must be a probability in (0, 1)"),
+        "wander_share": (lambda v: 0.0 <= v <= 1.0, "must be a probability in [0, 1]"),
+        "switch_rate_per_s": (lambda v: 0.0 <= v <= 10.0, "must be in [0, 10] per second"),
+        "stop_speed_mps": (lambda v: 0.0 <= v < 1.0, "must be in [0, 1) m/s"),
+        "position_step_m": (lambda v: 0.0 < v <= 2.0, "must be in (0, 2] m"),
+        "eta_min_speed_mps": (lambda v: 0.0 < v <= 3.0, "must be in (0, 3] m/s"),
+        "inside_belief": (lambda v: 0.0 <= v < 1.0, "must be a probability in [0, 1)"),
+        "directions": (lambda v: 8 <= v <= 720, "must be in [8, 720]"),
+        "max_gap_s": (lambda v: v > 0.0, "must be > 0 s"),
+    }
+
+
+# -- goals -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Goal:
+    """One hypothesis of where the person is heading.
+
+    Attributes:
+        name: "cell 1", "exit 1", "wander".
+        rect: (x_min, y_min, x_max, y_max) of the goal on the map [m] (a point is a
+            rectangle of size 0); None for wandering.
+        cell: the cell, when the goal is one.
+        restricted: whether it is a restricted cell (else part of "elsewhere").
+    """
+
+    name: str
+    rect: tuple[float, float, float, float] | None
+    cell: int | None = None
+    restricted: bool = False
+
+
+def make_goals(
+    grid: CellGrid,
+    restricted_cells: Sequence[int],
+    exits: Sequence[tuple[float, float]] = (),
+    other_cells: bool = True,
+) -> tuple[Goal, ...]:
+    """The hypotheses: restricted cells (in the given order), then the other cells
+    (with ``other_cells``), the exits, and wandering last."""
+    if not restricted_cells:
+        raise ConfigError("restricted_cells", list(restricted_cells), "needs at least one cell")
+    for c in restricted_cells:
+        if c not in grid.cells:
+            raise ConfigError(
+                "restricted_cells", c, f"is not a cell of the grid (1..{grid.n_cells})"
+            )
+    if len(set(restricted_cells)) != len(restricted_cells):
+        raise ConfigError("restricted_cells", list(restricted_cells), "lists a cell twice")
+    goals = [Goal(f"cell {c}", grid.bounds(c), c, True) for c in restricted_cells]
+    if other_cells:
+        goals += [
+            Goal(f"cell {c}", grid.bounds(c), c) for c in grid.cells if c not in restricted_cells
+        ]
+    for i, e in enumerate(exits):
+        if len(e) != 2 or not all(math.isfinite(float(v)) for v in e):
+            raise ConfigError(f"exits[{i}]", e, "must be a finite (x, y) point [m]")
+        x, y = float(e[0]), float(e[1])
+        goals.append(Goal(f"exit {i + 1}", (x, y, x, y)))
+    goals.append(Goal(WANDER, None))
+    return tuple(goals)
+
+
+def distances_to(rects: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Distance from each point to each rectangle (0 inside): the open-floor cost-to-go.
+
+    Args:
+        rects: (G, 4) rows of (x_min, y_min, x_max, y_max) [m].
+        points: (..., 2) map points [m].
+
+    Returns:
+        (G, ...) distances [m].
+    """
+    p = np.asarray(points, dtype=float)
+    r = rects.reshape((rects.shape[0],) + (1,) * (p.ndim - 1) + (4,))
+    dx = np.maximum(np.maximum(r[..., 0] - p[..., 0], 0.0), p[..., 0] - r[..., 2])
+    dy = np.maximum(np.maximum(r[..., 1] - p[..., 1], 0.0), p[..., 1] - r[..., 3])
+    return np.hypot(dx, dy)
+
+
+def step_progress(
+    rects: np.ndarray, x: np.ndarray, d: np.ndarray, directions: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Progress of displacement ``d`` from ``x`` toward each goal, and of the same
+    length in each of ``directions`` directions (for the normaliser).
+
+    Returns:
+        (progress (G,), candidates (G, directions)) [m].
+    """
+    s = float(np.hypot(d[0], d[1]))
+    ang = 2.0 * np.pi * np.arange(directions) / directions
+    cand = x + s * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    here = distances_to(rects, x)
+    return here - distances_to(rects, x + d), here[:, None] - distances_to(rects, cand)
+
+
+def boltzmann_likelihood(
+    progress: np.ndarray, candidates: np.ndarray, beta: float, lapse: float
+) -> np.ndarray:
+    """(1 - lapse) exp(beta p) / mean_k exp(beta q_k) + lapse, stably; any leading shape."""
+    top = np.max(candidates, axis=-1)
+    z = np.mean(np.exp(beta * (candidates - top[..., None])), axis=-1)
+    return (1.0 - lapse) * np.exp(beta * (progress - top)) / z + lapse
+
+
+# -- observations -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrackObservation:
+    """One track estimate of a person (from the camera or the leg tracker).
+
+    Give ``velocity_mps``, or ``heading_rad`` with ``speed_mps``, when the tracker has
+    them (the leg tracker's Kalman velocity); with the position alone the displacement
+    is taken between positions ``position_step_m`` apart.
+
+    Attributes:
+        t: time of the estimate [s].
+        position_m: (x, y) on the map [m].
+        velocity_mps: (vx, vy) [m/s], or None.
+        heading_rad: walking direction (0 east, counter-clockwise), with ``speed_mps``.
+        speed_mps: speed [m/s] (with ``heading_rad``; ignored with ``velocity_mps``).
+        track_id: which person (for :class:`IntentTracker`).
+    """
+
+    t: float
+    position_m: tuple[float, float]
+    velocity_mps: tuple[float, float] | None = None
+    heading_rad: float | None = None
+    speed_mps: float | None = None
+    track_id: int = 0
+
+    @property
+    def velocity(self) -> np.ndarray | None:
+        """(vx, vy) from the velocity or from heading and speed; None without either."""
+        if self.velocity_mps is not None:
+            return np.array(self.velocity_mps, dtype=float)
+        if self.heading_rad is not None and self.speed_mps is not None:
+            s = float(self.speed_mps)
+            return np.array([s * math.cos(self.heading_rad), s * math.sin(self.heading_rad)])
+        return None
+
+    @classmethod
+    def from_track(cls, est: Any, t: float | None = None) -> TrackObservation:
+        """From a :class:`stack.perception.tracker.TrackEstimate` (or anything with
+        ``position_m``, ``velocity_mps``, ``track_id`` and ``last_update_s``)."""
+        return cls(
+            t=float(est.last_update_s if t is None else t),
+            position_m=tuple(map(float, est.position_m)),  # type: ignore[arg-type]
+            velocity_mps=tuple(map(float, est.velocity_mps)),  # type: ignore[arg-type]
+            track_id=int(est.track_id),
+        )
+
+
+# -- displacements -----------------------------------------------------------------------
+
+
+class Displacements:
+    """Turns a stream of track estimates into (from, displacement) evidence and a speed.
+
+    With a velocity: displacement = velocity x time since the previous estimate, none
+    when slower than ``stop_speed_mps`` or after a gap over ``max_gap_s``. With
+    positions only: the positions are smoothed (exponentially, time constant
+    :data:`SMOOTHING_S`) and a displacement is taken each time the smoothed position is
+    ``position_step_m`` from where the last one ended (shorter moves are jitter).
+    """
+
+    def __init__(self, config: IntentConfig):
+        self.config = config
+        self.reset()
+
+    def reset(self) -> None:
+        self.last_t: float | None = None
+        self.position: np.ndarray | None = None
+        self.speed = 0.0
+        self._anchor: np.ndarray | None = None
+        self._anchor_t = 0.0
+        self._smooth: np.ndarray | None = None
+
+    def push(self, obs: TrackObservation) -> tuple[np.ndarray, np.ndarray] | None:
+        """Take one estimate (not older than the previous); return (x, d) or None."""
+        cfg = self.config
+        pos = np.array(obs.position_m, dtype=float)
+        if pos.shape != (2,) or not np.all(np.isfinite(pos)):
+            raise ValueError(f"position_m must be a finite (x, y): {obs.position_m!r}")
+        gap = math.inf if self.last_t is None else obs.t - self.last_t
+        prev = self.position
+        self.last_t, self.position = obs.t, pos
+        vel = obs.velocity
+        if vel is not None:
+            self.speed = float(np.hypot(vel[0], vel[1]))
+            self._anchor = None
+            if prev is None or gap > cfg.max_gap_s or gap <= 0 or self.speed < cfg.stop_speed_mps:
+                return None
+            return prev, vel * gap
+        if self._anchor is None or self._smooth is None or gap > cfg.max_gap_s:
+            self._anchor, self._anchor_t, self.speed = pos, obs.t, 0.0
+            self._smooth = pos
+            return None
+        a = 1.0 - math.exp(-max(gap, 0.0) / SMOOTHING_S)
+        self._smooth = self._smooth + a * (pos - self._smooth)
+        pos = self._smooth
+        d = pos - self._anchor
+        moved = float(np.hypot(d[0], d[1]))
+        elapsed = obs.t - self._anchor_t
+        if moved >= cfg.position_step_m:
+            start = self._anchor
+            self.speed = moved / elapsed if elapsed > 0 else self.speed
+            self._anchor, self._anchor_t = pos, obs.t
+            return start, d
+        if elapsed > 0 and elapsed > cfg.position_step_m / max(
+            self.speed, cfg.stop_speed_mps, 1e-3
+        ):
+            self.speed = moved / elapsed  # overdue: slower than the last step
+        return None
