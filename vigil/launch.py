@@ -223,12 +223,17 @@ IDENTITY_FILE = "launch.json"  # what a launch's planner state belongs to
 DEFAULT_RESUME_MAX_AGE_S = 600.0  # --resume-max-age-s: a restart after a crash, not yesterday
 
 
+MAX_HASHED_BYTES = 1 << 30  # a policy file is at most this (stack.planning.policy)
+
+
 def _digest(path: str | Path | None) -> str:
     """sha256 of a file's bytes ("" for no file); read in chunks, any size."""
     if not path:
         return ""
+    from stack.config import open_regular
+
     h = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_regular(path, MAX_HASHED_BYTES) as f:  # never /dev/zero, never a pipe
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
