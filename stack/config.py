@@ -13,12 +13,15 @@ configurations of their class) and then the class's own rules: ``_rules`` (field
 from __future__ import annotations
 
 import dataclasses
+import errno
 import math
+import os
+import stat
 import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, BinaryIO, ClassVar, TypeVar
 
 from stack.cells import ConfigError
 
@@ -122,18 +125,61 @@ def _check_value(key: str, value: Any, hint: Any) -> None:
 MAX_FILE_BYTES = 16 * 2**20  # no configuration, task, map or state file is near this
 
 
-def read_text_capped(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
-    """A text file's content, refusing one longer than ``max_bytes`` before reading it all
-    (``/dev/zero``, a log passed by mistake): never an unbounded allocation.
+def open_regular(path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES) -> BinaryIO:
+    """Open a file for reading only if it is a regular file of at most ``max_bytes``.
+
+    A device (``/dev/zero``, ``/dev/random``), a named pipe (which would block the
+    reader for ever), a socket or a folder is refused before a byte is read; so is a
+    regular file larger than ``max_bytes`` (by its size). The file is opened first and
+    checked through its descriptor, so it cannot be swapped between check and read.
 
     Raises:
-        OSError: unreadable, or a directory.
-        ValueError: longer than ``max_bytes``, or not UTF-8 text.
+        IsADirectoryError: a folder; FileNotFoundError and other OSError: unreadable.
+        ValueError: not a regular file, or larger than ``max_bytes``.
     """
-    with open(path, "rb") as f:
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO must not block the open
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{path}: not a regular file (a device, a pipe or a socket)")
+        if st.st_size > max_bytes:
+            raise ValueError(
+                f"{path}: {st.st_size} bytes, longer than {max_bytes} bytes, not a file vigil reads"
+            )
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_bytes_capped(path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES) -> bytes:
+    """A regular file's bytes, at most ``max_bytes`` (see :func:`open_regular`); a file
+    that grows past the cap while read is refused too.
+
+    Raises:
+        OSError: unreadable, or a folder.
+        ValueError: not a regular file, or longer than ``max_bytes``.
+    """
+    with open_regular(path, max_bytes) as f:
         data = f.read(max_bytes + 1)
     if len(data) > max_bytes:
         raise ValueError(f"{path}: longer than {max_bytes} bytes, not a file vigil reads")
+    return data
+
+
+def read_text_capped(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
+    """A text file's content, refusing one longer than ``max_bytes`` before reading it all
+    (``/dev/zero``, a log passed by mistake) and anything but a regular file (a device,
+    a named pipe): never an unbounded allocation, never a read that blocks for ever.
+
+    Raises:
+        OSError: unreadable, or a directory.
+        ValueError: not a regular file, longer than ``max_bytes``, or not UTF-8 text.
+    """
+    data = read_bytes_capped(path, max_bytes)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -18,6 +18,9 @@ DIAGNOSTICS = "/diagnostics"  # diagnostic_msgs/DiagnosticArray: camera_stream, 
 CMD_VEL = "/cmd_vel"  # the base's command (hardware: only the velocity gate publishes it)
 NAV_CMD_VEL = "/nav/cmd_vel"  # navigation's command into the velocity gate (hardware)
 ARM = "/arm"
+# std_msgs/UInt64, a count: the velocity gate is alive (its timer ran), at rate_hz whatever
+# its state, so a base-side watchdog can tell a dead gate from a quiet one
+GATE_HEARTBEAT = "/velocity_gate/heartbeat"
 STOP = "/stop"
 GOAL_POSE = "/goal_pose"
 TF = "/tf"  # tf2_msgs/TFMessage: odom -> base_link (bridge), map -> odom (localisation)

@@ -133,9 +133,9 @@ def test_bad_scenarios_name_the_key(changes, key):
 
 
 def test_unknown_cell_in_a_walk_is_refused():
-    sc = parse_scenario(scenario(person={"walk": [{"to": 40}]}))
+    # refused where it is read (issue 23), against the task's grid, not later in prepare
     with pytest.raises(ConfigError) as err:
-        sc.person_waypoints(CellGrid(), (7.0, 4.0))
+        parse_scenario(scenario(person={"walk": [{"to": 40}]}))
     assert err.value.key == "person.walk[0].to"
 
 

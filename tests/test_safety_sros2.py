@@ -63,7 +63,9 @@ def test_keystore_layout_signatures_and_permissions(keystore):
         pub_denied = deny.split("</publish>")[0] if "<publish>" in deny else ""
         may_drive = "rt/cmd_vel" not in pub_denied
         may_arm = "rt/arm" not in pub_denied
+        may_beat = "rt/velocity_gate/heartbeat" not in pub_denied  # no forged heartbeat
         assert may_drive == (name == "/vigil/velocity_gate"), name
+        assert may_beat == (name == "/vigil/velocity_gate"), name
         assert may_arm == (name == "/vigil/operator"), name
         assert ("rq/velocity_gate/set_parametersRequest" not in pub_denied) == (
             name == "/vigil/operator"

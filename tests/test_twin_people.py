@@ -177,9 +177,9 @@ def test_person_and_people_exclude_each_other_and_person_still_works():
 
 
 def test_an_unknown_cell_in_a_second_walk_names_it():
-    sc = parse_scenario(scenario(people=[{}, {"walk": [{"to": 40}]}]))
+    # refused where it is read (issue 23), against the task's grid
     with pytest.raises(ConfigError) as err:
-        sc.people_waypoints(CellGrid(), (7.0, 5.2))
+        parse_scenario(scenario(people=[{}, {"walk": [{"to": 40}]}]))
     assert err.value.key == "people[1].walk[0].to"
 
 

@@ -5,8 +5,10 @@ Publishes ``/camera/image_raw`` (sensor_msgs/Image, rgb8), ``/camera/camera_info
 (nav_msgs/OccupancyGrid, transient local), ``/clock`` (simulated time), TF (``/tf``:
 ``odom -> base_link`` with each odometry message; ``/tf_static``: ``base_link -> laser``
 from the lidar's mount) and ground truth under ``/twin/...``; subscribes to ``/cmd_vel``
-(geometry_msgs/Twist) and stops the base when commands are older than ``cmd_timeout_s``
-of simulated time.
+(geometry_msgs/Twist) and stops the base when the last command arrived more than
+``cmd_timeout_s`` of simulated time ago (the base's own timeout,
+:class:`stack.hardware.base_watchdog.BaseWatchdog`, as diff_drive_controller's
+``cmd_vel_timeout``: a sender killed with SIGKILL sends no last zero).
 
 Time, three modes:
     lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
@@ -37,6 +39,8 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import OccupancyGrid
 from nav_msgs.msg import Odometry as OdometryMsg
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -49,6 +53,8 @@ from vigil_interfaces.msg import LockstepAck, TwinTruth
 import stack.topics as topic
 from stack import tf
 from stack.cells import ConfigError
+from stack.hardware.base_watchdog import OK as WATCHDOG_OK
+from stack.hardware.base_watchdog import STALE, BaseWatchdog, check_timeout
 from stack.lockstep import (
     ABORT,
     ACK_TOPIC,
@@ -215,14 +221,16 @@ class TwinBridge(Node):
         # no tick for this long (forgiving included): the run ends with EXIT_STALLED
         self.stall_abort_s = declare(self, stall_abort_s=3 * self.stall_timeout_s).stall_abort_s
         self.outages = parse_outages(v.sensor_outages)
+        # checked before the twin is built: a NaN or infinite timeout never stops the base
+        check_timeout("cmd_timeout_s", v.cmd_timeout_s)
         if twin is None:
             cfg = load_twin_config(v.config, v.task or None) if v.config else TwinConfig()
             twin = Twin(cfg, seed=v.seed)
         self.twin = twin
-        self.cmd_timeout_s = v.cmd_timeout_s
+        self.watchdog = BaseWatchdog(v.cmd_timeout_s)
+        self.cmd_timeout_s = self.watchdog.cmd_timeout_s
         cfg = twin.config
-        self._cmd = VelocityCommand()
-        self._cmd_time_s = -math.inf
+        self._stopped_reason = self.watchdog.reason
         odom_hz = v.odom_rate_hz
         self._periods = {
             "odom": cfg.control_period_s if odom_hz <= 0 else 1.0 / odom_hz,
@@ -268,7 +276,11 @@ class TwinBridge(Node):
         )
         realtime = v.realtime
         period = cfg.control_period_s if realtime and not self.lockstep else 0.001
-        self.timer = self.create_timer(period, self._lockstep_poll if self.lockstep else self._tick)
+        # a steady timer: a wall clock set back must not hold the physics (or the timeout)
+        steady = RosClock(clock_type=ClockType.STEADY_TIME)
+        self.timer = self.create_timer(
+            period, self._lockstep_poll if self.lockstep else self._tick, clock=steady
+        )
 
     @staticmethod
     def _wall_s() -> float:
@@ -279,8 +291,7 @@ class TwinBridge(Node):
         self.ledger.sent(pub.topic_name)
 
     def _on_cmd_vel(self, msg: Twist) -> None:
-        self._cmd = VelocityCommand(msg.linear.x, msg.linear.y, msg.angular.z)
-        self._cmd_time_s = self.twin.time_s
+        self.watchdog.command((msg.linear.x, msg.linear.y, msg.angular.z), self.twin.time_s)
         if self.lockstep:
             self.ledger.received(topic.CMD_VEL)
 
@@ -343,8 +354,15 @@ class TwinBridge(Node):
     # -- stepping -------------------------------------------------------------------------
     def _step_physics(self) -> None:
         tw = self.twin
-        stale = tw.time_s - self._cmd_time_s > self.cmd_timeout_s
-        tw.step(None if stale else self._cmd)
+        vx, vy, wz = self.watchdog.output(tw.time_s)
+        reason = self.watchdog.reason
+        if reason != self._stopped_reason:
+            if reason == STALE:
+                self.get_logger().info(
+                    f"no {topic.CMD_VEL} for {self.cmd_timeout_s:g} s: base stopped"
+                )
+            self._stopped_reason = reason
+        tw.step(VelocityCommand(vx, vy, wz) if reason == WATCHDOG_OK else None)
 
     def _tick(self) -> None:
         """Real time and free-running: one control period, then what is due."""

@@ -9,7 +9,7 @@ vigil replay-report --out DIR            solve, replay chapter 5, simulate, repo
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
 vigil replay-bag RUN [--out DIR]         re-play a run's bag into its planner; same steps?
 vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
-vigil launch config/twin.yaml            start the whole system; Ctrl-C stops it
+vigil launch CONFIG [--out DIR] [--resume]  start the whole system; Ctrl-C stops it
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
 vigil security keystore DIR --domain N   an SROS2 keystore for hardware mode (docs/SAFETY.md)
 vigil security check                     can the installed DDS enforce it?
@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 import stack.topics as topic
+from vigil.launch import DEFAULT_RESUME_MAX_AGE_S
 from vigil.replay import replay_json, replay_markdown, run_replay
 from vigil.solving import (
     bounds_line,
@@ -444,7 +445,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = _command(sub, "launch", "start the whole system from a deployment file; Ctrl-C stops it")
     p.add_argument("config", help="config/twin.yaml or config/hardware.yaml")
-    p.add_argument("--out", default="runs/launch", help="folder for logs and node files")
+    p.add_argument(
+        "--out",
+        default="runs/launch",
+        help="run folder, by vigil run's rules: an earlier run's is kept (the launch goes "
+        "to OUT-2, ...), one vigil did not make is refused",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="resume the planner from the newest earlier launch into OUT, if it had the "
+        "same deployment, task and policy and is younger than --resume-max-age-s",
+    )
+    p.add_argument(
+        "--resume-max-age-s",
+        type=float,
+        default=DEFAULT_RESUME_MAX_AGE_S,
+        help=f"the oldest planner state --resume takes [s], default {DEFAULT_RESUME_MAX_AGE_S:g}",
+    )
     p.set_defaults(func=cmd_launch)
 
     p = _command(sub, "calibrate", "the ceiling camera's floor homography")
@@ -589,7 +607,7 @@ def cmd_security_check(args: argparse.Namespace) -> int:
 def cmd_launch(args: argparse.Namespace) -> int:
     from vigil.launch import launch
 
-    return launch(args.config, args.out)
+    return launch(args.config, args.out, resume=args.resume, resume_max_age_s=args.resume_max_age_s)
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

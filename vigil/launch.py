@@ -11,6 +11,8 @@ closed), then SIGTERM, then SIGKILL to what is left.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import signal
 import subprocess
@@ -216,15 +218,183 @@ class GraphWatch:
         self._rclpy.try_shutdown(context=self.context)
 
 
-def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = print) -> int:
-    """``vigil launch CONFIG``: start the system, show each node up, run until Ctrl-C
-    or until a node dies for good; returns 0 on Ctrl-C with every node leaving cleanly,
-    1 when a node died or failed to stop cleanly."""
+STATE_FILE = "planner_state.json"  # the planner's belief and step (vigil.system)
+IDENTITY_FILE = "launch.json"  # what a launch's planner state belongs to
+DEFAULT_RESUME_MAX_AGE_S = 600.0  # --resume-max-age-s: a restart after a crash, not yesterday
+
+
+MAX_HASHED_BYTES = 1 << 30  # a policy file is at most this (stack.planning.policy)
+
+
+def _digest(path: str | Path | None) -> str:
+    """sha256 of a file's bytes ("" for no file); read in chunks, any size."""
+    if not path:
+        return ""
+    from stack.config import open_regular
+
+    h = hashlib.sha256()
+    with open_regular(path, MAX_HASHED_BYTES) as f:  # never /dev/zero, never a pipe
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def planner_identity(deployment: Path | None, planner: dict) -> dict[str, str]:
+    """What a planner state belongs to: the deployment, task and policy files' contents
+    (sha256; the policy "" for the online planner)."""
+    return {
+        "deployment": _digest(deployment),
+        "task": _digest(planner.get("task_file")),
+        "policy": _digest(planner.get("policy_file")),
+    }
+
+
+def previous_state(out: Path) -> Path | None:
+    """The newest planner state among earlier launches into ``out`` (``out``, ``out-2``,
+    ...: the folders :func:`vigil.run_folder.fresh_run_dir` numbers), None if there is none.
+    Only folders vigil made (holding its run mark) count."""
+    from vigil.run_folder import MAX_NUMBERED, RUN_MARK
+
+    family = [out] + [out.with_name(f"{out.name}-{n}") for n in range(2, MAX_NUMBERED)]
+    found: list[tuple[float, Path]] = []
+    for folder in family:
+        state = folder / STATE_FILE
+        try:
+            if (folder / RUN_MARK).is_file() and state.is_file():
+                found.append((state.stat().st_mtime, state))
+        except OSError:
+            continue
+    return max(found)[1] if found else None
+
+
+def _age(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def resume_decision(
+    state: Path | None,
+    identity: dict[str, str],
+    resume: bool,
+    max_age_s: float,
+    now_s: float,
+) -> tuple[Path | None, str]:
+    """Whether the planner resumes from an earlier launch's ``state``, and the one line
+    that says so.
+
+    It resumes only when asked (``resume``), only when the state's launch recorded the
+    same deployment, task and policy (:data:`IDENTITY_FILE` beside it), and only when
+    the state was written less than ``max_age_s`` ago. The age is on the wall clock
+    (the file's modification time: the only clock that survives a restart); a state
+    written in the future (a clock set back) is not resumed.
+
+    Args:
+        state: the earlier state file (:func:`previous_state`), None if none.
+        identity: this launch's :func:`planner_identity`.
+        resume: ``--resume`` was given.
+        max_age_s: ``--resume-max-age-s``.
+        now_s: the wall-clock time [s since the epoch].
+
+    Returns:
+        (the state file to resume from, or None; the line to show).
+    """
+    from stack.config import read_text_capped
+
+    if not resume:
+        if state is None:
+            return None, "planner: initial belief"
+        return None, f"planner: initial belief ({state} is not resumed without --resume)"
+    if state is None:
+        return None, "planner: initial belief (--resume: no earlier planner state found)"
+    no = f"planner: initial belief, not resuming {state}"
+    try:
+        recorded = json.loads(read_text_capped(state.parent / IDENTITY_FILE))
+        saved = json.loads(read_text_capped(state))
+        age_s = now_s - state.stat().st_mtime
+    except (OSError, ValueError) as err:
+        return None, f"{no}: its launch is unreadable or records nothing ({err})"
+    if not isinstance(recorded, dict) or not isinstance(saved, dict):
+        return None, f"{no}: not a JSON object"
+    differ = [k for k in ("task", "policy", "deployment") if recorded.get(k) != identity[k]]
+    if differ:
+        return None, f"{no}: another {', '.join(differ)} than this launch's"
+    if age_s < 0:
+        return None, f"{no}: written {_age(-age_s)} in the future (a clock set back?)"
+    if age_s > max_age_s:
+        return None, (f"{no}: {_age(age_s)} old, older than --resume-max-age-s {max_age_s:g}")
+    step = saved.get("step")
+    return state, f"planner: resuming from {state} (step {step}, {_age(age_s)} old)"
+
+
+def _write_new(path: Path, data: bytes) -> None:
+    """Create ``path`` (never over an existing file, never through a link)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+
+
+def prepare_launch(
+    config: str | Path,
+    out: str | Path,
+    resume: bool = False,
+    resume_max_age_s: float = DEFAULT_RESUME_MAX_AGE_S,
+    say: Callable[[str], None] = print,
+):
+    """Everything ``vigil launch`` does before a process starts; returns (deployment,
+    system, run id).
+
+    The run folder follows ``vigil run``'s rules (:func:`vigil.run_folder.fresh_run_dir`): a
+    new or empty folder is used, an earlier run's folder is kept and the launch goes to
+    ``<out>-2``, ``-3``, ..., any other non-empty folder is refused. A planner state of
+    an earlier launch is copied into the new folder only under :func:`resume_decision`.
+
+    Raises:
+        ConfigError: a bad deployment, ``--out`` or ``--resume-max-age-s``.
+    """
+    from stack.config import read_text_capped
+    from stack.hardware.base_watchdog import check_timeout
     from vigil.deployment import load_deployment
+    from vigil.run_folder import fresh_run_dir
     from vigil.system import prepare
 
+    max_age_s = check_timeout("--resume-max-age-s", resume_max_age_s)
     dep = load_deployment(config)
-    system = prepare(dep, Path(out), say=say)
+    out = Path(out).resolve()
+    earlier = previous_state(out)
+    run_id = uuid.uuid4().hex[:12]
+    run_dir = fresh_run_dir(out, run_id)
+    say(f"[launch] folder {run_dir}")
+    system = prepare(dep, run_dir, say=say)
+    planner = system.params.get("planner", {})
+    identity = planner_identity(dep.source, planner)
+    _write_new(run_dir / IDENTITY_FILE, (json.dumps(identity, indent=2) + "\n").encode())
+    state, line = resume_decision(earlier, identity, resume, max_age_s, time.time())
+    if state is not None and planner.get("state_file"):
+        _write_new(Path(planner["state_file"]), read_text_capped(state).encode())
+    say(f"[launch] {line}")
+    return dep, system, run_id
+
+
+def launch(
+    config: str | Path,
+    out: str | Path,
+    say: Callable[[str], None] = print,
+    resume: bool = False,
+    resume_max_age_s: float = DEFAULT_RESUME_MAX_AGE_S,
+) -> int:
+    """``vigil launch CONFIG``: start the system, show each node up, run until Ctrl-C
+    or until a node dies for good; returns 0 on Ctrl-C with every node leaving cleanly,
+    1 when a node died or failed to stop cleanly.
+
+    The run folder and the planner's resumption: :func:`prepare_launch`.
+
+    Raises:
+        ConfigError: a bad deployment, ``--out`` or ``--resume-max-age-s``.
+    """
+    dep, system, run_id = prepare_launch(config, out, resume, resume_max_age_s, say)
     logs = system.run_dir / "logs"
     claim = None
     if dep.mode == "twin" and dep.ros.domain_id < 0:  # private: a parallel run never hears it
@@ -232,7 +402,7 @@ def launch(config: str | Path, out: str | Path, say: Callable[[str], None] = pri
 
         claim = claim_domain()
         system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
-    system.env.setdefault(RUN_ID_ENV, uuid.uuid4().hex[:12])
+    system.env.setdefault(RUN_ID_ENV, run_id)
     say(f"[launch] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}")
     launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
     for key, value in system.env.items():

@@ -35,11 +35,13 @@ from typing import Any
 
 import yaml
 
+from stack.config import read_text_capped
 from vigil.bag import BAG_DIR, ReplayError, fresh_path, read_recording
 
 REPLAYED = ("observations", "planner")  # the nodes re-run from the bag
 REPLAY_DIR = "replay"  # inside the run folder (replay_1, ... when taken)
 STALL_S = 120.0  # wall seconds without any acknowledgement: the replay gives up
+MAX_STEPS_BYTES = 256 * 2**20  # steps.jsonl: a record per decision step, far below this
 
 
 def find_bag(run_dir: Path) -> Path:
@@ -66,7 +68,10 @@ def read_steps(path: Path) -> list[dict]:
     if not path.is_file():
         return []
     out = []
-    lines = path.read_text().splitlines()
+    try:
+        lines = read_text_capped(path, MAX_STEPS_BYTES).splitlines()
+    except ValueError as err:
+        raise ReplayError(str(err)) from None
     last = max((n for n, line in enumerate(lines, 1) if line.strip()), default=0)
     for n, line in enumerate(lines, 1):
         if not line.strip():
@@ -187,8 +192,8 @@ def replay_params(run_dir: Path, out_dir: Path) -> dict[str, dict[str, Any]]:
     if not path.is_file():
         raise ReplayError(f"{run_dir} has no params.yaml (the nodes' parameters of the run)")
     try:
-        doc = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
+        doc = yaml.safe_load(read_text_capped(path)) or {}
+    except (ValueError, yaml.YAMLError) as err:
         raise ReplayError(f"{path}: not YAML ({err})") from err
     out: dict[str, dict[str, Any]] = {}
     for name in REPLAYED:

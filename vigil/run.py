@@ -13,7 +13,6 @@ simulation entered them by hand; the planner node is the same.
 from __future__ import annotations
 
 import json
-import os
 import time
 import uuid
 from dataclasses import replace
@@ -24,48 +23,16 @@ from stack.lockstep import RUN_ID_ENV  # read by stack.ros_lockstep (acks) and t
 from vigil.deployment import load_deployment
 from vigil.launch import Launcher
 from vigil.ros_domain import claim_domain
+from vigil.run_folder import MAX_NUMBERED, RUN_MARK, fresh_run_dir  # noqa: F401 (re-exported)
 from vigil.scenario import load_scenario
 from vigil.system import prepare, prepare_table
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
-RUN_MARK = ".vigil-run"  # written first into every run folder vigil run creates
-MAX_NUMBERED = 1000
 
 
 class RunError(RuntimeError):
     """The run could not finish (a node died for good, or it timed out)."""
-
-
-def fresh_run_dir(run_dir: Path, run_id: str) -> Path:
-    """The folder this run writes into; nothing that exists is ever deleted.
-
-    An absent or empty ``run_dir`` is used as it is. A non-empty folder that an
-    earlier ``vigil run`` made (it holds :data:`RUN_MARK`) is kept: the run goes to the
-    first free ``<run_dir>-2``, ``-3``, ... beside it. Any other non-empty folder (or a
-    file) is refused.
-
-    Raises:
-        ConfigError: ``run_dir`` is a file, or a non-empty folder vigil did not make.
-    """
-    run_dir = Path(run_dir)
-    if run_dir.exists() and not run_dir.is_dir():
-        raise ConfigError("--out", str(run_dir), "is a file, not a folder")
-    if run_dir.is_dir() and any(run_dir.iterdir()):
-        if not (run_dir / RUN_MARK).is_file():
-            raise ConfigError(
-                "--out", str(run_dir), "is a non-empty folder that vigil run did not make"
-            )
-        for n in range(2, MAX_NUMBERED):
-            candidate = run_dir.with_name(f"{run_dir.name}-{n}")
-            if not candidate.exists():
-                run_dir = candidate
-                break
-        else:
-            raise ConfigError("--out", str(run_dir), f"{MAX_NUMBERED} numbered runs exist")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / RUN_MARK).write_text(json.dumps({"run_id": run_id, "pid": os.getpid()}) + "\n")
-    return run_dir
 
 
 def _records(path: Path) -> list[dict]:

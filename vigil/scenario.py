@@ -47,6 +47,7 @@ every person's walk; ``start`` and ``walk`` are the first person's.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,11 @@ FAULT_KINDS = ("camera_off", "lidar_off", "kill", "obstacle")
 # recorder are not restarted, so killing them would end the run, not test a restart)
 KILLABLE = ("camera_people", "legs", "observations", "navigation", "speech", "planner")
 DIRECTIONS = ("north", "south", "east", "west", "not moving")
+MAX_SEED = 2**32 - 1  # numpy's legacy seeds and every ROS integer parameter take it
+MAX_STEPS = 10_000  # decision steps of one run (each takes seconds of simulated time)
+MAX_TIME_S = 1e6  # fault times, durations and pauses [s]
+MAX_COORD_M = 1e3  # a map point's coordinates [m]
+MAX_CELL = 10**6  # a cell number (then checked against the task's grid)
 
 
 @dataclass(frozen=True)
@@ -155,27 +161,69 @@ def _waypoints(
     return wps
 
 
-def _where(value: Any, key: str) -> Any:
-    if value in ("door", "outside"):
+def _where(value: Any, key: str, cells: frozenset[int] | None = None) -> Any:
+    """door, outside, a cell of the task (``cells``; None: any cell number) or a finite
+    map point [x, y]."""
+    if isinstance(value, str) and value in ("door", "outside"):
         return value
     if isinstance(value, bool):
         raise ConfigError(key, value, "must be door, outside, a cell number or [x, y]")
     if isinstance(value, int):
+        if cells is not None and value not in cells:
+            raise ConfigError(key, value, f"not a cell of the task's grid {_span(cells)}")
         return value
     if (
         isinstance(value, list | tuple)
         and len(value) == 2
         and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
     ):
+        if not all(math.isfinite(v) and abs(v) <= MAX_COORD_M for v in value):
+            raise ConfigError(key, value, f"a map point needs finite |x|, |y| <= {MAX_COORD_M:g} m")
         return (float(value[0]), float(value[1]))
     raise ConfigError(key, value, "must be door, outside, a cell number or [x, y]")
 
 
-def _number(data: dict, key: str, default: float, prefix: str, minimum: float = 0.0) -> float:
+def _span(cells: frozenset[int]) -> str:
+    return f"({min(cells)}..{max(cells)})" if cells else "(none)"
+
+
+def _number(
+    data: dict,
+    key: str,
+    default: float,
+    prefix: str,
+    minimum: float = 0.0,
+    maximum: float = MAX_TIME_S,
+) -> float:
+    """A finite number in [minimum, maximum] (NaN and inf never pass)."""
     v = data.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int | float) or v < minimum:
-        raise ConfigError(f"{prefix}.{key}", v, f"must be a number >= {minimum}")
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, int | float)
+        or not math.isfinite(v)
+        or not minimum <= v <= maximum
+    ):
+        raise ConfigError(f"{prefix}.{key}", v, f"must be a number in [{minimum:g}, {maximum:g}]")
     return float(v)
+
+
+def _integer(value: Any, key: str, low: int, high: int) -> int:
+    """An integer (not a bool, not a float) in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ConfigError(key, value, f"must be an integer in [{low}, {high}]")
+    return value
+
+
+def _task_cells(task: Path) -> frozenset[int]:
+    """The cells of the task file's grid; the task is read and checked here."""
+    from stack.planning.task import load_task
+
+    try:
+        return frozenset(load_task(task).grid.cells)
+    except ConfigError as err:
+        raise ConfigError("task", str(task), f"is not a valid task: {err}") from None
+    except (OSError, ValueError) as err:
+        raise ConfigError("task", str(task), f"cannot be read: {err}") from None
 
 
 def _check_keys(data: Any, known: set[str], prefix: str) -> dict:
@@ -201,33 +249,49 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
     for key in ("name", "task"):
         if not isinstance(d.get(key), str) or not d[key]:
             raise ConfigError(key, d.get(key), "must be a non-empty string")
+    name = d["name"]
+    # the default run folder is runs/<name>: one plain folder name, nothing that climbs
+    if name in (".", "..") or any(c in name for c in "/\\\0") or len(name) > 100:
+        raise ConfigError("name", name, "must be a plain folder name (no / or \\, not . or ..)")
+    for key in ("title", "thesis_table"):
+        if key in d and not isinstance(d[key], str):
+            raise ConfigError(key, d[key], "must be a string")
+    table = d.get("thesis_table", "")
+    if table:
+        from stack.planning.replay import TABLES
+
+        if table not in TABLES:
+            raise ConfigError("thesis_table", table, f"unknown table (one of {sorted(TABLES)})")
     task = Path(d["task"])
     if not task.is_absolute() and source is not None:
         task = source.parent / task
     if not task.exists():
         raise ConfigError("task", str(task), "file not found")
-    ints = {}
-    for key, default, low in (("seed", 0, 0), ("steps", 10, 1), ("robot_cell", 7, 1)):
-        v = d.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or v < low:
-            raise ConfigError(key, v, f"must be an integer >= {low}")
-        ints[key] = v
+    cells = _task_cells(task)
+    seed = _integer(d.get("seed", 0), "seed", 0, MAX_SEED)
+    steps = _integer(d.get("steps", 10), "steps", 1, MAX_STEPS)
+    robot_cell = _integer(d.get("robot_cell", 7), "robot_cell", 1, MAX_CELL)
+    if robot_cell not in cells:
+        raise ConfigError("robot_cell", robot_cell, f"not a cell of the task's grid {_span(cells)}")
     belief = _check_keys(d.get("belief", {}), {"person", "direction"}, "belief")
     person = belief.get("person", "none")
     if person in ("none", None):
         person = None
-    elif isinstance(person, bool) or not isinstance(person, int):
-        raise ConfigError("belief.person", person, "must be a cell number or none")
-    direction = str(belief.get("direction", "not moving")).lower()
-    if direction not in DIRECTIONS:
+    elif isinstance(person, bool) or not isinstance(person, int) or person not in cells:
+        raise ConfigError(
+            "belief.person", person, f"must be a cell of the task's grid {_span(cells)} or none"
+        )
+    direction = belief.get("direction", "not moving")
+    if not isinstance(direction, str) or direction.lower() not in DIRECTIONS:
         raise ConfigError("belief.direction", direction, f"must be one of {DIRECTIONS}")
+    direction = direction.lower()
     if "people" in d:
         raw_people = d["people"]
         if not isinstance(raw_people, list) or not raw_people:
             raise ConfigError("people", raw_people, "must be a non-empty list of walks")
-        walkers = [_walker(w, f"people[{i}]") for i, w in enumerate(raw_people)]
+        walkers = [_walker(w, f"people[{i}]", cells) for i, w in enumerate(raw_people)]
     else:
-        walkers = [_walker(d.get("person", {}), "person")]
+        walkers = [_walker(d.get("person", {}), "person", cells)]
     faults = []
     raw_faults = d.get("faults", []) or []
     if not isinstance(raw_faults, list):
@@ -236,15 +300,18 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
         key = f"faults[{i}]"
         f = _check_keys(f, {"kind", "at_s", "duration_s", "node", "after_step", "cell"}, key)
         kind = f.get("kind")
-        if kind not in FAULT_KINDS:
+        if not isinstance(kind, str) or kind not in FAULT_KINDS:
             raise ConfigError(f"{key}.kind", kind, f"must be one of {FAULT_KINDS}")
+        node = f.get("node", "")
+        if not isinstance(node, str):
+            raise ConfigError(f"{key}.node", node, "must be a node's name")
         fault = Fault(
             kind,
             _number(f, "at_s", 0, key),
             _number(f, "duration_s", 0, key),
-            str(f.get("node", "")),
-            int(f.get("after_step", 0)),
-            int(f.get("cell", 0)),
+            node,
+            _integer(f.get("after_step", 0), f"{key}.after_step", 0, steps),
+            _integer(f.get("cell", 0), f"{key}.cell", 0, MAX_CELL),
         )
         if kind == "kill" and (not fault.node or fault.after_step < 1):
             raise ConfigError(key, f, "kill needs node and after_step >= 1")
@@ -254,16 +321,18 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
             )
         if kind in ("camera_off", "lidar_off") and fault.duration_s <= 0:
             raise ConfigError(f"{key}.duration_s", fault.duration_s, "must be > 0")
-        if kind == "obstacle" and fault.cell < 1:
-            raise ConfigError(f"{key}.cell", fault.cell, "must name a cell")
+        if kind == "obstacle" and fault.cell not in cells:
+            raise ConfigError(
+                f"{key}.cell", fault.cell, f"must name a cell of the task's grid {_span(cells)}"
+            )
         faults.append(fault)
     return Scenario(
-        name=d["name"],
-        title=str(d.get("title", d["name"])),
+        name=name,
+        title=str(d.get("title", name)),
         task=task.resolve(),
-        seed=ints["seed"],
-        steps=ints["steps"],
-        robot_cell=ints["robot_cell"],
+        seed=seed,
+        steps=steps,
+        robot_cell=robot_cell,
         belief_person=person,
         belief_direction=direction,
         start=walkers[0].start,
@@ -275,10 +344,10 @@ def parse_scenario(data: Any, source: Path | None = None) -> Scenario:
     )
 
 
-def _walker(data: Any, prefix: str) -> Walker:
+def _walker(data: Any, prefix: str, cells: frozenset[int] | None = None) -> Walker:
     """One ``person:`` mapping (or one entry of ``people:``), keys named from ``prefix``."""
     p = _check_keys(data, {"start", "walk"}, prefix)
-    start = _where(p.get("start", "outside"), f"{prefix}.start")
+    start = _where(p.get("start", "outside"), f"{prefix}.start", cells)
     walk = []
     legs = p.get("walk", [])
     if not isinstance(legs, list):
@@ -286,16 +355,21 @@ def _walker(data: Any, prefix: str) -> Walker:
     for i, leg in enumerate(legs):
         key = f"{prefix}.walk[{i}]"
         leg = _check_keys(leg, {"to", "speed_mps", "pause_s"}, key)
-        speed = _number(leg, "speed_mps", 1.0, key, 0.1)
-        if speed > MAX_WALK_SPEED_MPS:
-            raise ConfigError(
-                f"{key}.speed_mps", speed, f"must be in [0.1, {MAX_WALK_SPEED_MPS}] m/s"
-            )
-        walk.append(Leg(_where(leg.get("to"), f"{key}.to"), speed, _number(leg, "pause_s", 0, key)))
+        speed = _number(leg, "speed_mps", 1.0, key, 0.1, MAX_WALK_SPEED_MPS)
+        to = _where(leg.get("to"), f"{key}.to", cells)
+        walk.append(Leg(to, speed, _number(leg, "pause_s", 0, key)))
     return Walker(start, tuple(walk))
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario file (see the module docstring)."""
+    """Read and validate a scenario file (see the module docstring).
+
+    Every value is checked here, before any process starts: numbers finite and in
+    range, integers integral, cells cells of the task's grid (the task file is read and
+    checked too), the seed in [0, 2^32 - 1], the name a plain folder name.
+
+    Raises:
+        ConfigError: naming the key, the value and the rule.
+    """
     path = Path(path).resolve()
     return parse_scenario(read_yaml(path), path)

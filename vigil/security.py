@@ -67,7 +67,7 @@ NODES = (
 def enclaves(base_topic: str = BASE_TOPIC) -> dict[str, Grant]:
     """Every enclave of a hardware deployment and its extra rights."""
     out = {name: Grant() for name in NODES}
-    out["velocity_gate"] = Grant(publish=(base_topic,), subscribe=(topic.ARM,))
+    out["velocity_gate"] = Grant(publish=(base_topic, topic.GATE_HEARTBEAT), subscribe=(topic.ARM,))
     out["operator"] = Grant(publish=(topic.ARM,), set_gate_params=True)
     out["base_driver"] = Grant(subscribe=(base_topic,))
     return out
@@ -131,7 +131,8 @@ def permissions_xml(enclave: str, grant: Grant, domain_id: int, base_topic: str)
     now = datetime.now(UTC)
     start = now.strftime("%Y-%m-%dT%H:%M:%S")
     end = (now + timedelta(days=3650)).strftime("%Y-%m-%dT%H:%M:%S")
-    guarded_pub = {f"rt{base_topic}", "rt/arm"} - {f"rt{t}" for t in grant.publish}
+    guarded = (base_topic, topic.ARM, topic.GATE_HEARTBEAT)  # a forged heartbeat hides a dead gate
+    guarded_pub = {f"rt{t}" for t in guarded} - {f"rt{t}" for t in grant.publish}
     guarded_sub = {f"rt{base_topic}"} - {f"rt{t}" for t in grant.subscribe}
     params = {
         "rq/velocity_gate/set_parametersRequest",

@@ -351,8 +351,11 @@ def load_calibration(path: str | Path) -> CameraCalibration:
     """
     import yaml
 
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError("camera_info_file", str(path), f"cannot be read: {exc}") from exc
+    from stack.config import read_text_capped
+
+    try:  # a regular file of at most 16 MB: /dev/zero grew the node to 3.6 GB
+        data = yaml.safe_load(read_text_capped(path))
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        text = " ".join(str(exc).split())
+        raise ConfigError("camera_info_file", str(path), f"cannot be read: {text}") from None
     return calibration_from_dict(data, "camera_info_file")

@@ -21,6 +21,12 @@ Publishes:
         ``velocity_gate``, level OK when armed and passing commands (capped or not), WARN
         otherwise, message the reason, values {armed, reason, max_linear_mps,
         max_angular_radps}; on every change of armed or of moving/zero, and at 2 Hz.
+    ``/velocity_gate/heartbeat`` std_msgs/UInt64 (``heartbeat_topic``): a count that
+        grows by one at every run of the stale check (``rate_hz``, 20 Hz), armed or not,
+        moving or not. A base-side watchdog
+        (:class:`stack.hardware.base_watchdog.BaseWatchdog`) that stops hearing it knows
+        the gate is dead (SIGKILL, a segfault, the OOM killer: no last zero is sent then),
+        not merely quiet.
 
 Timing (the stale timeout, the acceleration limit, the 2 Hz repeats) runs on the
 monotonic clock, whatever ``use_sim_time`` says. On SIGINT/SIGTERM the node publishes
@@ -30,7 +36,7 @@ Parameters: ``config_file`` (YAML with a ``velocity_gate:`` section, keys as
 :class:`GateConfig`); each key of that section is also a read-only parameter
 (``max_linear_mps``, ``max_angular_radps``, ``cmd_timeout_s``, ``require_arming``) whose
 value overrides the file's; ``armed`` (default false; true when ``require_arming`` is
-false), ``rate_hz`` (20, the stale check), the topics above.
+false), ``rate_hz`` (20, the stale check and the heartbeat), the topics above.
 """
 
 from __future__ import annotations
@@ -45,7 +51,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, UInt64
 
 import stack.topics as topic
 from stack.cells import ConfigError
@@ -88,6 +94,7 @@ class VelocityGateNode(Node):
             output=topic.CMD_VEL,
             arm=topic.ARM,
             diagnostics=topic.DIAGNOSTICS,
+            heartbeat=topic.GATE_HEARTBEAT,
         )
         if topics["input"] == topics["output"]:
             raise ConfigError(
@@ -97,6 +104,8 @@ class VelocityGateNode(Node):
         armed = p("armed", self.gate.armed).value
         self.cmd_pub = self.create_publisher(Twist, topics["output"], 10)
         self.state_pub = self.create_publisher(DiagnosticArray, topics["diagnostics"], 10)
+        self.heartbeat_pub = self.create_publisher(UInt64, topics["heartbeat"], 1)
+        self.beats = 0
         self._moving = False  # the last output published was a forwarded command
         self._last_zero_s = -1e9
         self._last_state: tuple | None = None
@@ -168,6 +177,8 @@ class VelocityGateNode(Node):
             self.publish_state(force=True)
 
     def on_timer(self) -> None:
+        self.beats += 1
+        self.heartbeat_pub.publish(UInt64(data=self.beats))
         now = self.now_s()
         out = self.gate.tick(now)
         if out == ZERO and self.gate.state.reason not in (OK, CAPPED):

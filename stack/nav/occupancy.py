@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 from scipy import ndimage
 
-from stack.config import read_text_capped
+from stack.config import open_regular, read_bytes_capped, read_text_capped
 
 FREE = 0
 OCCUPIED = 100
@@ -334,6 +334,10 @@ def read_image(path: FsPath) -> np.ndarray:
         return _read_pgm(path)
     import cv2  # noqa: PLC0415 - only non-PGM maps need OpenCV
 
+    try:  # a regular file within the cap before OpenCV decodes it
+        open_regular(path).close()
+    except ValueError as exc:
+        raise MapError(str(exc)) from None
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise MapError(f"{path}: not a readable image")
@@ -344,7 +348,10 @@ def read_image(path: FsPath) -> np.ndarray:
 
 
 def _read_pgm(path: FsPath) -> np.ndarray:
-    raw = path.read_bytes()
+    try:
+        raw = read_bytes_capped(path)
+    except ValueError as exc:
+        raise MapError(str(exc)) from None
     magic = raw[:2]
     if magic not in (b"P2", b"P5"):
         raise MapError(f"{path}: not a PGM image (magic {magic!r}, expected b'P5' or b'P2')")

@@ -25,7 +25,9 @@ Publishes:
 
 Parameters: ``task_file``, ``policy_file`` (alpha vectors, ``vigil solve``),
 ``state_file`` (belief and step, written after every change; an existing one is
-resumed), ``steps_file`` (JSON lines, appended), ``initial_robot_cell`` (0: the
+resumed: a node restarted within a run continues; ``vigil launch`` puts an earlier
+launch's state there only with ``--resume``, :func:`vigil.launch.resume_decision`),
+``steps_file`` (JSON lines, appended), ``initial_robot_cell`` (0: the
 task's), ``initial_person_cell`` (-1: the task's, 0: nobody), ``initial_direction``
 ("": the task's), ``max_steps`` (0: no end), ``start_delay_s``, ``nav_timeout_s``,
 ``obs_timeout_s``, ``resume_wait_s``, ``online_depth``, ``online_samples``,

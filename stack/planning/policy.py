@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from stack.config import open_regular, read_bytes_capped
 from stack.planning import clock
 
 
@@ -180,7 +181,7 @@ class AlphaPolicy:
         if is_policy_xml(path):
             return read_policy_xml(path, n_states, obs_blocks)
         try:
-            with np.load(path, allow_pickle=False) as data:
+            with open_regular(path, MAX_POLICY_BYTES) as f, np.load(f, allow_pickle=False) as data:
                 alphas, actions = data["alphas"], data["actions"]
                 meta = json.loads(str(data["meta"])) if "meta" in data else {}
                 blocks = data["blocks"] if "blocks" in data else None
@@ -297,9 +298,9 @@ def _attr(text: str) -> str:
 def is_policy_xml(path: str | os.PathLike) -> bool:
     """True when the file starts like an XML document."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path, MAX_POLICY_BYTES) as f:
             head = f.read(64).lstrip()
-    except OSError:
+    except (OSError, ValueError):
         return False
     return head.startswith(b"<?xml") or head.startswith(b"<Policy")
 
@@ -326,10 +327,10 @@ def read_policy_xml(
     path = Path(path)
     if path.is_dir():
         raise PolicyFileError(f"{path} is a directory, not a policy file")
-    with open(path, "rb") as f:
-        data = f.read(MAX_POLICY_BYTES + 1)
-    if len(data) > MAX_POLICY_BYTES:
-        raise PolicyFileError(f"{path}: larger than {MAX_POLICY_BYTES:,} bytes")
+    try:
+        data = read_bytes_capped(path, MAX_POLICY_BYTES)
+    except ValueError as exc:
+        raise PolicyFileError(str(exc)) from None
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:

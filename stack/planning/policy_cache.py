@@ -13,12 +13,13 @@ from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
+from stack.config import read_bytes_capped
 from stack.planning.solve import TASK_CONFIG, SolverConfig, format_progress, solve_task
 from stack.planning.task import load_task
 
 
 def cache_key(task_path: str | Path, config: SolverConfig) -> str:
-    h = hashlib.sha256(Path(task_path).read_bytes())
+    h = hashlib.sha256(read_bytes_capped(task_path))
     h.update(json.dumps(asdict(config), sort_keys=True).encode())
     return h.hexdigest()[:16]
 

@@ -30,6 +30,7 @@ import io
 import math
 import os
 import re
+import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TextIO
@@ -825,11 +826,16 @@ def read_text_capped(path: str | os.PathLike, max_bytes: int = MAX_BYTES) -> str
             as /dev/zero never ends; it is cut off there).
         FileNotFoundError: no such file.
     """
+    from stack.config import open_regular
+
     path = Path(path)
     if path.is_dir():
         raise PomdpFormatError(0, f"{path} is a directory, not a model file")
-    with open(path, "rb") as f:
-        data = f.read(max_bytes + 1)
+    try:  # a regular file only: a named pipe would block, a device never end
+        with open_regular(path, sys.maxsize) as f:
+            data = f.read(max_bytes + 1)
+    except ValueError as exc:
+        raise PomdpFormatError(0, str(exc)) from None
     if len(data) > max_bytes:
         raise PomdpFormatError(0, f"{path}: larger than this reader's limit of {max_bytes:,} bytes")
     return data.decode("utf-8", errors="replace")
