@@ -101,7 +101,7 @@ def test_summary_counts_and_intervals(tmp_path):
 
 def test_bad_study_settings_are_named(tmp_path):
     with pytest.raises(ConfigError, match="speed_mps"):
-        StudyConfig(speed_mps=(0.4, 2.0))
+        StudyConfig(speed_mps=(0.4, 2.5))
     with pytest.raises(ConfigError, match="p_fault"):
         StudyConfig(p_fault=1.5)
     with pytest.raises(ConfigError, match="targets"):
@@ -151,3 +151,88 @@ def test_a_local_ray_instance_gives_the_same_results(tmp_path):
                     say=lambda _s: None)  # fmt: skip
     assert _strip(ray) == _strip(local)
     assert np.isfinite(ray["wall_s"])
+
+
+def test_the_walks_file_draws_every_behaviour_as_it_says():
+    from vigil.walks import DEFAULT_WALKS, load_walks
+
+    study = load_walks(DEFAULT_WALKS)
+    task = load_task(TASK)
+    grid, restricted = task.grid, set(task.restricted_cells)
+    eps = episode_scenarios(TASK, 200, seed=11, study=study)
+    assert eps == episode_scenarios(TASK, 200, seed=11, study=study)
+    seen = set()
+    for sc in eps:
+        kind = sc.title.split(": ", 1)[1].replace("runner ", "").replace("slow ", "").split()[0]
+        seen.add(kind)
+        targets = [grid.cell_at(*leg.to) for leg in sc.walk[1:-2]]
+        assert None not in targets
+        if kind == "decoy":  # stops by a restricted cell and turns away: never inside
+            assert not restricted & set(targets)
+            x0, y0, x1, y1 = grid.bounds(task.restricted_cells[0])
+            bx, by = sc.walk[1].to
+            gap = math.hypot(max(x0 - bx, 0, bx - x1), max(y0 - by, 0, by - y1))
+            assert gap == pytest.approx(study.border_gap_m, abs=1e-6)
+        if kind == "hesitate":
+            assert targets[0] not in restricted and targets[1] in restricted
+        if kind in ("direct", "wander", "two_visits", "hesitate"):
+            assert targets[-1] in restricted
+        if kind == "pass_by":
+            assert not restricted & set(targets)
+        speeds = [leg.speed_mps for leg in sc.walk]
+        if sc.title.split(": ", 1)[1].startswith("runner"):
+            assert min(speeds) >= 1.6 and max(speeds) <= 2.0
+        elif sc.title.split(": ", 1)[1].startswith("slow"):
+            assert max(speeds) <= 0.4
+        else:
+            assert 0.4 <= min(speeds) and max(speeds) <= 1.4
+    assert seen == {"direct", "wander", "hesitate", "two_visits", "decoy", "pass_by"}
+
+
+def test_a_bad_walks_file_is_refused_naming_the_file_and_key(tmp_path):
+    from vigil.walks import load_walks
+
+    cases = {
+        "speed_mps: [0.4, 3.0]\n": "speed_mps",
+        "behaviours: {direct: 1, sprint: 1}\n": "behaviours.sprint",
+        "behaviours: {direct: -1}\n": "behaviours.direct",
+        "pause_s: 5\n": "pause_s",
+        "paws_s: [1, 2]\n": "paws_s",
+        "runner_share: 0.7\nslow_share: 0.6\n": "runner_share",
+        "max_sim_s: .inf\n": "max_sim_s",
+        "- a list\n": "mapping",
+    }
+    for k, (text, key) in enumerate(cases.items()):
+        f = tmp_path / f"w{k}.yaml"
+        f.write_text(text)
+        with pytest.raises(ConfigError, match=key) as info:
+            load_walks(f)
+        assert str(f) in str(info.value)
+
+
+def test_a_scenario_folder_names_episodes_after_files_and_refuses_a_bad_file(tmp_path):
+    from vigil.montecarlo import load_scenario_folder
+
+    guard = REPO / "scenarios" / "guard"
+    scs = load_scenario_folder(guard)
+    assert [sc.name for sc in scs] == sorted(f.stem for f in guard.glob("*.yaml"))
+    text = (guard / "border-1.yaml").read_text().replace("../../config", str(REPO / "config"))
+    (tmp_path / "a.yaml").write_text(text)
+    (tmp_path / "b.yaml").write_text(text.replace("seed: 11", "seed: -4"))
+    with pytest.raises(ConfigError, match="b.yaml"):
+        load_scenario_folder(tmp_path)
+    with pytest.raises(ConfigError, match="no"):
+        load_scenario_folder(tmp_path / "a.yaml")
+
+
+def test_worst_episodes_put_failures_and_missed_visits_first():
+    from vigil.montecarlo import worst_episodes
+
+    def ep(name, **kw):
+        base = {"episode": name, "reachable": 1, "guarded_reachable": 1, "n_false_trips": 0,
+                "n_needless_trips": 0, "late_warnings": 0, "delays_s": [1.0]}  # fmt: skip
+        return {**base, **kw}
+
+    eps = [ep("fine"), ep("slow", delays_s=[7.0]), ep("missed", guarded_reachable=0),
+           {"episode": "broken", "error": "x"}, ep("trip", n_needless_trips=1)]  # fmt: skip
+    assert [e["episode"] for e in worst_episodes(eps, 4)] == ["broken", "missed", "trip", "slow"]

@@ -425,15 +425,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = _command(
         sub, "montecarlo", "the whole loop in-process (dm-control) over randomised walks and faults"
     )
-    p.add_argument("task", type=Path, help="task file, e.g. config/task-r1.yaml")
+    p.add_argument(
+        "task", type=Path, nargs="?", default=None, help="task file, e.g. config/task-r1.yaml"
+    )
     p.add_argument("--episodes", type=int, default=12, help="randomised episodes")
+    p.add_argument("--walks", type=Path, default=None,
+                   help="walk distribution (YAML; default config/walks.yaml)")  # fmt: skip
+    p.add_argument("--scenarios", type=Path, default=None,
+                   help="run every scenario file of this folder instead (no TASK)")  # fmt: skip
     p.add_argument("--workers", type=int, default=1, help="local processes (or Ray CPUs)")
     p.add_argument("--seed", type=int, default=0, help="seed of the walks and faults")
     p.add_argument("--out", type=Path, default=Path("runs/montecarlo"), help="results folder")
     p.add_argument("--ray", default=None, help="'local' or a Ray cluster address")
     p.add_argument("--config", type=Path, default=None, help="deployment file")
-    p.add_argument("--p-fault", type=float, default=0.25, help="chance of a sensor outage")
-    p.add_argument("--max-sim-s", type=float, default=60.0, help="episode length bound")
+    p.add_argument("--p-fault", type=float, default=None, help="chance of a sensor outage")
+    p.add_argument("--max-sim-s", type=float, default=None, help="episode length bound")
     p.add_argument(
         "--perception",
         choices=("model", "rendered"),
@@ -567,9 +573,15 @@ def cmd_fit_perception(args: argparse.Namespace) -> int:
 
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
-    from vigil.montecarlo import StudyConfig, run_study
+    from stack.cells import ConfigError
+    from vigil.montecarlo import load_scenario_folder, run_study
+    from vigil.walks import DEFAULT_WALKS, load_walks
 
-    study = StudyConfig(p_fault=args.p_fault, max_sim_s=args.max_sim_s)
+    if (args.task is None) == (args.scenarios is None):
+        raise ConfigError("TASK/--scenarios", args.task, "give a task or --scenarios DIR")
+    study = load_walks(args.walks or DEFAULT_WALKS, p_fault=args.p_fault,
+                       max_sim_s=args.max_sim_s)  # fmt: skip
+    scenarios = None if args.scenarios is None else load_scenario_folder(args.scenarios)
     record = run_study(
         args.task,
         args.episodes,
@@ -581,6 +593,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         study,
         perception=args.perception,
         perception_model=args.perception_model,
+        scenarios=scenarios,
     )
     print(json.dumps(record["summary"], sort_keys=True))
     return 1 if record["summary"]["failed_episodes"] else 0
