@@ -236,3 +236,25 @@ def test_worst_episodes_put_failures_and_missed_visits_first():
     eps = [ep("fine"), ep("slow", delays_s=[7.0]), ep("missed", guarded_reachable=0),
            {"episode": "broken", "error": "x"}, ep("trip", n_needless_trips=1)]  # fmt: skip
     assert [e["episode"] for e in worst_episodes(eps, 4)] == ["broken", "missed", "trip", "slow"]
+
+
+def test_two_studies_of_the_same_walks_are_compared_visit_by_visit():
+    from vigil.study_stats import compare_studies, comparison_markdown
+
+    def ep(name, guarded, seed=1):
+        visits = [{"cell": 1, "person_arrival_t": 4.0 + k, "guarded": g} for k, g in
+                  enumerate(guarded)]  # fmt: skip
+        return {"episode": name, "seed": seed, "visits": visits, "n_visits": len(visits),
+                "guarded": sum(guarded), "delays_s": [], "n_false_trips": 0, "abandoned": 0,
+                "timely_warnings": 0, "late_warnings": 0, "faults": []}  # fmt: skip
+
+    a = [ep("000", [True, False]), ep("001", [True])]
+    b = [ep("000", [True, True]), ep("001", [True])]
+    ra = {"episodes": a, "summary": summarise(a)}
+    rb = {"episodes": b, "summary": summarise(b)}
+    c = compare_studies(ra, rb, ("rendered", "model"))
+    assert (c["visits_matched"], c["guarded_in_both"], c["guarded_only_model"]) == (3, 2, 1)
+    assert c["agreement"] == round(2 / 3, 3) and c["differing_visits"] == ["000 cell 1 at 5.0 s"]
+    assert "agrees on 67 % of visits" in comparison_markdown(c)
+    with pytest.raises(ValueError, match="same episodes"):
+        compare_studies(ra, {"episodes": [ep("000", [True], seed=2), b[1]], "summary": {}})

@@ -231,3 +231,102 @@ def plot_study(path: Path, episodes: Sequence[dict[str, Any]], s: dict[str, Any]
     fig.savefig(path, dpi=110, metadata={"Software": None})
     plt.close(fig)
     return path
+
+
+# -- two studies of the same walks ----------------------------------------------------------------
+
+
+def _visit_key(v: dict[str, Any]) -> tuple[int, float]:
+    return int(v["cell"]), round(float(v["person_arrival_t"]), 1)
+
+
+def compare_studies(
+    a: dict[str, Any], b: dict[str, Any], labels: tuple[str, str] = ("a", "b")
+) -> dict[str, Any]:
+    """How two studies of the same walks (``montecarlo.json`` records) agree: each one's
+    summary, and per visit (same episode, cell and entry within 0.1 s; the person's
+    walk is the same in both) whether it was guarded in both, in one, or in neither.
+
+    Raises:
+        ValueError: the studies did not run the same episodes.
+    """
+    ea = {e["episode"]: e for e in a["episodes"]}
+    eb = {e["episode"]: e for e in b["episodes"]}
+    if set(ea) != set(eb) or any(ea[k].get("seed") != eb[k].get("seed") for k in ea):
+        raise ValueError("the two studies did not run the same episodes (seed, walks)")
+    both = neither = only_a = only_b = unmatched = 0
+    differ: list[str] = []
+    for name in sorted(ea):
+        x, y = ea[name], eb[name]
+        if "error" in x or "error" in y:
+            continue
+        va = {_visit_key(v): v for v in x.get("visits", [])}
+        vb = {_visit_key(v): v for v in y.get("visits", [])}
+        for key in sorted(set(va) | set(vb)):
+            if key not in va or key not in vb:
+                unmatched += 1
+                continue
+            ga, gb = bool(va[key]["guarded"]), bool(vb[key]["guarded"])
+            both += ga and gb
+            neither += not ga and not gb
+            only_a += ga and not gb
+            only_b += gb and not ga
+            if ga != gb:
+                differ.append(f"{name} cell {key[0]} at {key[1]} s")
+    matched = both + neither + only_a + only_b
+    return {
+        "labels": list(labels),
+        "summaries": [a["summary"], b["summary"]],
+        "visits_matched": matched,
+        "visits_unmatched": unmatched,
+        "guarded_in_both": both,
+        "guarded_in_neither": neither,
+        f"guarded_only_{labels[0]}": only_a,
+        f"guarded_only_{labels[1]}": only_b,
+        "agreement": round((both + neither) / matched, 3) if matched else None,
+        "differing_visits": differ,
+    }
+
+
+def comparison_markdown(c: dict[str, Any]) -> str:
+    """The comparison as a Markdown table: each study's figures with their intervals."""
+    la, lb = c["labels"]
+    sa, sb = c["summaries"]
+
+    def rate(s: dict[str, Any], key: str) -> str:
+        return f"{_pct(s.get(key))} {_pct_ci(s.get(key + '_ci95'))}"
+
+    def mean(s: dict[str, Any], key: str, ci: str, fmt: str) -> str:
+        v = s.get(key)
+        return "-" if v is None else f"{fmt.format(v)} {_ci(s.get(ci) or [None], fmt)}"
+
+    rows = [
+        ("episodes (failed)", f"{sa['episodes']} ({sa['failed_episodes']})",
+         f"{sb['episodes']} ({sb['failed_episodes']})"),
+        ("visits", str(sa["visits"]), str(sb["visits"])),
+        ("guarded-visit rate", rate(sa, "guarded_rate"), rate(sb, "guarded_rate")),
+        ("robot in the cell first", rate(sa, "robot_first_rate"), rate(sb, "robot_first_rate")),
+        ("mean delay", mean(sa, "mean_delay_s", "mean_delay_ci95_s", "{:.1f} s"),
+         mean(sb, "mean_delay_s", "mean_delay_ci95_s", "{:.1f} s")),
+        ("false trips per episode",
+         mean(sa, "false_trips_per_episode", "false_trips_per_episode_ci95", "{:.2f}"),
+         mean(sb, "false_trips_per_episode", "false_trips_per_episode_ci95", "{:.2f}")),
+        ("needless trips per episode",
+         mean(sa, "needless_trips_per_episode", "needless_trips_per_episode_ci95", "{:.2f}"),
+         mean(sb, "needless_trips_per_episode", "needless_trips_per_episode_ci95", "{:.2f}")),
+        ("warnings timely / late", f"{sa['timely_warnings']} / {sa['late_warnings']}",
+         f"{sb['timely_warnings']} / {sb['late_warnings']}"),
+        ("wall time per episode", f"{sa.get('wall_s_per_episode')} s",
+         f"{sb.get('wall_s_per_episode')} s"),
+    ]  # fmt: skip
+    lines = [f"| metric (95 % CI) | {la} | {lb} |", "|---|---|---|"]
+    lines += [f"| {m} | {x} | {y} |" for m, x, y in rows]
+    lines += [
+        "",
+        f"Per visit: {c['visits_matched']} visits of the same walks, guarded in both "
+        f"{c['guarded_in_both']}, in neither {c['guarded_in_neither']}, only {la} "
+        f"{c[f'guarded_only_{la}']}, only {lb} {c[f'guarded_only_{lb}']}: the outcome agrees "
+        f"on {_pct(c['agreement'])} of visits.",
+        "",
+    ]
+    return "\n".join(lines)
