@@ -18,8 +18,13 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
-from stack.perception.model import FrameRecord, PerceptionModel, fit, frame_record
-from vigil.inprocess import DETECTIONS_FILE
+from stack.perception.model import (
+    DETECTIONS_FILE,
+    FrameRecord,
+    PerceptionModel,
+    fit,
+    frame_record,
+)
 
 
 def read_frames(folders: Sequence[Path]) -> tuple[list[FrameRecord], list[Path]]:

@@ -64,7 +64,7 @@ from stack.perception.errors import BadScanError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs
 from stack.perception.messages import camera_state_from_json, legs_to_dict, tracks_from_dict
-from stack.perception.model import ModelCamera, PerceptionModel, PersonFrame
+from stack.perception.model import DETECTIONS_FILE, ModelCamera, PerceptionModel, PersonFrame
 from stack.perception.observation import CombinerConfig, ObservationCombiner
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
@@ -89,7 +89,6 @@ MAX_POSE_AGE_S = 0.5  # the legs node's max_pose_age_s
 PROGRESS_HZ = 2.0  # navigation's progress_rate_hz
 SPEECH_POLL_S = 0.1  # the speech node's poll_rate_hz 10
 PERCEPTION_MODES = ("rendered", "model")
-DETECTIONS_FILE = "detections.jsonl"  # rendered runs: each frame's truth and detections
 MODEL_STREAM = 0x5EE  # the model camera's random stream, beside the twin's seed
 
 

@@ -58,6 +58,7 @@ FEATURES = (
 MATCH_GATE_M = 1.0  # a detection farther than this from every person is a false positive
 MAX_FALSE_POINTS = 400  # false-positive positions kept in the file
 FORMAT = "vigil-perception-model/1"
+DETECTIONS_FILE = "detections.jsonl"  # rendered runs: each frame's truth and detections
 
 
 @dataclass(frozen=True)
