@@ -420,6 +420,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=101, help="seed of those walks")
     p.add_argument("--workers", type=int, default=2, help="local processes")
     p.add_argument("--out", type=Path, default=Path("runs/fit-perception"), help="their folder")
+    p.add_argument("--walks", type=Path, default=None,
+                   help="their walk distribution (default config/walks.yaml)")  # fmt: skip
     p.set_defaults(func=cmd_fit_perception)
 
     p = _command(
@@ -560,8 +562,10 @@ def cmd_fit_perception(args: argparse.Namespace) -> int:
     folders = list(args.folders)
     if args.task is not None:
         from vigil.montecarlo import run_study
+        from vigil.walks import DEFAULT_WALKS, load_walks
 
-        run_study(args.task, args.episodes, args.out, args.seed, args.workers,
+        study = load_walks(args.walks or DEFAULT_WALKS)
+        run_study(args.task, args.episodes, args.out, args.seed, args.workers, study=study,
                   perception="rendered")  # fmt: skip
         folders.append(args.out)
     if not folders:
