@@ -186,6 +186,14 @@ def read_text_capped(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
         raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
+def load_yaml(text: str) -> Any:
+    """``yaml.safe_load`` through libyaml when PyYAML has it (the same safe schema, about
+    ten times faster: a run reads a dozen configuration files)."""
+    import yaml
+
+    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+
+
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML file holding a mapping (an empty file is an empty mapping).
 
@@ -196,7 +204,7 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     import yaml
 
     try:
-        data = yaml.safe_load(read_text_capped(path)) or {}
+        data = load_yaml(read_text_capped(path)) or {}
     except (OSError, ValueError, yaml.YAMLError) as exc:
         raise ConfigError("config_file", str(path), f"cannot be read: {exc}") from exc
     if not isinstance(data, dict):

@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 import yaml
 
 from stack.cells import CellGrid, ConfigError
-from stack.config import Config, read_text_capped
+from stack.config import Config, load_yaml, read_text_capped
 
 Rule = tuple[Callable[[Any], bool], str]
 
@@ -377,7 +377,7 @@ class TwinConfig(_FromDict):
 
 def _read_yaml_file(path: str | Path) -> Any:
     try:
-        return yaml.safe_load(read_text_capped(path)) or {}
+        return load_yaml(read_text_capped(path)) or {}
     except (ValueError, yaml.YAMLError) as exc:
         raise ConfigError(str(path), "<file>", f"is not a readable YAML file: {exc}") from None
 

@@ -35,7 +35,7 @@ from typing import Any
 
 import yaml
 
-from stack.config import read_text_capped
+from stack.config import load_yaml, read_text_capped
 from vigil.bag import BAG_DIR, ReplayError, fresh_path, read_recording
 
 REPLAYED = ("observations", "planner")  # the nodes re-run from the bag
@@ -192,7 +192,7 @@ def replay_params(run_dir: Path, out_dir: Path) -> dict[str, dict[str, Any]]:
     if not path.is_file():
         raise ReplayError(f"{run_dir} has no params.yaml (the nodes' parameters of the run)")
     try:
-        doc = yaml.safe_load(read_text_capped(path)) or {}
+        doc = load_yaml(read_text_capped(path)) or {}
     except (ValueError, yaml.YAMLError) as err:
         raise ReplayError(f"{path}: not YAML ({err})") from err
     out: dict[str, dict[str, Any]] = {}

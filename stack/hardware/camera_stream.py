@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from stack.cells import ConfigError
-from stack.config import Config
+from stack.config import Config, load_yaml
 
 
 @dataclass(frozen=True)
@@ -354,7 +354,7 @@ def load_calibration(path: str | Path) -> CameraCalibration:
     from stack.config import read_text_capped
 
     try:  # a regular file of at most 16 MB: /dev/zero grew the node to 3.6 GB
-        data = yaml.safe_load(read_text_capped(path))
+        data = load_yaml(read_text_capped(path))
     except (OSError, ValueError, yaml.YAMLError) as exc:
         text = " ".join(str(exc).split())
         raise ConfigError("camera_info_file", str(path), f"cannot be read: {text}") from None

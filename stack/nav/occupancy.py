@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 from scipy import ndimage
 
-from stack.config import open_regular, read_bytes_capped, read_text_capped
+from stack.config import load_yaml, open_regular, read_bytes_capped, read_text_capped
 
 FREE = 0
 OCCUPIED = 100
@@ -198,7 +198,7 @@ def load_map_yaml(path: str | FsPath) -> OccupancyMap:
     """
     path = FsPath(path)
     try:
-        meta = yaml.safe_load(read_text_capped(path))
+        meta = load_yaml(read_text_capped(path))
     except OSError as exc:
         raise MapError(f"{path}: cannot read map YAML: {exc.strerror or exc}") from exc
     except ValueError as exc:  # too long, not UTF-8

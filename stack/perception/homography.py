@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 import yaml
 
-from stack.config import read_text_capped
+from stack.config import load_yaml, read_text_capped
 from stack.perception.errors import CalibrationError
 
 MIN_POINTS = 4
@@ -336,7 +336,7 @@ def load_calibration(path: str | Path) -> Calibration:
     if not path.is_file():
         raise CalibrationError(f"calibration file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(read_text_capped(path))
+        data = load_yaml(read_text_capped(path))
     except (OSError, ValueError, yaml.YAMLError) as err:
         raise CalibrationError(f"cannot read calibration file {str(path)!r}: {err}") from err
     if not isinstance(data, dict) or not isinstance(data.get("points"), list):
@@ -394,7 +394,7 @@ def load_points_file(path: str | Path) -> FloorPoints:
     if not path.is_file():
         raise CalibrationError(f"points file {name} does not exist")
     try:
-        data = yaml.safe_load(read_text_capped(path))
+        data = load_yaml(read_text_capped(path))
     except (OSError, ValueError, yaml.YAMLError) as err:
         raise CalibrationError(f"cannot read points file {name}: {err}") from err
     size = None

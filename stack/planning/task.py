@@ -26,7 +26,7 @@ from typing import Any
 import yaml
 
 from stack.cells import CellGrid, ConfigError
-from stack.config import Config, from_mapping, read_text_capped
+from stack.config import Config, from_mapping, load_yaml, read_text_capped
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
@@ -274,7 +274,7 @@ def load_task(path: str | Path) -> Task:
     except ValueError as exc:
         raise ConfigError(str(path), "<file>", str(exc)) from None
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(str(path), "<file>", f"is not valid YAML: {exc}") from None
     if data is None:

@@ -71,13 +71,11 @@ def room_of_run(run_dir: str | Path) -> tuple[float, float, float, float] | None
     if not path.exists():
         return None
     try:
-        import yaml
-
-        from stack.config import read_text_capped
+        from stack.config import load_yaml, read_text_capped
         from twin.config import TwinConfig
         from twin.scene import layout_of
 
-        data = yaml.safe_load(read_text_capped(path))
+        data = load_yaml(read_text_capped(path))
         return tuple(layout_of(TwinConfig.from_dict(data.get("twin", data))).room)
     except Exception:  # noqa: BLE001 - a report never fails on an unreadable side file
         return None
