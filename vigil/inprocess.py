@@ -57,7 +57,7 @@ from stack.geometry import Pose2D
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
 from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
-from stack.nav.speech import Speaker, SpeechError, WarningGate
+from stack.nav.speech import Speaker, SpeechError, WarningGate, person_to_warn
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker
 from stack.perception.errors import BadScanError
@@ -512,7 +512,7 @@ class InProcessSystem:
         body = json.loads(text)
         robot, person = str(body["robot"]), str(body["person"])
         self.speech_robot = int(robot) if robot.isdigit() else None
-        self.speech_person = int(person) if person.isdigit() else None
+        self.speech_person = person_to_warn(robot, person, body.get("people"))  # as the node
         self.speech_check()
 
     def speech_check(self) -> None:
