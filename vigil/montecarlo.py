@@ -97,7 +97,7 @@ def run_episode(
         perception_model=perception_model,
     )
     m = summary["metrics"]
-    return {
+    record = {
         "episode": scenario.name,
         "title": scenario.title,
         "task": Path(scenario.task).stem,
@@ -123,6 +123,9 @@ def run_episode(
         "sim_s": summary["inprocess"]["sim_s"],
         "wall_s": round(time.monotonic() - t0, 2),
     }
+    # the record beside the episode's raw files: a study stopped half-way keeps it
+    (Path(out_dir) / "episode.json").write_text(json.dumps(record, sort_keys=True) + "\n")
+    return record
 
 
 VISIT_KEYS = (
