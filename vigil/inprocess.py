@@ -54,6 +54,7 @@ import numpy as np
 import stack.topics as topic
 from stack.cells import ConfigError
 from stack.geometry import Pose2D
+from stack.hardware.base_watchdog import BaseWatchdog
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
 from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
@@ -83,7 +84,7 @@ from vigil.system import System, prepare
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
 DEFAULT_PERCEPTION_MODEL = REPO / "config" / "perception-model.yaml"
-CMD_TIMEOUT_S = 0.5  # the bridge's cmd_timeout_s
+CMD_TIMEOUT_S = 0.5  # the bridge's cmd_timeout_s, when the parameters do not say
 FRAME_TIMEOUT_S = 2.0  # the camera node's frame_timeout_s
 MAX_POSE_AGE_S = 0.5  # the legs node's max_pose_age_s
 PROGRESS_HZ = 2.0  # navigation's progress_rate_hz
@@ -223,8 +224,7 @@ class InProcessSystem:
         origin = tuple(float(v) for v in occ.origin_m)
         data = occ.data.ravel().astype(int)
         h, w = int(occ.shape[0]), int(occ.shape[1])
-        self._cmd = (0.0, 0.0, 0.0)
-        self._cmd_time_s = -math.inf
+        self.base = BaseWatchdog(float(bp.get("cmd_timeout_s", CMD_TIMEOUT_S)))
         self._frame_id = twin.camera_info.frame_id
         self._scan_geometry: tuple[float, ...] = ()
 
@@ -369,12 +369,11 @@ class InProcessSystem:
         )
 
     def _advance(self):
-        """Step the physics to the next sensor instant under the last command."""
+        """Step the physics to the next sensor instant under the command the base's
+        watchdog lets stand (the bridge's rule: zero once it is ``cmd_timeout_s`` old)."""
         env = self.env
         while True:
-            t = env.twin.time_s
-            stale = t - self._cmd_time_s > CMD_TIMEOUT_S
-            ts = env.step(np.zeros(3) if stale else np.array(self._cmd))
+            ts = env.step(np.array(self.base.output(env.twin.time_s)))
             if ts.last() or env.task.due_now:
                 return ts
 
@@ -414,8 +413,7 @@ class InProcessSystem:
         )
 
     def bridge_on_cmd(self, cmd: tuple[float, float, float]) -> None:
-        self._cmd = cmd
-        self._cmd_time_s = self.env.twin.time_s
+        self.base.command(cmd, self.env.twin.time_s)
 
     # -- camera_people --------------------------------------------------------------------
     def camera_on_image(self, msg: tuple[float, np.ndarray]) -> None:
