@@ -102,6 +102,16 @@ LONG = (
         "~3 min (105 s + 80 s at load 11-12)",
     ),
     (
+        "bench/bench_montecarlo_speed.py --episodes 20 --rendered 2",
+        "one Monte-Carlo worker's speed, perception model and rendered",
+        "~2 min (20 model episodes, 2 rendered)",
+    ),
+    (
+        "bench/bench_fidelity.py --episodes 100",
+        "the perception model against the rendered camera on the same walks",
+        "~1.5 h rendered on 2 workers (about 100 s an episode at load 6-9)",
+    ),
+    (
         "bench/bench_online.py run --planner NAME --episodes 200",
         "two people: online planner and baselines (then `bench_online.py report`)",
         "12 s (greedy) to 22 min (single) per planner",
