@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import functools
 import math
 import os
 import stat
@@ -70,13 +71,19 @@ class Config:
         return from_mapping(cls, data, cls.section if key is None else key)  # type: ignore[attr-defined]
 
 
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    """``typing.get_type_hints`` once per class (it evaluates every annotation's string)."""
+    return typing.get_type_hints(cls)
+
+
 def check_fields(obj: Any) -> None:
     """Check each field of a dataclass instance against its type hint.
 
     Raises:
         ConfigError: the first field whose value does not fit (key: the field's name).
     """
-    hints = typing.get_type_hints(type(obj))
+    hints = _type_hints(type(obj))
     for f in dataclasses.fields(obj):
         if f.name.startswith("_") or f.name not in hints:
             continue
@@ -246,7 +253,7 @@ def from_mapping(cls: type[T], data: Mapping[str, Any] | None, key: str) -> T:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(key, data, "must be a mapping")
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
 
     def path(name: str) -> str:

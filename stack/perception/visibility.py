@@ -271,11 +271,12 @@ class CameraVisibility:
         # :meth:`point` for every sample at once: the silhouettes do not move, only the
         # robot does, so its overlap with each is one product with the stacked masks.
         t = self._sample_table()
-        r = robot.ravel().astype(np.float32)
+        r = np.flatnonzero(robot.ravel())  # the robot's pixels: the overlaps are sums there
         nearer = math.dist((robot_pose.x_m, robot_pose.y_m), self.centre_m[:2]) < t.dist
         use = (t.inside > 0) & nearer
-        covered = np.where(use, (t.whole @ r) / np.maximum(t.inside, 1), 0.0)
-        legs = np.where(use & (t.n_legs > 0), (t.legs @ r) / np.maximum(t.n_legs, 1), 0.0)
+        covered = np.where(use, t.whole[:, r].sum(axis=1) / np.maximum(t.inside, 1), 0.0)
+        legs_px = t.legs[:, r].sum(axis=1)
+        legs = np.where(use & (t.n_legs > 0), legs_px / np.maximum(t.n_legs, 1), 0.0)
         cfg = self.config
         hidden = (
             t.static_hidden | (covered > cfg.max_covered_frac) | (legs > cfg.max_legs_covered_frac)
