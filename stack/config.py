@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import functools
 import math
 import os
 import stat
@@ -71,10 +70,15 @@ class Config:
         return from_mapping(cls, data, cls.section if key is None else key)  # type: ignore[attr-defined]
 
 
-@functools.cache
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
 def _type_hints(cls: type) -> dict[str, Any]:
     """``typing.get_type_hints`` once per class (it evaluates every annotation's string)."""
-    return typing.get_type_hints(cls)
+    hints = _HINTS.get(cls)
+    if hints is None:
+        hints = _HINTS[cls] = typing.get_type_hints(cls)
+    return hints
 
 
 def check_fields(obj: Any) -> None:
