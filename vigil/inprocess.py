@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections import deque
 from collections.abc import Callable
@@ -108,6 +109,22 @@ def ros_time(t_s: float) -> float:
 def f32(x: float) -> float:
     """A float through a float32 message field."""
     return float(np.float32(x))
+
+
+_PLANNING: dict[tuple, tuple] = {}
+
+
+def _planning_of(task_file: str, policy_file: str):
+    """The task's model, flat POMDP and policy, made once per worker process for the same
+    files (a study runs hundreds of episodes of one task; none of the three changes)."""
+    key = tuple((str(f), os.stat(f).st_mtime_ns, os.stat(f).st_size) for f in (task_file,
+                policy_file))  # fmt: skip
+    if key not in _PLANNING:
+        model = build_model(load_task(task_file))
+        pomdp = model.flat()
+        _PLANNING.clear()
+        _PLANNING[key] = (model, pomdp, AlphaPolicy.load(policy_file, pomdp.n_states))
+    return _PLANNING[key]
 
 
 class _Timer:
@@ -180,10 +197,7 @@ class InProcessSystem:
 
         # -- the planner (as stack.planning.node_planner) --------------------------------
         pp = p["planner"]
-        task = load_task(pp["task_file"])
-        model = build_model(task)
-        pomdp = model.flat()
-        policy = AlphaPolicy.load(pp["policy_file"], pomdp.n_states)
+        model, pomdp, policy = _planning_of(pp["task_file"], pp["policy_file"])
         ini = model.task.initial
         person = int(pp.get("initial_person_cell", -1))
         first_person = ini.person if person < 0 else (person or None)
