@@ -98,3 +98,32 @@ def test_ros_run_and_inprocess_loop_make_the_same_decisions(tmp_path):
     for v, w in zip(va, vb, strict=True):
         assert abs(v["delay_s"] - w["delay_s"]) <= 1.0
     assert ros["metrics"]["n_false_trips"] == mine["metrics"]["n_false_trips"] == 0
+
+
+@pytest.mark.slow
+def test_the_perception_model_runs_the_same_loop_without_rendering(tmp_path):
+    """Model mode: no frame rendered, the same tracker, planner and report; the same
+    seed gives the same run; rendered mode logs each frame's truth and detections."""
+    from stack.perception.model import DETECTIONS_FILE, frame_record
+
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text(SHORT.format(task=REPO / "config" / "task-r1.yaml"))
+    runs = [
+        run_inprocess(scenario, tmp_path / f"model{k}", say=lambda _s: None, perception="model")
+        for k in range(2)
+    ]
+    a, b = (tmp_path / "model0", tmp_path / "model1")
+    for name in ("steps.jsonl", "trace.jsonl"):
+        assert (a / name).read_text() == (b / name).read_text()
+    assert not (a / DETECTIONS_FILE).exists() and runs[0]["inprocess"]["perception"] == "model"
+    steps = _records(a / "steps.jsonl")
+    assert len(steps) == 8 and runs[0]["metrics"]["n_visits"] == 1
+    seen = [s["observation"]["person"] for s in steps]
+    assert "1" in seen  # the model's camera saw the person in cell 1
+    trace = [json.loads(x) for x in (a / "trace.jsonl").read_text().splitlines()]
+    assert all(r["camera"]["boxes"] == [] for r in trace)  # nothing was rendered
+    rendered = run_inprocess(scenario, tmp_path / "rendered", say=lambda _s: None)
+    lines = (tmp_path / "rendered" / DETECTIONS_FILE).read_text().splitlines()
+    frames = [frame_record(json.loads(x)) for x in lines]
+    assert len(frames) >= 10 * rendered["inprocess"]["sim_s"] - 2  # 10 Hz
+    assert any(f.detections for f in frames) and all(len(f.people) == 1 for f in frames)

@@ -258,3 +258,22 @@ def test_two_studies_of_the_same_walks_are_compared_visit_by_visit():
     assert "agrees on 67 % of visits" in comparison_markdown(c)
     with pytest.raises(ValueError, match="same episodes"):
         compare_studies(ra, {"episodes": [ep("000", [True], seed=2), b[1]], "summary": {}})
+
+
+def test_a_bad_perception_model_or_mode_is_refused_before_anything_runs(tmp_path):
+    bad = tmp_path / "model.yaml"
+    bad.write_text("format: vigil-perception-model/1\nfeatures: [bias]\n")
+    with pytest.raises(ConfigError, match="model.yaml"):
+        run_study(TASK, 1, tmp_path / "out", perception_model=bad, say=lambda _s: None)
+    with pytest.raises(ConfigError, match="--perception"):
+        run_study(TASK, 1, tmp_path / "out", perception="drawn", say=lambda _s: None)
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_shipped_perception_model_loads_and_says_where_it_came_from():
+    from stack.perception.model import PerceptionModel
+    from vigil.inprocess import DEFAULT_PERCEPTION_MODEL
+
+    m = PerceptionModel.load(DEFAULT_PERCEPTION_MODEL)
+    assert m.meta["date"] and m.meta["command"].startswith("vigil fit-perception")
+    assert m.meta["frames"] > 1000 and 0.0 < m.error_rho < 1.0

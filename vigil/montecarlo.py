@@ -259,12 +259,8 @@ def run_study(
             raise ConfigError("--scenarios", names, "two scenarios with the same name")
         max_steps = None  # each scenario's own steps
         what = f"{len(scenarios)} scenarios"
-    out = Path(out).resolve()
-    (out / "episodes").mkdir(parents=True, exist_ok=True)
-    from vigil.system import policy_for
-
-    for task in sorted({str(Path(sc.task).resolve()) for sc in scenarios}):
-        policy_for(Path(task), say)  # solved once here, not by every worker at the same time
+    if perception not in ("model", "rendered"):
+        raise ConfigError("--perception", perception, "must be model or rendered")
     model_file = None
     if perception == "model":
         from stack.perception.model import PerceptionModel
@@ -272,6 +268,12 @@ def run_study(
 
         model_file = str(Path(perception_model or DEFAULT_PERCEPTION_MODEL).resolve())
         PerceptionModel.load(model_file)  # a bad file is refused before any episode runs
+    out = Path(out).resolve()
+    (out / "episodes").mkdir(parents=True, exist_ok=True)
+    from vigil.system import policy_for
+
+    for task in sorted({str(Path(sc.task).resolve()) for sc in scenarios}):
+        policy_for(Path(task), say)  # solved once here, not by every worker at the same time
     cfg = None if config_path is None else str(Path(config_path).resolve())
     jobs = [
         (k, (sc, str(out / "episodes" / name), cfg, study, perception, model_file, max_steps))
