@@ -31,12 +31,15 @@ if [ ! -x "$VENV/bin/python" ]; then
   echo "setup: creating $VENV with $PYTHON"
   "$PYTHON" -m venv "$VENV"
 fi
+# The extras: dev (pytest, ruff, mypy) and ray (`vigil montecarlo --ray`, tested by `make
+# test`). The stamp holds them: a changed pyproject.toml or list of extras installs again.
+extras="dev,ray"
 stamp="$VENV/.installed"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  echo "setup: installing Python dependencies into $VENV"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$(cat "$stamp")" != "$extras" ]; then
+  echo "setup: installing Python dependencies ($extras) into $VENV"
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e ".[dev]"
-  touch "$stamp"
+  "$VENV/bin/python" -m pip install -q -e ".[$extras]"
+  echo "$extras" >"$stamp"
 fi
 
 # The ROS interface packages (vigil_interfaces, tf2_msgs): built once, cached by a hash.

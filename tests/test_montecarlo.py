@@ -145,12 +145,19 @@ def test_same_seed_same_results_whatever_the_workers(tmp_path):
 
 @pytest.mark.slow
 def test_a_local_ray_instance_gives_the_same_results(tmp_path):
-    pytest.importorskip("ray")
-    local = run_study(TASK, 1, tmp_path / "l", seed=9, workers=1, study=SHORT, say=lambda _s: None)
-    ray = run_study(TASK, 1, tmp_path / "r", seed=9, workers=1, ray="local", study=SHORT,
-                    say=lambda _s: None)  # fmt: skip
+    pytest.importorskip("ray")  # `make test` installs it (.[dev,ray]): skipped only without
+    from tests.test_perception_model import truth_model
+
+    model = truth_model().save(tmp_path / "perception-model.yaml")  # not the shipped fit
+    kw = dict(seed=9, workers=2, study=SHORT, say=lambda _s: None, perception_model=model)
+    local = run_study(TASK, 4, tmp_path / "l", **kw)
+    ray = run_study(TASK, 4, tmp_path / "r", ray="local", **kw)
+    assert not [e["error"] for e in ray["episodes"] if "error" in e]
     assert _strip(ray) == _strip(local)
-    assert np.isfinite(ray["wall_s"])
+    timeless = lambda s: {k: v for k, v in s.items() if k != "wall_s_per_episode"}  # noqa: E731
+    assert timeless(ray["summary"]) == timeless(local["summary"])
+    assert ray["summary"]["sim_s"] == pytest.approx(16.0, abs=0.2)
+    assert (ray["ray"], local["ray"]) == ("local", None) and np.isfinite(ray["wall_s"])
 
 
 def test_the_walks_file_draws_every_behaviour_as_it_says():

@@ -166,26 +166,54 @@ def _local_map(jobs, workers: int):
                           "error": f"worker died: {type(err).__name__}: {err}"}  # fmt: skip
 
 
+# Ray's workers render with EGL like the local ones (the twin's calibration renders)
+RAY_ENV = {"MUJOCO_GL": "egl", "PYOPENGL_PLATFORM": "egl"}
+RAY_OBJECT_STORE = 100 * 2**20  # a local instance: episodes pass small records, not arrays
+
+
 def _ray_map(jobs, address: str, workers: int):
     """(index, result) as episodes finish, as Ray tasks (``address``: "local" starts a
-    local instance with ``workers`` CPUs; else the cluster's address)."""
+    local instance with ``workers`` CPUs, no dashboard and a small object store; else the
+    cluster's address). Workers import the project (an installed or editable checkout on
+    every node, docs/CLUSTER.md); their output is not forwarded. A task whose worker or
+    node died (after Ray's retries) is reported as a failed episode."""
     try:
         import ray
     except ImportError as err:
         raise ConfigError("--ray", address, "Ray is not installed: pip install .[ray]") from err
+    import logging
+
     started = not ray.is_initialized()
     if started:
+        # ERROR: not Ray's start-up lines (the instance, token authentication) on every study
+        quiet = dict(log_to_driver=False, logging_level=logging.ERROR)
         if address == "local":
-            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+            ray.init(num_cpus=max(1, workers), include_dashboard=False,
+                     object_store_memory=RAY_OBJECT_STORE, runtime_env={"env_vars": RAY_ENV},
+                     **quiet)  # fmt: skip
         else:
-            ray.init(address=address, log_to_driver=False)
+            try:
+                ray.init(address=address, runtime_env={"env_vars": RAY_ENV}, **quiet)
+            except ConnectionError as err:  # no cluster there, or it wants the token
+                raise ConfigError("--ray", address, f"{err} (is it a `ray start` address? "
+                                  "token authentication: RAY_AUTH_MODE=token, "
+                                  "docs/CLUSTER.md)") from err  # fmt: skip
     try:
         remote = ray.remote(num_cpus=1)(_guarded)
         refs = {remote.remote(args): k for k, args in jobs}
+        jobs_by_k = dict(jobs)
         pending = list(refs)
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
-            yield refs[done[0]], ray.get(done[0])
+            k = refs[done[0]]
+            try:
+                rec = ray.get(done[0])
+            except ray.exceptions.RayError as err:  # a worker or node died, or no vigil there
+                sc, why = jobs_by_k[k][0], (str(err).strip().splitlines() or [""])[-1]
+                rec = {"episode": sc.name, "title": sc.title, "seed": sc.seed,
+                       "faults": [asdict(f) for f in sc.faults],
+                       "error": f"Ray: {type(err).__name__}: {why}"}  # fmt: skip
+            yield k, rec
     finally:
         if started:
             ray.shutdown()
