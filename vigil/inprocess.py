@@ -71,6 +71,7 @@ from stack.perception.observation import CombinerConfig, ObservationCombiner
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 from stack.planning.agent import ObservationError, Observed, PlannerAgent
+from stack.planning.anticipate import Anticipator
 from stack.planning.model import build_model
 from stack.planning.policy import AlphaPolicy
 from stack.planning.stepper import DecisionSteps, StepTiming
@@ -205,7 +206,9 @@ class InProcessSystem:
             int(pp.get("initial_robot_cell", 0)) or ini.robot,
             [(first_person, pp.get("initial_direction", "") or ini.direction)] * model.people,
         )
-        self.agent = PlannerAgent(model, pomdp, policy, b0)
+        self.agent = PlannerAgent(
+            model, pomdp, policy, b0, anticipator=Anticipator.for_task(model.task)
+        )
         timing = StepTiming(
             start_delay_s=float(pp["start_delay_s"]),
             min_step_s=float(pp["min_step_s"]),

@@ -22,6 +22,7 @@ import numpy as np
 
 from stack.config import read_text_capped
 from stack.planning import belief as belief_ops
+from stack.planning.anticipate import Anticipator
 from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
@@ -62,6 +63,7 @@ class Observed:
     hidden: tuple[tuple[int, float], ...] = ()
     source: str = ""
     people: tuple[tuple[str, str], ...] = ()  # (person, velocity) per person slot (issue 16)
+    position_m: tuple[float, float] | None = None  # the person's floor point, when measured
 
     @classmethod
     def from_dict(cls, data: Any) -> Observed:
@@ -86,6 +88,7 @@ class Observed:
         return cls(
             labels["robot"], labels["person"], labels["velocity"], parsed,
             source if isinstance(source, str) else "", _people(data.get("people")),
+            _position(data.get("person_position_m")),
         )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
@@ -123,6 +126,16 @@ def _people(data: Any) -> tuple[tuple[str, str], ...]:
             )
         out.append((item["person"], item["velocity"]))
     return tuple(out)
+
+
+def _position(value: Any) -> tuple[float, float] | None:
+    """A floor point [x, y] of finite numbers, else None (no position is no evidence)."""
+    if not isinstance(value, list | tuple) or len(value) != 2:
+        return None
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+        return None
+    x, y = float(value[0]), float(value[1])
+    return (x, y) if np.isfinite(x) and np.isfinite(y) else None
 
 
 def parse_cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -> int | None:
@@ -193,6 +206,8 @@ class PlannerAgent:
         initial_belief: the belief before the first step (default: the task's).
         tie_tolerance: actions within this fraction of the best are ties; ties prefer
             "Do nothing" (see :func:`stack.planning.replay.policy_chooser`).
+        anticipator: the task's anticipation layer (``person_model: goal``;
+            :mod:`stack.planning.anticipate`), or None: the policy alone.
     """
 
     def __init__(
@@ -202,8 +217,12 @@ class PlannerAgent:
         policy: AlphaPolicy,
         initial_belief: np.ndarray | None = None,
         tie_tolerance: float = TIE_TOLERANCE,
+        anticipator: Anticipator | None = None,
     ):
         self.model, self.pomdp, self.policy = model, pomdp, policy
+        self.anticipator = anticipator
+        self.robot_cell: int | None = None  # the last observed robot cell
+        self.anticipated: dict[str, Any] | None = None  # the last decision's layer note
         self._choose = policy_chooser(policy, pomdp, lookahead=True, tie_tolerance=tie_tolerance)
         b0 = pomdp.b0 if initial_belief is None else np.asarray(initial_belief, float)
         if b0.shape != (pomdp.n_states,) or not np.isclose(b0.sum(), 1.0):
@@ -222,9 +241,27 @@ class PlannerAgent:
     def decide(self) -> int:
         """Choose the next action from the current belief; the step is now under way."""
         a, q = self._choose(self.belief)
+        self.anticipated = None
+        if self.anticipator is not None:
+            move = self.anticipator.advise(self.robot_cell)
+            note = self.anticipator.note()
+            if note is not None:
+                self.anticipated = {**note, "policy": ACTIONS[int(a)], "move": move}
+            if move is not None:
+                a = ACTIONS.index(move)
         self.action, self.values = int(a), [float(v) for v in q]
         self.phase = "acting"
         return self.action
+
+    def track(self, t: float, observed: Observed) -> str | None:
+        """Every observation, step end or not: the robot's cell and the anticipation
+        layer's goal inference. Returns the event when the layer's target changed
+        ("heading for 1", "heading for none"), else None."""
+        self.robot_cell = int(observed.robot) if observed.robot.isdigit() else None
+        if self.anticipator is None or not self.anticipator.observe(t, observed.position_m):
+            return None
+        target = self.anticipator.target
+        return f"heading for {'none' if target is None else target}"
 
     def observe(self, observed: Observed) -> dict[str, Any]:
         """Update the belief with the observations that followed the current action.
@@ -340,7 +377,7 @@ class PlannerAgent:
 
     def record(self, observed: Observed | None, note: str | None = None) -> dict[str, Any]:
         """The step's record: step, action, observations, belief after them, values."""
-        return {
+        out = {
             "step": self.step,
             "action": ACTIONS[self.action] if self.action is not None else None,
             "observation": observed.to_dict() if observed else None,
@@ -348,6 +385,9 @@ class PlannerAgent:
             "values": [round(v, 4) for v in self.values],
             "note": note,
         }
+        if self.anticipated is not None:  # person_model: goal only (other records unchanged)
+            out["anticipation"] = self.anticipated
+        return out
 
     # -- persistence ------------------------------------------------------------------
     def state(self) -> dict[str, Any]:

@@ -60,6 +60,7 @@ from vigil_interfaces.msg import (
 import stack.topics as topic
 from stack.cells import ConfigError
 from stack.planning.agent import ObservationError, Observed, PlannerAgent, StateFileError
+from stack.planning.anticipate import Anticipator
 from stack.planning.factored import PeopleModel
 from stack.planning.model import build_model
 from stack.planning.online import OnlineConfig
@@ -130,7 +131,9 @@ class PlannerNode(Node):
             b0 = model.initial_belief(
                 robot or ini.robot, [(first_person, direction or ini.direction)] * model.people
             )
-            self.agent = PlannerAgent(model, pomdp, policy, b0)
+            self.agent = PlannerAgent(
+                model, pomdp, policy, b0, anticipator=Anticipator.for_task(model.task)
+            )
             what_policy = f"{len(policy.alphas)} vectors"
         resumed = False
         if self.state_file:

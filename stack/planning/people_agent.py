@@ -100,6 +100,10 @@ class PeopleAgent:
         self.phase = "acting"
         return self.action
 
+    def track(self, t: float, observed: Observed) -> str | None:  # noqa: ARG002
+        """Every observation: nothing to track (no anticipation layer for several people)."""
+        return None
+
     def observe(self, observed: Observed) -> dict[str, Any]:
         """Update the belief with the step's observations (see the module docstring).
 

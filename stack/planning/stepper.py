@@ -78,6 +78,8 @@ class Agent(Protocol):
 
     def observe(self, observed: Observed) -> dict[str, Any]: ...
 
+    def track(self, t: float, observed: Observed) -> str | None: ...
+
 
 @dataclass
 class DecisionSteps:
@@ -105,6 +107,7 @@ class DecisionSteps:
     sent_goal_id: int = 0  # the goal the step's action went out as (its step number)
     last_nav: dict[str, Any] | None = None
     last_person: str = field(init=False)
+    intent_event: str | None = None  # the anticipation layer's event during this step
 
     def __post_init__(self) -> None:
         self.last_person = "" if self.first_person is None else str(self.first_person)
@@ -168,20 +171,24 @@ class DecisionSteps:
         if self.waiting not in ("obs", "nav", "hold"):
             return []
         trigger = "step"
+        # the anticipation layer's target changed now, or earlier within this step
+        heading = self.agent.track(now_s, observed) or self.intent_event
         if self.waiting != "obs":  # an event: the person shows up in a new cell
             person = _event_key(observed)
             elapsed = now_s - self.step_start_s
+            moved = bool(person) and person != self.last_person
             if not (
                 self.timing.min_event_step_s > 0
-                and person
-                and person != self.last_person
+                and (moved or heading)
                 and elapsed >= self.timing.min_event_step_s
             ):
+                self.intent_event = heading  # decide on it once the step is long enough
                 return []
-            trigger = f"person in {person}"
+            trigger = f"person in {person}" if moved else str(heading)
             if self.last_nav is None:
                 self.last_nav = {"result": "in progress", "action": self.sent_action}
         record = self.agent.observe(observed)
+        self.intent_event = None
         self.last_person = _event_key(observed)
         record.update(
             stamp_s=round(now_s, 6),

@@ -27,6 +27,7 @@ import yaml
 
 from stack.cells import CellGrid, ConfigError
 from stack.config import Config, from_mapping, load_yaml, read_text_capped
+from stack.planning.anticipate import PERSON_MODELS, AnticipationConfig
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
@@ -181,6 +182,10 @@ class Task(Config):
     obs_position: PositionObservationModel = field(default_factory=PositionObservationModel)
     obs_velocity: VelocityObservationModel = field(default_factory=VelocityObservationModel)
     initial: Initial = field(default_factory=Initial)
+    # the person model of the run-time layer (not of the POMDP): "thesis" (the policy
+    # alone) or "goal" (stack.planning.anticipate: head for the cell a person walks to)
+    person_model: str = "thesis"
+    anticipation: AnticipationConfig = field(default_factory=AnticipationConfig)
 
     def check(self) -> None:
         cells = set(self.grid.cells)
@@ -213,6 +218,10 @@ class Task(Config):
             raise ConfigError("initial.robot", ini.robot, "is not a cell of the grid")
         if ini.person is not None and ini.person not in cells:
             raise ConfigError("initial.person", ini.person, "is not a cell of the grid (or 'none')")
+        if self.person_model not in PERSON_MODELS:
+            raise ConfigError("person_model", self.person_model, f"must be one of {PERSON_MODELS}")
+        if self.person_model == "goal" and self.people != 1:
+            raise ConfigError("person_model", "goal", "anticipates one person (people: 1)")
         if ini.direction not in DIRECTION_NAMES:
             raise ConfigError(
                 "initial.direction", ini.direction, f"must be one of {DIRECTION_NAMES}"
@@ -252,6 +261,9 @@ class Task(Config):
         for key in ("rewards", "robot", "direction", "position", "obs_position", "obs_velocity"):
             sec = dataclasses.asdict(getattr(self, key))
             out[key] = {k: list(v) if isinstance(v, tuple) else v for k, v in sec.items()}
+        if self.person_model != "thesis":
+            out["person_model"] = self.person_model
+            out["anticipation"] = dataclasses.asdict(self.anticipation)
         ini = self.initial
         out["initial"] = {
             "robot": ini.robot,

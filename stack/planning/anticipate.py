@@ -1,0 +1,138 @@
+"""Anticipation: head for the restricted cell a person is walking to (issue 26).
+
+The task policy (chapter 3's person model) reacts to the cell a person is *in*: it
+moves once the person is next to a restricted cell, one cell per decision step, and
+reaches the cell seconds after them. A task with ``person_model: goal`` adds this
+layer: the person's observed floor positions feed Bayesian goal inference
+(:mod:`stack.planning.intent`: a Boltzmann-rational walker heading for a restricted
+cell or elsewhere), and while the person is believed to be heading for a restricted
+cell the robot takes the first move of a shortest path there instead of the policy's
+action. The policy decides everything else: waiting at rest, guarding while the
+person is in the cell (the robot is there), coming back.
+
+- heading for cell c starts when P(goal = c) reaches ``go_probability`` and stops
+  when it falls under ``stay_probability`` (hysteresis: a person who pauses on the
+  way does not make the robot turn back at once);
+- once the person is *in* a restricted cell, or the robot is in the target cell, the
+  layer stays silent (the policy guards);
+- a change of target is an event: the planner decides again at once
+  (:class:`stack.planning.stepper.DecisionSteps`), not at the end of the step.
+
+Pure (numpy): the planner node and the in-process loop run it through
+:class:`stack.planning.agent.PlannerAgent`.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from stack.cells import MOVING_DIRECTIONS, CellGrid
+from stack.config import Config
+from stack.perception._config import require
+from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
+
+PERSON_MODELS = ("thesis", "goal")
+
+
+@dataclass(frozen=True)
+class AnticipationConfig(Config):
+    """Attributes:
+    go_probability: head for a restricted cell once the person's goal is it with at
+        least this probability.
+    stay_probability: keep heading there while the probability stays above this.
+    intent: the goal inference (:class:`stack.planning.intent.IntentConfig`).
+    """
+
+    section = "anticipation"
+
+    go_probability: float = 0.6
+    stay_probability: float = 0.35
+    intent: IntentConfig = field(default_factory=IntentConfig)
+
+    def __post_init__(self) -> None:
+        require(0.0 < self.go_probability <= 1.0, "go_probability", self.go_probability,
+                "must be in (0, 1]")  # fmt: skip
+        require(0.0 <= self.stay_probability <= self.go_probability, "stay_probability",
+                self.stay_probability, "must be in [0, go_probability]")  # fmt: skip
+
+
+def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
+    """The first action ("North", ...) of a shortest path of cell moves from ``start``
+    to ``goal`` (ties: the order of :data:`MOVING_DIRECTIONS`); None when there."""
+    if start == goal:
+        return None
+    first: dict[int, str] = {start: ""}
+    queue = deque([start])
+    while queue:
+        c = queue.popleft()
+        for d in MOVING_DIRECTIONS:
+            n = grid.neighbour(c, d)
+            if n is None or n in first:
+                continue
+            first[n] = first[c] or d.label
+            if n == goal:
+                return first[n]
+            queue.append(n)
+    return None
+
+
+class Anticipator:
+    """Goal inference on one person's observed positions and the move it advises.
+
+    Args:
+        grid, restricted_cells: the task's.
+        config: thresholds and the inference's parameters.
+    """
+
+    def __init__(
+        self, grid: CellGrid, restricted_cells: tuple[int, ...], config: AnticipationConfig
+    ):
+        self.grid, self.restricted, self.config = grid, tuple(restricted_cells), config
+        self.inference = GoalInference(grid, restricted_cells, config.intent)
+        self.estimate: IntentEstimate | None = None
+        self.target: int | None = None
+
+    @classmethod
+    def for_task(cls, task: Any) -> Anticipator | None:
+        """The task's anticipator, or None for ``person_model: thesis``."""
+        if getattr(task, "person_model", "thesis") != "goal":
+            return None
+        return cls(task.grid, task.restricted_cells, task.anticipation)
+
+    def observe(self, t: float, position_m: tuple[float, float] | None) -> bool:
+        """Take the person's floor position at ``t`` (None: not seen); returns whether
+        the target changed (an event worth a new decision)."""
+        if position_m is None:
+            est = self.inference.predict(t)
+        else:
+            est = self.inference.update(TrackObservation(t, (position_m[0], position_m[1])))
+        self.estimate = est
+        before = self.target
+        cfg = self.config
+        if est.inside is not None:
+            self.target = None  # in a restricted cell: the policy guards it
+        else:
+            if self.target is not None and est.p(self.target) < cfg.stay_probability:
+                self.target = None
+            best = max(self.restricted, key=est.p)
+            if est.p(best) >= cfg.go_probability:
+                self.target = best
+        return self.target != before
+
+    def advise(self, robot_cell: int | None) -> str | None:
+        """The move toward the target cell, or None (no target, the robot is there or
+        its cell is unknown: the policy's action stands)."""
+        if self.target is None or robot_cell is None:
+            return None
+        return first_move(self.grid, robot_cell, self.target)
+
+    def note(self) -> dict[str, Any] | None:
+        """For the step record: the target and the goal probabilities."""
+        if self.estimate is None:
+            return None
+        return {
+            "target": self.target,
+            "p_goal": {str(c): round(self.estimate.p(c), 3) for c in self.restricted},
+        }
