@@ -43,6 +43,7 @@ def test_a_person_walking_to_cell_1_makes_the_robot_head_there_before_they_arriv
             advised_at = (t, p)
         t += 0.25
     assert advised_at is not None and GRID.cell_at(*advised_at[1]) != 1  # before entry
+    assert ant.advise(1) in ("Do nothing", None)  # there first: wait for the person
     assert events[0][1] == 1
     # inside the cell the policy guards: no advice
     ant.observe(t, (5.5, 0.75))

@@ -13,8 +13,9 @@ person is in the cell (the robot is there), coming back.
 - heading for cell c starts when P(goal = c) reaches ``go_probability`` and stops
   when it falls under ``stay_probability`` (hysteresis: a person who pauses on the
   way does not make the robot turn back at once);
-- once the person is *in* a restricted cell, or the robot is in the target cell, the
-  layer stays silent (the policy guards);
+- with the robot in the target cell it waits there (the policy values the cell only
+  with the person in it, and would leave); once the person is *in* a restricted cell
+  the layer is silent (the policy guards);
 - a change of target is an event: the planner decides again at once
   (:class:`stack.planning.stepper.DecisionSteps`), not at the end of the step.
 
@@ -42,6 +43,8 @@ class AnticipationConfig(Config):
     go_probability: head for a restricted cell once the person's goal is it with at
         least this probability.
     stay_probability: keep heading there while the probability stays above this.
+    max_unseen_s: and while the person was seen within this long (unseen, the goal
+        belief drifts back to its prior, which is no evidence of a visit).
     intent: the goal inference (:class:`stack.planning.intent.IntentConfig`).
     """
 
@@ -49,6 +52,7 @@ class AnticipationConfig(Config):
 
     go_probability: float = 0.6
     stay_probability: float = 0.35
+    max_unseen_s: float = 2.0
     intent: IntentConfig = field(default_factory=IntentConfig)
 
     def __post_init__(self) -> None:
@@ -56,6 +60,8 @@ class AnticipationConfig(Config):
                 "must be in (0, 1]")  # fmt: skip
         require(0.0 <= self.stay_probability <= self.go_probability, "stay_probability",
                 self.stay_probability, "must be in [0, go_probability]")  # fmt: skip
+        require(0.0 < self.max_unseen_s < 60.0, "max_unseen_s", self.max_unseen_s,
+                "must be in (0, 60) s")  # fmt: skip
 
 
 def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
@@ -111,8 +117,9 @@ class Anticipator:
         self.estimate = est
         before = self.target
         cfg = self.config
-        if est.inside is not None:
-            self.target = None  # in a restricted cell: the policy guards it
+        unseen = est.age_s > cfg.max_unseen_s
+        if est.inside is not None or unseen:
+            self.target = None  # in a restricted cell (the policy guards it), or not seen
         else:
             if self.target is not None and est.p(self.target) < cfg.stay_probability:
                 self.target = None
@@ -122,11 +129,12 @@ class Anticipator:
         return self.target != before
 
     def advise(self, robot_cell: int | None) -> str | None:
-        """The move toward the target cell, or None (no target, the robot is there or
-        its cell is unknown: the policy's action stands)."""
+        """The move toward the target cell, "Do nothing" in it (wait there for the
+        person: the policy, which values the cell only with the person in it, would
+        leave), or None (no target, or the robot's cell unknown: the policy decides)."""
         if self.target is None or robot_cell is None:
             return None
-        return first_move(self.grid, robot_cell, self.target)
+        return first_move(self.grid, robot_cell, self.target) or "Do nothing"
 
     def note(self) -> dict[str, Any] | None:
         """For the step record: the target and the goal probabilities."""
