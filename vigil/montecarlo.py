@@ -356,9 +356,9 @@ def _worst_markdown(eps: Sequence[dict[str, Any]]) -> str:
     worst = worst_episodes(eps)
     if not worst:
         return ""
-    lines = ["Worst episodes (their folders are `episodes/<name>`):", ""]
+    lines = ["", "Worst episodes (their folders are `episodes/<name>`):", ""]
     for e in worst:
-        lines.append(f"- `{e['episode']}`: {_line(e)}")
+        lines.append(f"- {_line(e)}")
     return "\n".join(lines) + "\n"
 
 
