@@ -435,7 +435,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="walk distribution (YAML; default config/walks.yaml)")  # fmt: skip
     p.add_argument("--scenarios", type=Path, default=None,
                    help="run every scenario file of this folder instead (no TASK)")  # fmt: skip
-    p.add_argument("--workers", type=int, default=1, help="local processes (or Ray CPUs)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="local processes (or Ray CPUs); default: one per core")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the walks and faults")
     p.add_argument("--out", type=Path, default=Path("runs/montecarlo"), help="results folder")
     p.add_argument("--ray", default=None, help="'local' or a Ray cluster address")
