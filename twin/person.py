@@ -188,6 +188,12 @@ class PersonScript:
         self._last = (t, pose)
         return pose
 
+    def still_phase(self, t: float) -> int | None:
+        """The index of the pause the person is in at ``t`` (their pose does not change
+        during it, whatever ``t``), or None while walking."""
+        i = max(0, bisect.bisect_right(self._starts, t) - 1)
+        return i if self._phases[i].speed == 0.0 else None
+
     def _pose(self, t: float) -> PersonPose:
         i = max(0, bisect.bisect_right(self._starts, t) - 1)
         ph = self._phases[i]

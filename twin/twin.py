@@ -235,7 +235,7 @@ class Twin:
         self._cmd = np.zeros(3)  # the rate-limited command actually applied (body frame)
         self._odom = np.array([x, y, yaw])
         self._odom_vel = np.zeros(3)
-        self._place_person()
+        self._place_person(force=True)  # mj_resetData moved the mocap bodies back
         mujoco.mj_forward(self.model, self.data)
 
     def set_robot_pose(self, pose: Pose2D) -> None:
@@ -355,10 +355,17 @@ class Twin:
         """When the last walker stops for good [s] (0 without people)."""
         return max((p.end_time_s for p in self.people), default=0.0)
 
-    def _place_person(self) -> None:
+    def _place_person(self, force: bool = False) -> None:
         now = float(self.data.time)
-        for script, mocap in zip(self.people, self._mocaps, strict=True):
+        if force or getattr(self, "_placed", None) is None:
+            self._placed: list[int | None] = [None] * len(self.people)
+        placed = self._placed
+        for i, (script, mocap) in enumerate(zip(self.people, self._mocaps, strict=True)):
+            still = script.still_phase(now)  # a pause: the pose is the one already placed
+            if still is not None and still == placed[i]:
+                continue
             self._place_one(script.pose(now), mocap)
+            placed[i] = still
 
     def _place_one(self, p: PersonPose, mocap: dict[str, int]) -> None:
         mp, mq = self.data.mocap_pos, self.data.mocap_quat

@@ -143,6 +143,9 @@ VISIT_KEYS = (
 # -- the study ----------------------------------------------------------------------------------
 
 
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def _local_map(jobs, workers: int):
     """(index, result) as episodes finish, on ``workers`` local processes."""
     if workers <= 1:
@@ -153,8 +156,20 @@ def _local_map(jobs, workers: int):
 
     ctx = multiprocessing.get_context("spawn")  # no GL state inherited through fork
     jobs_by_k = dict(jobs)
+    # one BLAS thread per worker: the workers are the parallelism (two workers of two
+    # OpenBLAS threads each on two cores wait on each other: a decision took 2x longer)
+    # (the pool starts its processes as jobs are submitted: the variables hold till then)
+    saved = {k: os.environ.get(k) for k in BLAS_THREADS}
+    os.environ.update(dict.fromkeys(BLAS_THREADS, "1"))
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = {pool.submit(_guarded, args): k for k, args in jobs}
+        try:
+            futures = {pool.submit(_guarded, args): k for k, args in jobs}
+        finally:
+            for name, value in saved.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
         for fut in as_completed(futures):
             k = futures[fut]
             try:
@@ -167,7 +182,7 @@ def _local_map(jobs, workers: int):
 
 
 # Ray's workers render with EGL like the local ones (the twin's calibration renders)
-RAY_ENV = {"MUJOCO_GL": "egl", "PYOPENGL_PLATFORM": "egl"}
+RAY_ENV = {"MUJOCO_GL": "egl", "PYOPENGL_PLATFORM": "egl", **dict.fromkeys(BLAS_THREADS, "1")}
 RAY_OBJECT_STORE = 100 * 2**20  # a local instance: episodes pass small records, not arrays
 
 
