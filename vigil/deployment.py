@@ -82,11 +82,13 @@ class TwinSection(Config):
     realtime: bool = False
     odom_rate_hz: float = 25.0
     stall_timeout_s: float = 30.0
+    stall_abort_s: float = 0.0  # 0: three stall timeouts (the bridge's default)
 
     _rules = {
         "seed": (lambda v: v >= 0, "must be >= 0"),
         "odom_rate_hz": (lambda v: v > 0, "must be > 0"),
         "stall_timeout_s": (lambda v: v > 0, "must be > 0"),
+        "stall_abort_s": (lambda v: v == 0 or v >= 1, "must be 0 (3 x stall_timeout_s) or >= 1"),
     }
 
 

@@ -144,7 +144,8 @@ def reserve(run_dir: Path, size: int = RESERVE_BYTES) -> None:
     """Allocate :data:`RESERVE_FILE` in the run folder (best effort: a disk already
     full has nothing to reserve)."""
     try:
-        fd = os.open(run_dir / RESERVE_FILE, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
+        fd = os.open(run_dir / RESERVE_FILE, flags, 0o600)
     except OSError:
         return
     try:
