@@ -366,3 +366,22 @@ def test_run_json_is_written_in_place_and_never_through_a_link(tmp_path):
     E.write_in_place(tmp_path / "r.json", "x" * 100)
     E.write_in_place(tmp_path / "r.json", "short")
     assert (tmp_path / "r.json").read_text() == "short"
+
+
+def test_a_signal_during_a_run_stops_vigil_experiments(tmp_path):
+    """A run ended by SIGINT/SIGTERM stops the whole set (it used to be a
+    KeyboardInterrupt; a RunError of any other cause lets the set go on)."""
+    from vigil.experiments import run_set
+    from vigil.run import RunError
+
+    calls = []
+
+    def stopped(path, *args, **kwargs):
+        calls.append(path.stem)
+        raise RunError("SIGTERM: stopped at step 1/5", E.Ending("SIGTERM", "SIGTERM: ..."))
+
+    only = ["empty-room", "occlusion"]
+    with pytest.raises(RunError, match="SIGTERM"):
+        run_set(REPO / "scenarios" / "guard", tmp_path / "set", only=only, runner=stopped,
+                say=lambda s: None)  # fmt: skip
+    assert calls == ["empty-room"]
