@@ -34,6 +34,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import stack.topics as topic
+
 REPO = Path(__file__).resolve().parents[1]
 VICTIMS = (
     "navigation",
@@ -194,10 +196,10 @@ def base_holds(bag: Path, timeout_s: float = 0.5) -> dict:
     cmds: list[tuple[int, bool]] = []
     odom: list[tuple[int, float, float]] = []  # (t, linear speed, |yaw rate|)
     with Reader(bag) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/cmd_vel", "/odom")]
+        conns = [c for c in reader.connections if c.topic in (topic.CMD_VEL, topic.ODOM)]
         for conn, t_ns, raw in reader.messages(connections=conns):
             msg = store.deserialize_cdr(raw, conn.msgtype)
-            if conn.topic == "/cmd_vel":
+            if conn.topic == topic.CMD_VEL:
                 moving = max(abs(msg.linear.x), abs(msg.linear.y), abs(msg.angular.z)) > 0
                 cmds.append((t_ns, moving))
             else:
