@@ -119,6 +119,11 @@ LONG = (
     ("bench/bench_report.py RUN", "the recorder's work per frame", "needs a run folder"),
     ("bench/bench_bag.py RUN", "a run's bag, uncompressed and zstd", "needs a run folder"),
     (
+        "bench/bench_chaos.py --kills 20",
+        "chaos soak: 20 random node kills in a twin run; the base stops, files read back",
+        "~10-20 min",
+    ),
+    (
         "bench/repeat_under_load.py",
         "the twin repeatability test beside CPU hogs (loads the machine on purpose)",
         "the length of that test",

@@ -12,11 +12,15 @@ exception raised while rclpy's C++ side is converting a message into Python turn
 pybind11's "Unable to convert call argument" RuntimeError and the node exits 1 (seen in
 CI on the planner at shutdown). A
 clean stop exits 0; a node that cannot start (bad configuration or file) prints one
-``[FATAL]`` line naming what is wrong and exits 2.
+``[FATAL]`` line naming what is wrong and exits 2; a node whose disk is full (ENOSPC or
+EDQUOT, in a callback or in its last words) says so in one ``[FATAL]`` line if its log
+has room, cleans up what it can and exits :data:`stack.exits.EXIT_DISK_FULL` (the code
+alone tells the launcher, issue 23).
 """
 
 from __future__ import annotations
 
+import errno
 import signal
 import sys
 import threading
@@ -28,7 +32,9 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-EXIT_BAD_CONFIG = 2
+from stack.exits import EXIT_BAD_CONFIG, EXIT_DISK_FULL
+
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 # Python runs a signal handler only between bytecodes: a node without timers would
 # otherwise sit in the executor's wait until SIGKILL (measured: table_player, -9)
 SPIN_WAKE_S = 0.1
@@ -43,6 +49,8 @@ class _StopFlag:
     def __call__(self, signum, frame) -> None:
         self.signal = signal.Signals(signum).name
 
+
+__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "spin_node"]
 
 N = TypeVar("N", bound=Node)
 
@@ -79,10 +87,14 @@ def spin_node(
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, OSError) as err:
-        if node is not None:
+        if isinstance(err, OSError) and err.errno in DISK_FULL:
+            _fatal(make_node, f"disk full: {err}")
+            code = EXIT_DISK_FULL
+        elif node is not None:
             raise
-        print(f"[FATAL] {getattr(make_node, '__name__', 'node')}: {err}", file=sys.stderr)
-        code = EXIT_BAD_CONFIG
+        else:
+            _fatal(make_node, str(err))
+            code = EXIT_BAD_CONFIG
     finally:
         # a second signal during the cleanup must not cut the last words short
         if main_thread:
@@ -93,7 +105,21 @@ def spin_node(
                 if on_exit is not None and rclpy.ok():
                     on_exit(node)
                 node.destroy_node()
+        except OSError as err:  # closing files on a full disk
+            if err.errno not in DISK_FULL:
+                raise
+            _fatal(make_node, f"disk full while closing: {err}")
+            code = EXIT_DISK_FULL
         finally:
             rclpy.try_shutdown()
     if code:
         sys.exit(code)
+
+
+def _fatal(make_node, text: str) -> None:
+    """One ``[FATAL]`` line; nothing if even that finds no room."""
+    try:
+        print(f"[FATAL] {getattr(make_node, '__name__', 'node')}: {text}", file=sys.stderr)
+        sys.stderr.flush()
+    except OSError:
+        pass

@@ -53,6 +53,7 @@ from vigil_interfaces.msg import LockstepAck, TwinTruth
 import stack.topics as topic
 from stack import tf
 from stack.cells import ConfigError
+from stack.exits import EXIT_STALLED  # the lock-step stalled for good
 from stack.hardware.base_watchdog import OK as WATCHDOG_OK
 from stack.hardware.base_watchdog import STALE, BaseWatchdog, check_timeout
 from stack.lockstep import (
@@ -75,8 +76,6 @@ from twin.occupancy import OccupancyMap
 from twin.sensors import CameraInfo
 from twin.sensors import LaserScan as Scan
 from twin.twin import GroundTruth, Odometry, Twin, VelocityCommand, truth_record
-
-EXIT_STALLED = 3  # the bridge's exit code when the lock-step stalled for good
 
 
 def stamp_of(t_s: float) -> Time:

@@ -94,11 +94,21 @@ class BagWriter:
             Foxglove, ``rosbags`` and ``ros2 bag`` read; the messages stay CDR).
     """
 
-    def __init__(self, path: Path, store: Typestore | None = None, compress: bool = True):
+    def __init__(
+        self,
+        path: Path,
+        store: Typestore | None = None,
+        compress: bool = True,
+        reserve_bytes: int = 0,
+    ):
         path = Path(path)
         if path.exists():
             raise FileExistsError(f"bag {path} already exists: not overwriting it")
         self.path = path
+        # room for the summary and metadata.yaml on a disk that fills up (freed by close)
+        self.reserve = path.with_name(f".{path.name}.reserve") if reserve_bytes > 0 else None
+        if self.reserve is not None:
+            _allocate(self.reserve, reserve_bytes)
         self.store = store if store is not None else typestore()
         self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         if compress:
@@ -128,10 +138,26 @@ class BagWriter:
         self.counts[topic] += 1
 
     def close(self) -> None:
-        """Write the MCAP summary and metadata.yaml; safe to call twice."""
+        """Write the MCAP summary and metadata.yaml; safe to call twice. The reserve (if
+        any) is freed first: a bag whose disk filled up still gets its index."""
         if not self.closed:
             self.closed = True
+            if self.reserve is not None:
+                self.reserve.unlink(missing_ok=True)
             self.writer.close()
+
+
+def _allocate(path: Path, size: int) -> None:
+    """A file of ``size`` allocated bytes (best effort: a full disk leaves it short)."""
+    import os
+
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    try:
+        os.posix_fallocate(fd, 0, size)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 # -- reading a run's bag for a replay (vigil replay-bag) ----------------------------

@@ -512,9 +512,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         summary = run_scenario(
             args.scenario, args.config, args.out, args.seed, args.observations, args.timeout
         )
-    except RunError as err:
+    except RunError as err:  # the first cause in one line, an exit code per cause
         print(f"vigil run: {err}", file=sys.stderr)
-        return 1
+        return err.code
     keys = ("steps", "total_discounted_reward", "left_map", "returned_to_rest")
     print(json.dumps({k: summary.get(k) for k in keys}, sort_keys=True))
     return 0

@@ -27,6 +27,7 @@ Sections (all optional except ``mode`` and ``task``)::
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -37,6 +38,25 @@ from stack.cells import ConfigError
 from stack.config import Config, read_yaml
 
 MODES = ("twin", "hardware")
+# bounds of the values (issue 23: a value a node cannot use is refused here, naming the
+# key, before any process starts; types and finiteness: stack.config.check_fields)
+MAX_SEED = 2**32 - 1  # numpy's legacy seeds and every ROS integer parameter take it
+MAX_STEPS = 10_000  # as a scenario's (vigil.scenario)
+MAX_RATE_HZ = 1000.0
+MAX_WAIT_S = 3600.0  # a timeout or delay longer than an hour is no timeout
+MAX_RESTARTS = 1000
+TOPIC_NAME = re.compile(r"/[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*")
+VOICE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_+-]{0,39}")  # espeak-ng: en, en-us, en+f3
+
+
+def _within(low: float, high: float, low_open: bool = True):
+    """A rule: ``low < v <= high`` (``low <= v`` with ``low_open`` False)."""
+    text = f"must be in {'(' if low_open else '['}{low:g}, {high:.16g}]"
+    if low_open:
+        return (lambda v: low < v <= high, text)
+    return (lambda v: low <= v <= high, text)
+
+
 NAV_CMD_VEL = topic.NAV_CMD_VEL  # hardware mode: navigation -> gate; only the gate drives the base
 TWIN_ONLY = ("twin", "lockstep")
 
@@ -82,11 +102,16 @@ class TwinSection(Config):
     realtime: bool = False
     odom_rate_hz: float = 25.0
     stall_timeout_s: float = 30.0
+    stall_abort_s: float = 0.0  # 0: three stall timeouts (the bridge's default)
 
     _rules = {
-        "seed": (lambda v: v >= 0, "must be >= 0"),
-        "odom_rate_hz": (lambda v: v > 0, "must be > 0"),
-        "stall_timeout_s": (lambda v: v > 0, "must be > 0"),
+        "seed": _within(0, MAX_SEED, low_open=False),
+        "odom_rate_hz": _within(0, MAX_RATE_HZ),
+        "stall_timeout_s": _within(0, MAX_WAIT_S),
+        "stall_abort_s": (
+            lambda v: v == 0 or 1 <= v <= 24 * MAX_WAIT_S,
+            f"must be 0 (3 x stall_timeout_s) or in [1, {24 * MAX_WAIT_S:g}]",
+        ),
     }
 
 
@@ -104,7 +129,13 @@ class NavigationSection(Config):
     control_rate_hz: float = 20.0
     drive: str = "holonomic"  # the base: holonomic (mecanum) or diff (differential drive)
 
-    _rules = {"control_rate_hz": (lambda v: v > 0, "must be > 0")}
+    _rules = {
+        "control_rate_hz": _within(0, MAX_RATE_HZ),
+        "pose_topic": (
+            lambda v: v == "" or TOPIC_NAME.fullmatch(v) is not None,
+            "must be empty or an absolute ROS topic name",
+        ),
+    }
 
     def __post_init__(self) -> None:
         if self.pose_source not in ("odom", "amcl", "tf"):
@@ -117,6 +148,13 @@ class NavigationSection(Config):
 class SpeechSection(Config):
     voice: str = "en"
 
+    _rules = {
+        "voice": (
+            lambda v: VOICE_NAME.fullmatch(v) is not None,
+            "must be an espeak-ng voice name (letters, digits, _ + -; not starting with -)",
+        )
+    }
+
 
 @dataclass(frozen=True)
 class PlannerSection(Config):
@@ -125,14 +163,12 @@ class PlannerSection(Config):
     nav_timeout_s: float = 60.0
     obs_timeout_s: float = 5.0
 
-    _rules = {"start_delay_s": (lambda v: v >= 0, "must be >= 0")}
-
-    def __post_init__(self) -> None:
-        if self.max_steps < 0:
-            raise ConfigError("max_steps", self.max_steps, "must be >= 0 (0: no end)")
-        for name in ("nav_timeout_s", "obs_timeout_s"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(name, getattr(self, name), "must be > 0")
+    _rules = {
+        "max_steps": _within(0, MAX_STEPS, low_open=False),  # 0: no end
+        "start_delay_s": _within(0, MAX_WAIT_S, low_open=False),
+        "nav_timeout_s": _within(0, MAX_WAIT_S),
+        "obs_timeout_s": _within(0, MAX_WAIT_S),
+    }
 
 
 @dataclass(frozen=True)
@@ -142,8 +178,8 @@ class NodesSection(Config):
     stop_timeout_s: float = 5.0
 
     _rules = {
-        "max_restarts": (lambda v: v >= 0, "must be >= 0"),
-        "stop_timeout_s": (lambda v: v > 0, "must be > 0"),
+        "max_restarts": _within(0, MAX_RESTARTS, low_open=False),
+        "stop_timeout_s": _within(0, 600.0),
     }
 
 
@@ -152,6 +188,14 @@ class TopicsSection(Config):
     scan: str = topic.SCAN
     odom: str = topic.ODOM
     cmd_vel: str = topic.CMD_VEL
+
+    _rules = {
+        name: (
+            lambda v: TOPIC_NAME.fullmatch(v) is not None,
+            "must be an absolute ROS topic name (/name or /ns/name: letters, digits, _)",
+        )
+        for name in ("scan", "odom", "cmd_vel")
+    }
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ from vigil.report.metrics import set_totals
 from vigil.report.tables import set_markdown
 from vigil.scenario import load_scenario
 
+STOPPING_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")  # vigil.ending kinds: they stop the set
 Runner = Callable[..., dict]
 
 
@@ -133,6 +134,8 @@ def run_set(
 
                 summary = runner(path, config, run_dir, sc.seed, say=prefixed)
         except Exception as exc:  # noqa: BLE001 - one failed scenario must not stop the set
+            if getattr(getattr(exc, "ending", None), "kind", "") in STOPPING_SIGNALS:
+                raise  # Ctrl-C or SIGTERM during a run stops the set, not only the run
             error = f"{type(exc).__name__}: {exc}"
             say(f"[experiments] {path.stem} failed: {error}")
             if (run_dir / "summary.json").exists():

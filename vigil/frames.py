@@ -73,9 +73,9 @@ class FrameWriter:
 
     def close(self) -> None:
         """Finish the file (safe to call twice)."""
-        if self._f is not None:
-            self._f.close()
-            self._f = None
+        f, self._f = self._f, None
+        if f is not None:
+            f.close()
 
 
 def read_frames(path: str | Path) -> Iterator[tuple[float, bytes]]:

@@ -11,7 +11,6 @@ closed), then SIGTERM, then SIGKILL to what is left.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import signal
@@ -22,8 +21,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from stack.exits import EXIT_DISK_FULL
 from stack.lockstep import RUN_ID_ENV
 from vigil.processes import ProcessSpec
+from vigil.resume import (  # re-exported: the resumption's rules
+    DEFAULT_RESUME_MAX_AGE_S,
+    IDENTITY_FILE,
+    MAX_HASHED_BYTES,
+    STATE_FILE,
+    planner_identity,
+    previous_state,
+    resume_decision,
+)
 
 
 def _die_with_parent() -> None:
@@ -78,6 +87,13 @@ class Launcher:
         self.stopped_because: str | None = None
         self.exit_codes: dict[str, int | None] = {}
         self.failures: list[str] = []  # "<name> exited (code N): <last log line>"
+        # the first of them: (name, exit code, line); vigil.ending classifies it
+        self.first_failure: tuple[str, int | None, str] | None = None
+
+    def _failed(self, name: str, rc: int | None, line: str) -> None:
+        self.failures.append(line)
+        if self.first_failure is None:
+            self.first_failure = (name, rc, line)
 
     def _spawn(self, spec: ProcessSpec, restarts: int = 0) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -116,13 +132,14 @@ class Launcher:
                 continue
             r.log.close()
             if not r.killed:
-                self.failures.append(self._why(name, rc))
-            if r.spec.restart and r.restarts < self.max_restarts:
+                self._failed(name, rc, self._why(name, rc))
+            # a full disk is not cured by a restart: the system stops
+            if r.spec.restart and r.restarts < self.max_restarts and rc != EXIT_DISK_FULL:
+                self._spawn(r.spec, r.restarts + 1)
                 self.say(
                     f"[launch] {name} exited (code {rc}); restarting "
-                    f"({r.restarts + 1}/{self.max_restarts})"
+                    f"({r.restarts + 1}/{self.max_restarts}): pid {self.running[name].proc.pid}"
                 )
-                self._spawn(r.spec, r.restarts + 1)
                 continue
             self.exit_codes[name] = rc
             del self.running[name]
@@ -141,7 +158,15 @@ class Launcher:
     def _why(self, name: str, rc: int | None) -> str:
         """``<name> exited (code N)``, with the last error line of its log if any."""
         last = last_error_line(self.log_dir / f"{name}.log")
-        return f"{name} exited (code {rc})" + (f": {last}" if last else "")
+        code = f"code {rc}"
+        if rc is not None and rc < 0:
+            try:
+                code += f", {signal.Signals(-rc).name}"
+            except ValueError:
+                pass
+        elif rc == EXIT_DISK_FULL:
+            code += ", no space left on device"
+        return f"{name} exited ({code})" + (f": {last}" if last else "")
 
     def stop(self, timeout_s: float = 5.0) -> dict[str, int | None]:
         """Stop every process: SIGINT, then SIGTERM, then SIGKILL; returns exit codes."""
@@ -166,7 +191,7 @@ class Launcher:
             self.exit_codes[name] = rc
             r.log.close()
             if rc != 0 and not r.killed:  # a node that did not leave cleanly on SIGINT
-                self.failures.append(self._why(name, rc) + " at shutdown")
+                self._failed(name, rc, self._why(name, rc) + " at shutdown")
         self.running.clear()
         if self.stopped_because is None:
             self.stopped_because = "stopped"
@@ -218,115 +243,20 @@ class GraphWatch:
         self._rclpy.try_shutdown(context=self.context)
 
 
-STATE_FILE = "planner_state.json"  # the planner's belief and step (vigil.system)
-IDENTITY_FILE = "launch.json"  # what a launch's planner state belongs to
-DEFAULT_RESUME_MAX_AGE_S = 600.0  # --resume-max-age-s: a restart after a crash, not yesterday
-
-
-MAX_HASHED_BYTES = 1 << 30  # a policy file is at most this (stack.planning.policy)
-
-
-def _digest(path: str | Path | None) -> str:
-    """sha256 of a file's bytes ("" for no file); read in chunks, any size."""
-    if not path:
-        return ""
-    from stack.config import open_regular
-
-    h = hashlib.sha256()
-    with open_regular(path, MAX_HASHED_BYTES) as f:  # never /dev/zero, never a pipe
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def planner_identity(deployment: Path | None, planner: dict) -> dict[str, str]:
-    """What a planner state belongs to: the deployment, task and policy files' contents
-    (sha256; the policy "" for the online planner)."""
-    return {
-        "deployment": _digest(deployment),
-        "task": _digest(planner.get("task_file")),
-        "policy": _digest(planner.get("policy_file")),
-    }
-
-
-def previous_state(out: Path) -> Path | None:
-    """The newest planner state among earlier launches into ``out`` (``out``, ``out-2``,
-    ...: the folders :func:`vigil.run_folder.fresh_run_dir` numbers), None if there is none.
-    Only folders vigil made (holding its run mark) count."""
-    from vigil.run_folder import MAX_NUMBERED, RUN_MARK
-
-    family = [out] + [out.with_name(f"{out.name}-{n}") for n in range(2, MAX_NUMBERED)]
-    found: list[tuple[float, Path]] = []
-    for folder in family:
-        state = folder / STATE_FILE
-        try:
-            if (folder / RUN_MARK).is_file() and state.is_file():
-                found.append((state.stat().st_mtime, state))
-        except OSError:
-            continue
-    return max(found)[1] if found else None
-
-
-def _age(seconds: float) -> str:
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.1f} h"
-
-
-def resume_decision(
-    state: Path | None,
-    identity: dict[str, str],
-    resume: bool,
-    max_age_s: float,
-    now_s: float,
-) -> tuple[Path | None, str]:
-    """Whether the planner resumes from an earlier launch's ``state``, and the one line
-    that says so.
-
-    It resumes only when asked (``resume``), only when the state's launch recorded the
-    same deployment, task and policy (:data:`IDENTITY_FILE` beside it), and only when
-    the state was written less than ``max_age_s`` ago. The age is on the wall clock
-    (the file's modification time: the only clock that survives a restart); a state
-    written in the future (a clock set back) is not resumed.
-
-    Args:
-        state: the earlier state file (:func:`previous_state`), None if none.
-        identity: this launch's :func:`planner_identity`.
-        resume: ``--resume`` was given.
-        max_age_s: ``--resume-max-age-s``.
-        now_s: the wall-clock time [s since the epoch].
-
-    Returns:
-        (the state file to resume from, or None; the line to show).
-    """
-    from stack.config import read_text_capped
-
-    if not resume:
-        if state is None:
-            return None, "planner: initial belief"
-        return None, f"planner: initial belief ({state} is not resumed without --resume)"
-    if state is None:
-        return None, "planner: initial belief (--resume: no earlier planner state found)"
-    no = f"planner: initial belief, not resuming {state}"
-    try:
-        recorded = json.loads(read_text_capped(state.parent / IDENTITY_FILE))
-        saved = json.loads(read_text_capped(state))
-        age_s = now_s - state.stat().st_mtime
-    except (OSError, ValueError) as err:
-        return None, f"{no}: its launch is unreadable or records nothing ({err})"
-    if not isinstance(recorded, dict) or not isinstance(saved, dict):
-        return None, f"{no}: not a JSON object"
-    differ = [k for k in ("task", "policy", "deployment") if recorded.get(k) != identity[k]]
-    if differ:
-        return None, f"{no}: another {', '.join(differ)} than this launch's"
-    if age_s < 0:
-        return None, f"{no}: written {_age(-age_s)} in the future (a clock set back?)"
-    if age_s > max_age_s:
-        return None, (f"{no}: {_age(age_s)} old, older than --resume-max-age-s {max_age_s:g}")
-    step = saved.get("step")
-    return state, f"planner: resuming from {state} (step {step}, {_age(age_s)} old)"
+__all__ = [
+    "DEFAULT_RESUME_MAX_AGE_S",
+    "IDENTITY_FILE",
+    "MAX_HASHED_BYTES",
+    "STATE_FILE",
+    "GraphWatch",
+    "Launcher",
+    "ProcessSpec",
+    "launch",
+    "planner_identity",
+    "prepare_launch",
+    "previous_state",
+    "resume_decision",
+]
 
 
 def _write_new(path: Path, data: bytes) -> None:
@@ -385,47 +315,113 @@ def launch(
     resume: bool = False,
     resume_max_age_s: float = DEFAULT_RESUME_MAX_AGE_S,
 ) -> int:
-    """``vigil launch CONFIG``: start the system, show each node up, run until Ctrl-C
-    or until a node dies for good; returns 0 on Ctrl-C with every node leaving cleanly,
-    1 when a node died or failed to stop cleanly.
+    """``vigil launch CONFIG``: start the system, show each node up, run until a signal
+    or until a node dies for good; returns the exit code of the first cause
+    (:mod:`vigil.ending`).
+
+    SIGINT (Ctrl-C) and SIGTERM are how an operator stops a launch: every node leaving
+    cleanly then exits 0. A node that died (or failed to stop cleanly), a full disk or a
+    stalled lock-step exits with its own code; SIGHUP (the terminal went away) 129.
+    Every ending writes ``run.json`` (``ending``, ``cause``, ``exit_code``, the nodes'
+    exit codes and failures) into the launch's folder.
 
     The run folder and the planner's resumption: :func:`prepare_launch`.
 
     Raises:
         ConfigError: a bad deployment, ``--out`` or ``--resume-max-age-s``.
     """
-    dep, system, run_id = prepare_launch(config, out, resume, resume_max_age_s, say)
-    logs = system.run_dir / "logs"
-    claim = None
-    if dep.mode == "twin" and dep.ros.domain_id < 0:  # private: a parallel run never hears it
-        from vigil.ros_domain import claim_domain
+    from vigil.ending import (
+        EXIT_OK,
+        Ending,
+        Interrupted,
+        Signals,
+        from_launcher,
+        is_disk_full,
+        one_line,
+        operator_stop,
+        release,
+        reserve,
+        write_run_json,
+    )
 
-        claim = claim_domain()
-        system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
-    system.env.setdefault(RUN_ID_ENV, run_id)
-    say(f"[launch] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}")
-    launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
-    for key, value in system.env.items():
-        os.environ[key] = value  # the graph watch must look at the system's own domain
-    watch = GraphWatch([s.name for s in system.specs], say)
-    launcher.start()
-    say(f"[launch] {dep.mode} mode, logs in {system.run_dir / 'logs'}; Ctrl-C stops everything")
-    rc = 0
+    signals = Signals()
     try:
-        while launcher.poll():
+        dep, system, run_id = prepare_launch(config, out, resume, resume_max_age_s, say)
+    except Interrupted as err:
+        signals.restore()
+        say(f"[launch] {err.name}: stopped before any node started")
+        return Ending(err.name, err.name).code
+    except BaseException:
+        signals.restore()
+        raise
+    t0 = time.monotonic()
+    run_dir = system.run_dir
+    reserve(run_dir)
+    logs = run_dir / "logs"
+    claim = None
+    launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
+    watch = None
+    ending: Ending | None = None
+    crash: BaseException | None = None
+    try:
+        if dep.mode == "twin" and dep.ros.domain_id < 0:  # private: no parallel run hears it
+            from vigil.ros_domain import claim_domain
+
+            claim = claim_domain()
+            system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
+            launcher.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
+        system.env.setdefault(RUN_ID_ENV, run_id)
+        launcher.env.setdefault(RUN_ID_ENV, run_id)
+        say(f"[launch] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}")
+        for key, value in system.env.items():
+            os.environ[key] = value  # the graph watch must look at the system's own domain
+        watch = GraphWatch([s.name for s in system.specs], say)
+        launcher.start()
+        signals.watching()
+        say(f"[launch] {dep.mode} mode, logs in {logs}; Ctrl-C stops everything")
+        while signals.first is None and launcher.poll():
             watch.poll()
             time.sleep(0.2)
-        rc = 1
-    except KeyboardInterrupt:
-        say("[launch] Ctrl-C: stopping")
+        if signals.first is not None:
+            say(f"[launch] {signals.first}: stopping")
+            ending = operator_stop(signals.first)
+    except Interrupted as err:
+        ending = operator_stop(err.name)
+    except BaseException as err:  # noqa: BLE001 - recorded in run.json, then raised again
+        crash = err
+        if is_disk_full(err):
+            ending = Ending("disk full", f"disk full: vigil: {one_line(str(err))}")
+        else:
+            ending = Ending("internal", f"vigil failed: {one_line(repr(err))}")
     finally:
+        signals.cleaning()
         codes = launcher.stop(dep.nodes.stop_timeout_s)
-        watch.close()
+        if watch is not None:
+            watch.close()
         if claim is not None:
             claim.release()
-        say("[launch] stopped: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
-        if launcher.stopped_because not in (None, "stopped"):
-            say(f"[launch] reason: {launcher.stopped_because}")
-        for failure in launcher.failures:
-            say(f"[launch] failure: {failure}")
-    return 1 if rc or launcher.failures else 0
+        release(run_dir)
+        signals.restore()
+    if ending is None or ending.code == EXIT_OK:  # a node failed first, or at the stop
+        ending = from_launcher(launcher) or ending
+    if ending is None:
+        ending = Ending("node", f"the system stopped: {launcher.stopped_because}")
+    say("[launch] stopped: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
+    for failure in launcher.failures:
+        say(f"[launch] failure: {failure}")
+    record = {
+        "command": "launch",
+        "mode": dep.mode,
+        "run_id": run_id,
+        "ending": ending.kind,
+        "cause": ending.cause,
+        "exit_code": ending.code,
+        "exit_codes": codes,
+        "failures": launcher.failures,
+        "wall_s": round(time.monotonic() - t0, 1),
+    }
+    write_run_json(run_dir, record, say)
+    say(f"[launch] ended: {ending.cause} (exit {ending.code})")
+    if crash is not None:
+        raise crash
+    return ending.code

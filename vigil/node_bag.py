@@ -28,7 +28,9 @@ slow the run (it may only fall behind). Camera frames are kept to one per
 ``camera_period_s`` of log time.
 SIGINT (the launcher's stop) closes the bag cleanly (:func:`stack.ros_main.spin_node`
 destroys the node); a SIGKILLed recorder leaves an MCAP without its summary and no
-``metadata.yaml``.
+``metadata.yaml``. A full disk: the writer holds a reserve (:data:`RESERVE_BYTES`) that
+it frees to write the summary and ``metadata.yaml``; the node stops recording, closes
+the bag and exits :data:`stack.exits.EXIT_DISK_FULL` (issue 23).
 
 Parameters: ``out_dir``, ``camera_period_s`` (1.0; 0 keeps every frame), ``sim_clock``,
 ``lockstep``, ``participants`` (the other lock-step participants' node names).
@@ -55,6 +57,7 @@ from stack.ros_params import declare
 from vigil.bag import BagError, BagWriter, RateLimit, fresh_path, message_class
 
 DISCOVER_S = 0.5
+RESERVE_BYTES = 4 << 20  # room for the summary and metadata.yaml of a bag on a full disk
 # what a run shows (sensors, TF, perception, planner, navigation, speech, truth)
 TOPICS = (
     topic.TF,
@@ -105,7 +108,7 @@ class BagNode(Node):
             raise ConfigError("camera_period_s", v.camera_period_s, "must be >= 0")
         out = Path(v.out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        self.bag = BagWriter(fresh_path(out))
+        self.bag = BagWriter(fresh_path(out), reserve_bytes=RESERVE_BYTES)
         self.limits = {t: RateLimit(int(v.camera_period_s * 1e9)) for t in RATE_LIMITED}
         # the twin's time: 0 until its first /clock, never the wall clock mixed in
         self.clock_ns: int | None = 0 if v.sim_clock else None
@@ -205,7 +208,7 @@ class BagNode(Node):
             t_ns = self.now_ns()
             if limit is not None and not limit.admit(t_ns):
                 return
-            self.bag.write(name, t_ns, data)
+            self.bag.write(name, t_ns, data)  # a full disk ends the node (spin_node)
 
         return record
 

@@ -178,12 +178,27 @@ class RecorderNode(Node):
             self.frames.flush()
 
     def destroy_node(self) -> None:
+        """Close the frames and the trace, each whatever the other did (a full disk may
+        fail one); the first error is raised once both are closed."""
+        errors: list[OSError] = []
         if self.frames is not None:
-            self.frames.close()
-        self.trace.flush()
-        os.fsync(self.trace.fileno())
-        self.trace.close()
+            try:
+                self.frames.close()
+            except OSError as err:
+                errors.append(err)
+        try:
+            self.trace.flush()
+            os.fsync(self.trace.fileno())
+        except OSError as err:
+            errors.append(err)
+        finally:
+            try:
+                self.trace.close()
+            except OSError as err:  # the buffer's last bytes found no room either
+                errors.append(err)
         super().destroy_node()
+        if errors:
+            raise errors[0]
 
 
 def main(args=None) -> None:

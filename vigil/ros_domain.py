@@ -8,6 +8,13 @@ so a crashed run never leaks its domain, and nothing needs cleaning up.
 The range keeps clear of the default domain (0), of the test suite's per-process
 domains (1..100, ``tests/conftest.py``) and of the top of the valid range.
 Override with ``VIGIL_DOMAINS=first-last`` (e.g. ``150-160``).
+
+The locks live in a folder private to the user (:func:`vigil.private_dir.private_dir`,
+``/tmp/vigil-<uid>/ros-domains``, mode 0700; before: a world-readable
+``/tmp/vigil-ros-domains`` with mode-0666 lock files that any local user could hold or
+replace by a link). Two users' runs on one machine therefore no longer see each other's
+claims: give them disjoint ``VIGIL_DOMAINS`` ranges, or a shared ``VIGIL_LOCK_DIR``
+(taken as it is).
 """
 
 from __future__ import annotations
@@ -20,7 +27,17 @@ from pathlib import Path
 from stack.cells import ConfigError
 
 DOMAINS = range(120, 220)
-LOCK_DIR = Path(os.environ.get("VIGIL_LOCK_DIR", "/tmp/vigil-ros-domains"))
+LOCK_SUBDIR = "ros-domains"  # under the user's private folder (vigil.private_dir)
+
+
+def default_lock_dir() -> Path:
+    """``VIGIL_LOCK_DIR`` if set, else ``/tmp/vigil-<uid>/ros-domains`` (private)."""
+    given = os.environ.get("VIGIL_LOCK_DIR")
+    if given:
+        return Path(given)
+    from vigil.private_dir import private_dir
+
+    return private_dir(LOCK_SUBDIR)
 
 
 @dataclass
@@ -60,10 +77,11 @@ def claim_domain(lock_dir: Path | None = None, domains: range | None = None) -> 
     Raises:
         ConfigError: every domain of the range is taken (names the lock folder).
     """
-    lock_dir = Path(lock_dir or LOCK_DIR)
-    lock_dir.mkdir(parents=True, exist_ok=True)
+    folder = Path(lock_dir) if lock_dir else default_lock_dir()
+    folder.mkdir(parents=True, exist_ok=True)
     for domain in domains if domains is not None else domain_range():
-        fd = os.open(lock_dir / f"{domain}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+        path = folder / f"{domain}.lock"
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -72,4 +90,4 @@ def claim_domain(lock_dir: Path | None = None, domains: range | None = None) -> 
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         return DomainClaim(domain, fd)
-    raise ConfigError("ROS domain", str(lock_dir), "every vigil domain is in use by other runs")
+    raise ConfigError("ROS domain", str(folder), "every vigil domain is in use by other runs")

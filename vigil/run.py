@@ -21,6 +21,18 @@ from pathlib import Path
 from stack.cells import ConfigError
 from stack.lockstep import RUN_ID_ENV  # read by stack.ros_lockstep (acks) and the twin bridge
 from vigil.deployment import load_deployment
+from vigil.ending import (
+    KINDS,
+    Ending,
+    Interrupted,
+    Signals,
+    from_launcher,
+    is_disk_full,
+    one_line,
+    release,
+    reserve,
+    write_run_json,
+)
 from vigil.launch import Launcher
 from vigil.ros_domain import claim_domain
 from vigil.run_folder import MAX_NUMBERED, RUN_MARK, fresh_run_dir  # noqa: F401 (re-exported)
@@ -32,7 +44,17 @@ DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
 
 
 class RunError(RuntimeError):
-    """The run could not finish (a node died for good, or it timed out)."""
+    """The run did not finish cleanly: a node died, the disk filled up, a signal, a stall,
+    the timeout. ``ending`` holds the first cause and ``code`` the exit code
+    (:mod:`vigil.ending`)."""
+
+    def __init__(self, message: str, ending: Ending | None = None):
+        super().__init__(message)
+        self.ending = ending or Ending("node", message)
+
+    @property
+    def code(self) -> int:
+        return self.ending.code
 
 
 def _records(path: Path) -> list[dict]:
@@ -69,29 +91,55 @@ def run_scenario(
             table's observations through the planner node).
         timeout_s: wall-clock limit.
 
+    Every way out after the run folder exists (the run finished, a node died, the disk
+    filled up, SIGINT, SIGTERM, SIGHUP, a stalled lock-step, the timeout, a bad file
+    found while preparing) stops the nodes (the bag closes), writes ``run.json`` with
+    the first cause (``ending``, ``cause``, ``exit_code``) and what report it can
+    (:mod:`vigil.ending`).
+
     Raises:
         ConfigError: a bad scenario or deployment file.
-        RunError: a node died for good, or the run timed out.
+        RunError: the run did not finish cleanly; ``.code`` is the exit code of its cause.
     """
-    from stack.planning.replay import TABLES
-    from vigil.report import write_report
-
     scenario = load_scenario(scenario_path)
     if seed is not None:
         scenario = replace(scenario, seed=seed)
     dep = load_deployment(config_path or DEFAULT_CONFIG)
     run_id = uuid.uuid4().hex[:12]
     run_dir = fresh_run_dir(Path(out or REPO / "runs" / scenario.name).resolve(), run_id)
+    signals = Signals()
+    try:
+        return _run(scenario, dep, run_dir, run_id, observations, timeout_s, signals, say)
+    finally:
+        signals.restore()
+
+
+def _run(scenario, dep, run_dir: Path, run_id: str, observations: str, timeout_s: float,
+         signals: Signals, say) -> dict:  # fmt: skip
+    """:func:`run_scenario` once its folder exists: every way out writes ``run.json``."""
+    from stack.planning.replay import TABLES
+
+    t0 = time.monotonic()
+    record = {
+        "scenario": scenario.name,
+        "seed": scenario.seed,
+        "observations": observations,
+        "run_id": run_id,
+        "exit_codes": {},
+        "failures": [],
+    }
+    reserve(run_dir)  # room for run.json and the report if the disk fills up
     say(f"[run] folder {run_dir}")
     say(f"[run] {scenario.name}: {scenario.title} ({scenario.steps} steps, seed {scenario.seed})")
-    if observations == "table":
-        system = prepare_table(dep, run_dir, scenario, say)
-    elif observations == "twin":
-        if dep.mode != "twin":
-            raise ConfigError("mode", dep.mode, "vigil run needs a twin deployment")
-        system = prepare(dep, run_dir, scenario, say=say)
-    else:
-        raise ConfigError("observations", observations, "must be twin or table")
+    try:
+        system = _prepare(scenario, dep, run_dir, observations, say)
+    except (Interrupted, ValueError, OSError) as err:  # ConfigError is a ValueError
+        ending = _early_ending(err)
+        release(run_dir)
+        _finish(run_dir, record, ending, t0, None, say)
+        if isinstance(err, Interrupted):
+            raise RunError(ending.cause, ending) from None
+        raise
 
     claim = None
     if dep.ros.domain_id < 0:  # a private domain: a parallel run never hears this one
@@ -100,60 +148,133 @@ def run_scenario(
     system.env[RUN_ID_ENV] = run_id  # the lock-step ignores another run's nodes
     say(f"[run] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}, run id {run_id}")
     launcher = Launcher(system.specs, run_dir / "logs", system.env, dep.nodes.max_restarts, say=say)
-    kills = [f for f in scenario.faults if f.kind == "kill"]
-    t0 = time.monotonic()
-    shown = 0
-    error = None
-    launcher.start()
+    ending: Ending | None = None
+    crash: BaseException | None = None
     try:
-        while True:
-            if not launcher.poll():
-                error = f"the system stopped: {launcher.stopped_because}"
-                break
-            steps = _records(run_dir / "steps.jsonl")
-            for rec in steps[shown:]:
-                say("[run] " + _progress(rec, scenario.steps))
-            shown = len(steps)
-            for fault in list(kills):
-                if shown >= fault.after_step and fault.node in launcher.running:
-                    say(f"[fault] killing {fault.node} after step {shown}")
-                    launcher.kill(fault.node)
-                    kills.remove(fault)
-            if shown >= scenario.steps:
-                break
-            if time.monotonic() - t0 > timeout_s:
-                error = f"timed out after {timeout_s:.0f} s at step {shown}/{scenario.steps}"
-                break
-            time.sleep(0.2)
+        launcher.start()
+        signals.watching()
+        if signals.first is None:
+            ending = _watch(launcher, scenario, run_dir, timeout_s, signals, say)
+        else:
+            ending = _signal_ending(signals.first, 0, scenario.steps)
+    except BaseException as err:  # noqa: BLE001 - recorded, then raised again below
+        crash = err
+        if is_disk_full(err):
+            ending = Ending("disk full", f"disk full: vigil: {one_line(str(err))}")
+        elif isinstance(err, Interrupted | KeyboardInterrupt):
+            ending = _signal_ending(getattr(err, "name", "SIGINT"), 0, scenario.steps)
+            crash = None
+        else:
+            ending = Ending("internal", f"vigil failed: {one_line(repr(err))}")
     finally:
+        signals.cleaning()  # from here a signal waits: the nodes stop, the bag closes
         codes = launcher.stop(dep.nodes.stop_timeout_s)
         if claim is not None:
             claim.release()
-    if error is None and launcher.failures:
-        error = "node failures: " + "; ".join(launcher.failures)
+        release(run_dir)
+    if ending is None or ending.kind == "finished":  # a node that failed along the way
+        ending = from_launcher(launcher) or ending
+    assert ending is not None
+    record.update(exit_codes=codes, failures=launcher.failures)
     wall_s = time.monotonic() - t0
     say(f"[run] stopped after {wall_s:.0f} s: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
-    table = TABLES.get(scenario.thesis_table)
-    summary = write_report(run_dir, scenario.task, table, say=say)
-    (run_dir / "run.json").write_text(
-        json.dumps(
-            {
-                "scenario": scenario.name,
-                "seed": scenario.seed,
-                "observations": observations,
-                "wall_s": round(wall_s, 1),
-                "exit_codes": codes,
-                "failures": launcher.failures,
-                "run_id": run_id,
-                "error": error,
-            },
-            indent=2,
-            sort_keys=True,
-        )
+    summary = _finish(
+        run_dir, record, ending, t0, (scenario.task, TABLES.get(scenario.thesis_table)), say
     )
-    say(f"[run] report: {run_dir}/steps.md, positions.png, belief.png, summary.json")
-    if error:
-        raise RunError(error)
+    ending = Ending(record["ending"], record["cause"])
+    if crash is not None:
+        raise crash
+    if ending.code:
+        raise RunError(ending.cause, ending)
+    return summary or {}
+
+
+def _prepare(scenario, dep, run_dir: Path, observations: str, say):
+    if observations == "table":
+        return prepare_table(dep, run_dir, scenario, say)
+    if observations == "twin":
+        if dep.mode != "twin":
+            raise ConfigError("mode", dep.mode, "vigil run needs a twin deployment")
+        return prepare(dep, run_dir, scenario, say=say)
+    raise ConfigError("observations", observations, "must be twin or table")
+
+
+def _early_ending(err: BaseException) -> Ending:
+    """The ending of a run stopped while its nodes were being prepared."""
+    if isinstance(err, Interrupted):
+        return Ending(err.name, f"{err.name}: stopped while preparing the run")
+    if is_disk_full(err):
+        return Ending("disk full", f"disk full: {one_line(str(err))}")
+    return Ending("bad input", one_line(str(err)))
+
+
+def _signal_ending(name: str, shown: int, total: int) -> Ending:
+    return Ending(name, f"{name}: stopped at step {shown}/{total}")
+
+
+def _watch(launcher, scenario, run_dir: Path, timeout_s: float, signals: Signals, say) -> Ending:
+    """Show the steps, inject the kills, and return how the run ended."""
+    kills = [f for f in scenario.faults if f.kind == "kill"]
+    t0 = time.monotonic()
+    shown = 0
+    while True:
+        if signals.first is not None:
+            return _signal_ending(signals.first, shown, scenario.steps)
+        if not launcher.poll():
+            return from_launcher(launcher) or Ending(
+                "node", f"the system stopped: {launcher.stopped_because}"
+            )
+        steps = _records(run_dir / "steps.jsonl")
+        for rec in steps[shown:]:
+            say("[run] " + _progress(rec, scenario.steps))
+        shown = len(steps)
+        for fault in list(kills):
+            if shown >= fault.after_step and fault.node in launcher.running:
+                say(f"[fault] killing {fault.node} after step {shown}")
+                launcher.kill(fault.node)
+                kills.remove(fault)
+        if shown >= scenario.steps:
+            return Ending("finished", f"finished: {shown} steps")
+        if time.monotonic() - t0 > timeout_s:
+            return Ending(
+                "timeout", f"timed out after {timeout_s:.0f} s at step {shown}/{scenario.steps}"
+            )
+        time.sleep(0.2)
+
+
+def _finish(run_dir: Path, record: dict, ending: Ending, t0: float, report, say) -> dict | None:
+    """``run.json`` (first without the report, so that a report that fills the disk or
+    fails still leaves the cause), then what report can be written, then ``run.json``
+    again with the report's outcome; returns the report's summary (None if none)."""
+    record.update(
+        ending=ending.kind,
+        cause=ending.cause,
+        exit_code=ending.code,
+        error=None if ending.code == 0 else ending.cause,
+        wall_s=round(time.monotonic() - t0, 1),
+        report="not written",
+    )
+    write_run_json(run_dir, record, say)
+    summary = None
+    if report is not None:
+        from vigil.report import write_report
+
+        task, table = report
+        try:
+            summary = write_report(run_dir, task, table, say=say)
+            record["report"] = "written"
+            say(f"[run] report: {run_dir}/steps.md, positions.png, belief.png, summary.json")
+        except Exception as err:  # noqa: BLE001 - the first cause stays the run's
+            line = one_line(f"{type(err).__name__}: {err}")
+            record["report"] = f"failed: {line}"
+            say(f"[run] report not written: {line}")
+            if ending.kind == "finished":
+                kind = "disk full" if is_disk_full(err) else "report"
+                record.update(ending=kind, cause=f"{kind}: report: {line}")
+                record.update(exit_code=KINDS[kind], error=record["cause"])
+        record["wall_s"] = round(time.monotonic() - t0, 1)
+        write_run_json(run_dir, record, say)
+    say(f"[run] ended: {record['cause']} (exit {record['exit_code']})")
     return summary
 
 

@@ -161,6 +161,7 @@ def prepare(
             "odom_rate_hz": dep.twin.odom_rate_hz,
             "lockstep": dep.lockstep,
             "stall_timeout_s": dep.twin.stall_timeout_s,
+            "stall_abort_s": dep.twin.stall_abort_s or 3 * dep.twin.stall_timeout_s,
             "sensor_outages": json.dumps(outages),
         }
     else:

@@ -1,0 +1,85 @@
+"""Chaos (issue 23): a short lock-step twin run in which the navigation node (the base's
+only sender) is SIGKILLed while the robot drives, and another random node after it
+(seeded); the base stops within its timeout, ``steps.jsonl`` and the bag stay readable,
+and the run ends with one line naming the first kill (exit 3). The soak (20+ kills):
+``bench/bench_chaos.py``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from vigil.chaos import base_holds, chaos_files, check_run, run_chaos
+from vigil.ending import EXIT_NODE
+
+
+@pytest.mark.slow
+def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_timeout(tmp_path):
+    scenario, config = chaos_files(tmp_path, steps=6)
+    run = run_chaos(
+        scenario,
+        config,
+        tmp_path / "run",
+        kills=2,
+        seed=3,
+        first_s=1.0,
+        gap_s=(5.0, 10.0),
+        first="navigation",
+        when_driving=True,
+        timeout_s=1500.0,
+    )
+    assert [k.node for k in run.kills][:1] == ["navigation"], (run.lines[-20:], run.stderr)
+    result = check_run(run.out)
+    # the run ends with one line naming the first kill, and run.json holds it
+    assert run.returncode == EXIT_NODE, run.lines[-20:]
+    assert run.last_line.startswith("vigil run: navigation exited (code -9, SIGKILL)")
+    assert result["run"]["ending"] == "node"
+    assert result["run"]["cause"].startswith("navigation exited (code -9, SIGKILL)")
+    # steps and every bag read back (check_run raises otherwise)
+    assert result["steps"] == 6
+    holds = list(result["bags"].values())
+    assert holds and all(b["messages"] > 0 for b in holds)
+    # the navigation kill left the base without commands while it drove, and the base
+    # braked by itself once its timeout passed
+    assert sum(b["silences"] for b in holds) >= 1, result
+    assert max(b["excess"] for b in holds) <= 0.03, result  # odometry noise: ~0.02
+
+
+def _bag(path: Path, rows: list[tuple[float, str, float]]) -> Path:
+    """A bag of /cmd_vel (a forward command) and /odom (a forward speed) rows."""
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import serialize_message
+
+    from vigil.bag import BagWriter
+
+    bag = BagWriter(path)
+    bag.add_topic("/cmd_vel", "geometry_msgs/msg/Twist")
+    bag.add_topic("/odom", "nav_msgs/msg/Odometry")
+    for t, topic, v in rows:
+        if topic == "/cmd_vel":
+            msg = Twist()
+            msg.linear.x = v
+        else:
+            msg = Odometry()
+            msg.twist.twist.linear.x = v
+        bag.write(topic, int(t * 1e9), serialize_message(msg))
+    bag.close()
+    return path
+
+
+@pytest.mark.parametrize(("base", "holds"), [("timeout", True), ("none", False)])
+def test_the_check_tells_a_base_with_a_timeout_from_one_without(tmp_path, base, holds):
+    """The chaos check itself: commands at 0.4 m/s stop at t = 1 s; a base with a 0.5 s
+    timeout brakes at 1 m/s² from 1.5 s, the old twin base (no timeout) drives on."""
+    import numpy as np
+
+    rows = [(t, "/cmd_vel", 0.4) for t in np.arange(0.0, 1.0001, 0.04)]
+    for t in np.arange(0.0, 4.0, 0.04):
+        v = 0.4 if base == "none" or t <= 1.5 else max(0.0, 0.4 - (t - 1.5))
+        rows.append((float(t) + 1e-6, "/odom", v))
+    rows.sort()
+    result = base_holds(_bag(tmp_path / "bag", rows))
+    assert result["silences"] == 1
+    assert (result["excess"] <= 0.03) == holds, result
