@@ -172,10 +172,13 @@ def test_a_full_disk_mid_run_names_the_disk_and_still_writes_run_json(tmp_path):
         try:
             _wait_steps(out, 1, proc)
             _fill(disk)
+            steps_when_full = len((out / "steps.jsonl").read_text().splitlines())
             stdout, stderr = proc.communicate(timeout=180)
         finally:
             if proc.poll() is None:
                 proc.kill()
+        if steps_when_full >= 12:  # the table run is fast: it can end before the disk fills
+            pytest.skip(f"the run outpaced the filling disk ({steps_when_full} steps)")
         assert proc.returncode == E.EXIT_DISK_FULL, (stdout, stderr)
         record = _run_json(out)
         assert record["ending"] == "disk full"
