@@ -128,3 +128,32 @@ def test_each_step_sends_its_own_goal_id_and_a_late_result_is_not_taken(parts):
     own = {**late, "goal_id": 2}
     m.on_nav_result(7.2, own)
     assert m.last_nav == own and m.waiting in ("obs", "hold")
+
+
+def test_a_move_that_arrives_the_instant_it_is_sent_is_held_not_repeated():
+    """Navigation answering "succeeded" at the very instant of the action (it already
+    sees the robot in the target cell) must not end the step at once: that looped
+    decide-act-observe without time passing."""
+    from stack.planning.agent import Observed
+
+    class Always:
+        step, phase, action = 0, "start", None
+
+        def decide(self):
+            self.action = 2  # East
+            return 2
+
+        def observe(self, observed):
+            self.step += 1
+            return {"step": self.step}
+
+        def track(self, t, observed):
+            return None
+
+    m = DecisionSteps(Always(), StepTiming(start_delay_s=0.0, min_step_s=2.5))
+    assert [c.kind for c in m.tick(10.0)] == ["act"]
+    assert m.on_nav_result(10.0, {"result": "succeeded", "action": "East"}) == []
+    assert m.waiting == "hold"
+    obs = Observed("3", "1", "Not moving")
+    assert m.on_observation(10.0, obs) == []  # no step ends while holding
+    assert [c.kind for c in m.tick(12.5)] == ["request"]  # the hold ends after min_step_s

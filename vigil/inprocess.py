@@ -92,6 +92,7 @@ MAX_POSE_AGE_S = 0.5  # the legs node's max_pose_age_s
 PROGRESS_HZ = 2.0  # navigation's progress_rate_hz
 SPEECH_POLL_S = 0.1  # the speech node's poll_rate_hz 10
 PERCEPTION_MODES = ("rendered", "model")
+MAX_MESSAGES_PER_INSTANT = 20_000  # a simulated instant carries a few dozen
 MODEL_STREAM = 0x5EE  # the model camera's random stream, beside the twin's seed
 
 
@@ -359,9 +360,17 @@ class InProcessSystem:
             self._queue.append((cb, msg))
 
     def _drain(self) -> None:
-        while self._queue:
+        for _ in range(MAX_MESSAGES_PER_INSTANT):
+            if not self._queue:
+                return
             cb, msg = self._queue.popleft()
             cb(msg)
+        # the nodes keep answering each other without time passing: a livelock (an
+        # episode that hung a whole study once); fail this episode, not the study
+        raise RuntimeError(
+            f"more than {MAX_MESSAGES_PER_INSTANT} messages at t = {self.now_s:.3f} s: "
+            "the nodes loop without time passing"
+        )
 
     def _clock(self, t_s: float) -> None:
         self.now_s = t_s

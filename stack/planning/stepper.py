@@ -157,7 +157,13 @@ class DecisionSteps:
         self.last_nav = body if isinstance(body, dict) else {"result": str(body)}
         self.hold_until_s = self.step_start_s + self.timing.min_step_s
         moved = self.sent_action != "Do nothing" and self.last_nav.get("result") == "succeeded"
-        if moved or now_s >= self.hold_until_s:  # a move ends on arrival
+        # A move ends on arrival; one that "arrived" the instant it was sent (navigation
+        # already saw the robot in the target cell, the observation did not) is held
+        # like Do nothing: ending it at once looped decide-act-arrive-observe forever
+        # without time passing (seen in a Monte-Carlo episode with the robot on the
+        # border of cells 3 and 1).
+        moved = moved and now_s > self.step_start_s
+        if moved or now_s >= self.hold_until_s:
             return self._request(now_s)
         self.waiting = "hold"
         return []
