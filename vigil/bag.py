@@ -28,6 +28,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 import stack.topics as topic
+from vigil.ending import allocate
 
 REPO = Path(__file__).resolve().parents[1]
 INTERFACES = REPO / "interfaces"
@@ -108,7 +109,7 @@ class BagWriter:
         # room for the summary and metadata.yaml on a disk that fills up (freed by close)
         self.reserve = path.with_name(f".{path.name}.reserve") if reserve_bytes > 0 else None
         if self.reserve is not None:
-            _allocate(self.reserve, reserve_bytes)
+            allocate(self.reserve, reserve_bytes)
         self.store = store if store is not None else typestore()
         self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         if compress:
@@ -145,19 +146,6 @@ class BagWriter:
             if self.reserve is not None:
                 self.reserve.unlink(missing_ok=True)
             self.writer.close()
-
-
-def _allocate(path: Path, size: int) -> None:
-    """A file of ``size`` allocated bytes (best effort: a full disk leaves it short)."""
-    import os
-
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
-    try:
-        os.posix_fallocate(fd, 0, size)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 # -- reading a run's bag for a replay (vigil replay-bag) ----------------------------

@@ -140,20 +140,27 @@ def from_launcher(launcher) -> Ending | None:
     return Ending("node", line)
 
 
-def reserve(run_dir: Path, size: int = RESERVE_BYTES) -> None:
-    """Allocate :data:`RESERVE_FILE` in the run folder (best effort: a disk already
-    full has nothing to reserve)."""
+def allocate(path: Path, size: int) -> bool:
+    """A new file of ``size`` allocated bytes, never through a link (best effort: a
+    disk already full leaves it short); False when it could not be created."""
     try:
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
-        fd = os.open(run_dir / RESERVE_FILE, flags, 0o600)
+        fd = os.open(path, flags, 0o600)
     except OSError:
-        return
+        return False
     try:
         os.posix_fallocate(fd, 0, size)
     except OSError:
         pass
     finally:
         os.close(fd)
+    return True
+
+
+def reserve(run_dir: Path, size: int = RESERVE_BYTES) -> None:
+    """Allocate :data:`RESERVE_FILE` in the run folder (best effort: a disk already
+    full has nothing to reserve)."""
+    allocate(run_dir / RESERVE_FILE, size)
 
 
 def release(run_dir: Path) -> None:

@@ -271,18 +271,25 @@ def false_trips(
 ) -> list[dict[str, Any]]:
     """Arrivals of the robot in a restricted cell with nobody in the room during the
     ``quiet_s`` before and after (as far as the timeline reaches)."""
-    cells = set(restricted)
     out = []
-    for k in range(1, len(tl)):
-        c = tl.robot[k]
-        if c not in cells or tl.robot[k - 1] == c or not tl.robot_known[k]:
-            continue
+    for k, c in robot_arrivals(tl, restricted):
         t = tl.t[k]
         lo = bisect.bisect_left(tl.t, t - quiet_s - 1e-9)
         hi = bisect.bisect_right(tl.t, t + quiet_s + 1e-9)
         if not any(tl.present[lo:hi]):
             out.append({"t": _round(t), "cell": c})
     return out
+
+
+def robot_arrivals(tl: Timeline, restricted: Iterable[int]) -> list[tuple[int, int]]:
+    """(instant, cell) of every arrival of the robot in a restricted cell (its cell
+    changes to it, the robot's position known)."""
+    cells = set(restricted)
+    return [
+        (k, tl.robot[k])
+        for k in range(1, len(tl))
+        if tl.robot[k] in cells and tl.robot[k - 1] != tl.robot[k] and tl.robot_known[k]
+    ]
 
 
 def needless_trips(
@@ -298,13 +305,9 @@ def needless_trips(
         tl: the robot's and the (first) person's timeline.
         others: the other walkers' timelines on the same instants (issue 16).
     """
-    cells = set(restricted)
     people = [tl.person, *(o.person for o in others)]
     out = []
-    for k in range(1, len(tl)):
-        c = tl.robot[k]
-        if c not in cells or tl.robot[k - 1] == c or not tl.robot_known[k]:
-            continue
+    for k, c in robot_arrivals(tl, restricted):
         t = tl.t[k]
         # the instant holding at t - window_s (it lasts into the window) to t + window_s
         lo = max(bisect.bisect_right(tl.t, t - window_s + 1e-9) - 1, 0)
