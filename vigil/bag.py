@@ -107,9 +107,9 @@ class BagWriter:
             raise FileExistsError(f"bag {path} already exists: not overwriting it")
         self.path = path
         # room for the summary and metadata.yaml on a disk that fills up (freed by close)
-        self.reserve = path.with_name(f".{path.name}.reserve") if reserve_bytes > 0 else None
-        if self.reserve is not None:
-            allocate(self.reserve, reserve_bytes)
+        reserve = path.with_name(f".{path.name}.reserve")
+        # only a reserve this writer made is removed by close (never a file it found)
+        self.reserve = reserve if reserve_bytes > 0 and allocate(reserve, reserve_bytes) else None
         self.store = store if store is not None else typestore()
         self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         if compress:

@@ -157,15 +157,26 @@ def allocate(path: Path, size: int) -> bool:
     return True
 
 
+_RESERVED: set[Path] = set()  # reserve files this process made (release removes only those)
+
+
 def reserve(run_dir: Path, size: int = RESERVE_BYTES) -> None:
     """Allocate :data:`RESERVE_FILE` in the run folder (best effort: a disk already
     full has nothing to reserve)."""
-    allocate(run_dir / RESERVE_FILE, size)
+    path = run_dir / RESERVE_FILE
+    if allocate(path, size):
+        _RESERVED.add(path)
 
 
 def release(run_dir: Path) -> None:
+    """Free the run folder's reserve, if :func:`reserve` made it (a file of that name
+    vigil did not create is never removed)."""
+    path = run_dir / RESERVE_FILE
+    if path not in _RESERVED:
+        return
+    _RESERVED.discard(path)
     try:
-        os.unlink(run_dir / RESERVE_FILE)
+        os.unlink(path)
     except OSError:
         pass
 
