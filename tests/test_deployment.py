@@ -199,6 +199,26 @@ def test_nodes_die_with_a_killed_launcher(tmp_path):
     assert wait_for(gone, timeout=10.0)
 
 
+def test_a_restart_waits_its_delay_and_the_node_is_absent_meanwhile(tmp_path):
+    """``nodes.restart_delay_s``: a killed node is not running until its delay has
+    passed, then comes back with a new pid, said in the launcher's started-line."""
+    lines: list[str] = []
+    la = Launcher([sleeper("a", 60)], tmp_path, say=lines.append, restart_delay_s=1.0)
+    la.start()
+    first = la.pids()["a"]
+    la.kill("a")
+    assert wait_for(lambda: la.poll() and "a" in la.waiting)
+    t_exit = time.monotonic()
+    assert "a" not in la.running and "a" not in la.pids()
+    assert wait_for(lambda: la.poll() and "a" in la.running)
+    assert time.monotonic() - t_exit >= 0.9  # not before its delay
+    assert la.pids()["a"] != first
+    assert any(line.endswith("restarting (1/3) in 1 s") for line in lines), lines
+    assert any(line.startswith("[launch] started a (pid ") for line in lines[2:]), lines
+    la.stop(timeout_s=2.0)
+    assert la.waiting == {} and la.running == {}
+
+
 def test_launcher_stop_and_kill(tmp_path):
     la = Launcher([sleeper("a", 60), sleeper("b", 60, restart=False)], tmp_path, say=lambda s: 0)
     la.start()

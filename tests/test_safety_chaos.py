@@ -26,6 +26,9 @@ def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_tim
         first_s=1.0,
         gap_s=(5.0, 10.0),
         first="navigation",
+        # 5.1.1's robot makes a 0.26 m move at step 3 (0.6 s, too short to catch before
+        # navigation stops it), then drives 3 s east from step 4
+        after_line=r"\[run\] step 3/",
         when_driving=True,
         timeout_s=1500.0,
     )
@@ -83,3 +86,24 @@ def test_the_check_tells_a_base_with_a_timeout_from_one_without(tmp_path, base, 
     result = base_holds(_bag(tmp_path / "bag", rows))
     assert result["silences"] == 1
     assert (result["excess"] <= 0.03) == holds, result
+
+
+@pytest.mark.parametrize(
+    ("speeds", "expected"),
+    [((0.5, 0.5, 0.5), True), ((0.3, 0.4, 0.45), True), ((0.5, 0.45, 0.35), False),
+     ((0.1, 0.1, 0.1), False)],
+)  # fmt: skip
+def test_driving_means_fast_and_not_braking(tmp_path, speeds, expected):
+    """The first kill's trigger: a robot braking may already have its last, zero command
+    (a kill then leaves no silence to check), so only a fast robot not braking counts."""
+    import json
+
+    from vigil.chaos import driving
+
+    x, t, rows = 0.0, 0.0, [{"t": 0.0, "robot": [0.0, 0.0, 0.0]}]
+    for v in speeds:
+        t, x = t + 0.1, x + 0.1 * v
+        rows.append({"t": t, "robot": [x, 0.0, 0.0]})
+    rows.append({"t": t + 0.1, "robot": [x, 0.0, 0.0]})  # the last, maybe half-written
+    (tmp_path / "trace.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert driving(tmp_path) is expected

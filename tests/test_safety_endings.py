@@ -31,8 +31,9 @@ REPO = Path(__file__).resolve().parents[1]
 SCENARIO = REPO / "scenarios" / "5.1.1.yaml"
 
 
-def _deployment(tmp_path: Path, **nodes) -> Path:
-    """A twin deployment with a zero policy for the 5.1.1 task (no solving)."""
+def _deployment(tmp_path: Path, planner: dict | None = None, **nodes) -> Path:
+    """A twin deployment with a zero policy for the 5.1.1 task (no solving); ``planner``
+    overrides planner parameters."""
     from stack.planning.model import build_model
     from stack.planning.policy import AlphaPolicy
     from stack.planning.task import load_task
@@ -45,6 +46,7 @@ def _deployment(tmp_path: Path, **nodes) -> Path:
     config.update(task=str(task), policy=str(tmp_path / "p.npz"))
     config["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
     config["nodes"].update(nodes)
+    config["planner"].update(planner or {})
     path = tmp_path / "dep.yaml"
     path.write_text(yaml.safe_dump(config))
     return path
@@ -125,8 +127,11 @@ def test_a_killed_node_is_named_in_run_json_and_exit_code_3(tmp_path):
 
 
 def test_a_run_past_its_timeout_writes_run_json_and_exits_5(tmp_path):
+    """The planner's first decision waits 60 s, so the 1 s timeout comes first whatever
+    the machine's speed (an idle machine ran all 12 table steps within 1 s)."""
     out = tmp_path / "run"
-    proc = _start_run(tmp_path, out, _deployment(tmp_path), "--timeout", "1")
+    dep = _deployment(tmp_path, planner={"start_delay_s": 60.0})
+    proc = _start_run(tmp_path, out, dep, "--timeout", "1")
     stdout, stderr = proc.communicate(timeout=180)
     assert proc.returncode == E.EXIT_TIMEOUT, stderr
     record = _run_json(out)

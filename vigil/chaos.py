@@ -154,9 +154,11 @@ def run_chaos(
     return ChaosRun(out, proc.returncode, last, done, time.monotonic() - t0, lines, stderr)
 
 
-def driving(run_dir: Path, speed_mps: float = 0.2) -> bool:
+def driving(run_dir: Path, speed_mps: float = 0.2, braking_mps: float = 0.05) -> bool:
     """The recorder's last trace records (ground truth, simulated time) show the robot
-    moving faster than ``speed_mps``."""
+    moving faster than ``speed_mps`` and not braking (its speed over the last interval
+    not ``braking_mps`` below the one before): a robot that brakes may already have
+    been sent its last, zero command, and a sender killed then leaves no silence."""
     try:
         with open(run_dir / "trace.jsonl", "rb") as f:
             f.seek(0, os.SEEK_END)
@@ -165,11 +167,16 @@ def driving(run_dir: Path, speed_mps: float = 0.2) -> bool:
         recs = [json.loads(x) for x in lines[-4:-1]]  # the last one may be half written
     except (OSError, ValueError):
         return False
-    if len(recs) < 2 or not all(r.get("robot") for r in recs):
+    if len(recs) < 3 or not all(r.get("robot") for r in recs):
         return False
-    (t0, a), (t1, b) = (recs[0]["t"], recs[0]["robot"]), (recs[-1]["t"], recs[-1]["robot"])
-    dt = t1 - t0
-    return dt > 0 and ((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2) ** 0.5 / dt > speed_mps
+
+    def speed(a: dict, b: dict) -> float:
+        dt = b["t"] - a["t"]
+        dx, dy = b["robot"][0] - a["robot"][0], b["robot"][1] - a["robot"][1]
+        return ((dx * dx + dy * dy) ** 0.5 / dt) if dt > 0 else 0.0
+
+    before, last = speed(recs[0], recs[1]), speed(recs[1], recs[2])
+    return last > speed_mps and last > before - braking_mps
 
 
 def _bags(run_dir: Path) -> list[Path]:
@@ -257,7 +264,7 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     """A scenario (5.1.1 by default: the robot drives east from step 3) cut to ``steps``
     steps, and the twin deployment with restarts to spare (``max_restarts`` 100) and a
     1 s lock-step stall timeout: a dead participant is excused after 1 s of wall time
-    (not 30), so the twin runs on while a killed node restarts (seconds) and only the
+    (not 30), so the twin runs on while a killed node restarts (3 s later) and only the
     base's own timeout can stop it; with 30 s the twin waits for the restarted
     navigation and no simulated time passes without commands."""
     import yaml
@@ -270,7 +277,10 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     config = yaml.safe_load((REPO / "config" / "twin.yaml").read_text())
     config["twin"].update(stall_timeout_s=1.0, stall_abort_s=120.0)
     config["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
-    config["nodes"].update(max_restarts=100)
+    # a killed node comes back 3 s later (not as soon as Python starts, ~1 s on an idle
+    # machine): the twin excuses it after 1 s and runs on for 2 s of wall time without
+    # its commands, so the base's own timeout is what stops it, on any machine
+    config["nodes"].update(max_restarts=100, restart_delay_s=3.0)
     config["task"] = str(task)
     (folder / "dep.yaml").write_text(yaml.safe_dump(config))
     return folder / "chaos.yaml", folder / "dep.yaml"

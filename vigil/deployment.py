@@ -176,10 +176,12 @@ class NodesSection(Config):
     restart: bool = True
     max_restarts: int = 3
     stop_timeout_s: float = 5.0
+    restart_delay_s: float = 0.0
 
     _rules = {
         "max_restarts": _within(0, MAX_RESTARTS, low_open=False),
         "stop_timeout_s": _within(0, 600.0),
+        "restart_delay_s": _within(0, 600.0, low_open=False),
     }
 
 

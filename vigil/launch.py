@@ -68,6 +68,9 @@ class Launcher:
         env: environment for all of them (on top of this process's).
         max_restarts: restarts allowed per process.
         say: where status lines go.
+        restart_delay_s: a process that exited is started again this long after (like
+            ``respawn_delay`` of ros2 launch or systemd's ``RestartSec``): a node that
+            dies at start does not spin, and the rest of the system sees it absent.
     """
 
     def __init__(
@@ -77,8 +80,12 @@ class Launcher:
         env: dict[str, str] | None = None,
         max_restarts: int = 3,
         say: Callable[[str], None] = print,
+        restart_delay_s: float = 0.0,
     ):
         self.specs = list(specs)
+        self.restart_delay_s = float(restart_delay_s)
+        # exited processes waiting for their restart: name -> (spec, restarts, due time)
+        self.waiting: dict[str, tuple[ProcessSpec, int, float]] = {}
         self.log_dir = Path(log_dir)
         self.env = {**os.environ, **(env or {})}
         self.max_restarts = max_restarts
@@ -126,6 +133,15 @@ class Launcher:
         """Handle exited processes; False once the system has stopped."""
         if self.stopped_because is not None:
             return False
+        now = time.monotonic()
+        for name, (spec, restarts, due) in list(self.waiting.items()):
+            if now >= due:
+                del self.waiting[name]
+                self._spawn(spec, restarts)
+                self.say(
+                    f"[launch] started {name} (pid {self.running[name].proc.pid}): "
+                    f"restart {restarts}/{self.max_restarts}"
+                )
         for name, r in list(self.running.items()):
             rc = r.proc.poll()
             if rc is None:
@@ -135,6 +151,14 @@ class Launcher:
                 self._failed(name, rc, self._why(name, rc))
             # a full disk is not cured by a restart: the system stops
             if r.spec.restart and r.restarts < self.max_restarts and rc != EXIT_DISK_FULL:
+                if self.restart_delay_s > 0:
+                    del self.running[name]
+                    self.waiting[name] = (r.spec, r.restarts + 1, now + self.restart_delay_s)
+                    self.say(
+                        f"[launch] {name} exited (code {rc}); restarting "
+                        f"({r.restarts + 1}/{self.max_restarts}) in {self.restart_delay_s:g} s"
+                    )
+                    continue
                 self._spawn(r.spec, r.restarts + 1)
                 self.say(
                     f"[launch] {name} exited (code {rc}); restarting "
@@ -359,7 +383,8 @@ def launch(
     reserve(run_dir)
     logs = run_dir / "logs"
     claim = None
-    launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say)
+    launcher = Launcher(system.specs, logs, system.env, dep.nodes.max_restarts, say,
+                        dep.nodes.restart_delay_s)  # fmt: skip
     watch = None
     ending: Ending | None = None
     crash: BaseException | None = None

@@ -147,7 +147,8 @@ def _run(scenario, dep, run_dir: Path, run_id: str, observations: str, timeout_s
         system.env["ROS_DOMAIN_ID"] = str(claim.domain_id)
     system.env[RUN_ID_ENV] = run_id  # the lock-step ignores another run's nodes
     say(f"[run] ROS domain {system.env.get('ROS_DOMAIN_ID', '(environment)')}, run id {run_id}")
-    launcher = Launcher(system.specs, run_dir / "logs", system.env, dep.nodes.max_restarts, say=say)
+    launcher = Launcher(system.specs, run_dir / "logs", system.env, dep.nodes.max_restarts, say=say,
+                        restart_delay_s=dep.nodes.restart_delay_s)  # fmt: skip
     ending: Ending | None = None
     crash: BaseException | None = None
     try:
