@@ -153,6 +153,9 @@ def test_not_moving_camera_wins_over_laser_speed_and_outside_is_no_person():
     assert obs.velocity_label == "Not moving" and obs.person_cell == 6
     outside = comb.combine(10.0, person((-1.0, 1.0), Direction.EAST), [track((-1.0, 1.0), 1.0)])
     assert outside.person_label == "No person" and outside.velocity_label == "Not moving"
+    # the floor point still travels with it, for the goal inference (person_model: goal)
+    assert outside.person_position_m == pytest.approx((-1.0, 1.0))
+    assert outside.to_dict()["person_position_m"] == pytest.approx([-1.0, 1.0])
     old = comb.combine(20.0, person(xy, Direction.EAST, stamp_s=10.0), [])
     assert old.person_label == "Unseen"
 

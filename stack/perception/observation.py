@@ -105,7 +105,9 @@ class Observation:
         direction: the person's movement direction (NOT_MOVING when no person).
         speed: the speed class; None exactly when the velocity is "Not moving".
         robot_cell: the robot's cell, or None for "Out of the map" / never localised.
-        person_position_m: the camera's map position of the person, for display [m].
+        person_position_m: the camera's map position of the person [m]; also with
+            "No person" when the camera sees them outside the region (the goal
+            inference of ``person_model: goal`` reads it).
         speed_mps: the laser track's speed when one was associated, for display [m/s].
         source: what saw the person: "camera", "laser", "fused", or "none".
         hidden: (cell, fraction) for every cell the camera could not see, wholly or
@@ -366,6 +368,7 @@ class ObservationCombiner:
             and camera.status is not PersonStatus.UNKNOWN
             and stamp_s - camera.stamp_s <= cfg.max_camera_age_s
         )
+        outside: tuple[float, float] | None = None  # a person seen off the grid
         if (
             camera_sees
             and camera is not None
@@ -373,14 +376,15 @@ class ObservationCombiner:
             and camera.position_m is not None
         ):
             obs = self._camera_person(stamp_s, camera, fresh, robot_cell)
-            if obs is not None:
+            if isinstance(obs, Observation):
                 return obs
+            outside = obs
         hidden = self.hidden(camera_sees, stamp_s)
         laser = self._laser_person(stamp_s, fresh, hidden, robot_cell)
         if laser is not None:
             return laser
         return Observation(
-            stamp_s, None, Direction.NOT_MOVING, None, robot_cell,
+            stamp_s, None, Direction.NOT_MOVING, None, robot_cell, outside,
             source="none", hidden=tuple(sorted(hidden.items())), blind=not camera_sees,
         )  # fmt: skip
 
@@ -390,7 +394,10 @@ class ObservationCombiner:
         camera: CameraPersonState,
         fresh: list[TrackEstimate],
         robot_cell: int | None,
-    ) -> Observation | None:
+    ) -> Observation | tuple[float, float]:
+        """The observation of a person the camera sees in the region, or, outside it,
+        their floor point alone (the label is "No person", as in the thesis; where
+        they walk still tells where they are heading: :mod:`stack.planning.intent`)."""
         cfg = self.config
         assert camera.position_m is not None
         track = nearest_track(fresh, camera.position_m, cfg.association_gate_m)
@@ -405,7 +412,7 @@ class ObservationCombiner:
             source = "fused"
         cell = self.cell_of(pos[0], pos[1])
         if cell is None:
-            return None  # outside the region: not in the environment (thesis)
+            return (float(pos[0]), float(pos[1]))  # outside the region: "No person"
         self._last_seen = (pos[0], pos[1], stamp_s)
         speed_mps = None if track is None else track.speed_mps
         position = (float(pos[0]), float(pos[1]))

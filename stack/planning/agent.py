@@ -243,7 +243,7 @@ class PlannerAgent:
         a, q = self._choose(self.belief)
         self.anticipated = None
         if self.anticipator is not None:
-            move = self.anticipator.advise(self.robot_cell)
+            move = self.anticipator.advise(self.robot_cell, ACTIONS[int(a)])
             note = self.anticipator.note()
             if note is not None:
                 self.anticipated = {**note, "policy": ACTIONS[int(a)], "move": move}

@@ -25,6 +25,8 @@ Pure (numpy): the planner node and the in-process loop run it through
 
 from __future__ import annotations
 
+import heapq
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -43,8 +45,14 @@ class AnticipationConfig(Config):
     go_probability: head for a restricted cell once the person's goal is it with at
         least this probability.
     stay_probability: keep heading there while the probability stays above this.
+    enter_probability: without a target, the policy's move into a restricted cell is
+        held back for a person seen outside it whose goal is that cell with less than
+        this probability (a decoy turning away, a passer-by, a person leaving).
     max_unseen_s: and while the person was seen within this long (unseen, the goal
         belief drifts back to its prior, which is no evidence of a visit).
+    exits_m: the room's doorways (map points, m): a person walking out is heading for
+        one of them, not for the restricted cell on the way (without them a walk to a
+        door beside a restricted cell looks like a visit).
     intent: the goal inference (:class:`stack.planning.intent.IntentConfig`).
     """
 
@@ -52,7 +60,9 @@ class AnticipationConfig(Config):
 
     go_probability: float = 0.6
     stay_probability: float = 0.35
+    enter_probability: float = 0.35
     max_unseen_s: float = 2.0
+    exits_m: tuple[tuple[float, float], ...] = ()
     intent: IntentConfig = field(default_factory=IntentConfig)
 
     def __post_init__(self) -> None:
@@ -60,6 +70,8 @@ class AnticipationConfig(Config):
                 "must be in (0, 1]")  # fmt: skip
         require(0.0 <= self.stay_probability <= self.go_probability, "stay_probability",
                 self.stay_probability, "must be in [0, go_probability]")  # fmt: skip
+        require(0.0 <= self.enter_probability <= 1.0, "enter_probability",
+                self.enter_probability, "must be in [0, 1]")  # fmt: skip
         require(0.0 < self.max_unseen_s < 60.0, "max_unseen_s", self.max_unseen_s,
                 "must be in (0, 60) s")  # fmt: skip
 
@@ -84,6 +96,46 @@ def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
     return None
 
 
+def travel_m(grid: CellGrid, start: int) -> dict[int, float]:
+    """The length (m, centre to centre) of the shortest path of cell moves from
+    ``start`` to every cell of ``grid`` (Dijkstra: cells may be oblong)."""
+    dist = {start: 0.0}
+    queue = [(0.0, start)]
+    while queue:
+        d, c = heapq.heappop(queue)
+        if d > dist[c]:
+            continue
+        (x0, y0) = grid.center(c)
+        for direction in MOVING_DIRECTIONS:
+            n = grid.neighbour(c, direction)
+            if n is None:
+                continue
+            x1, y1 = grid.center(n)
+            nd = d + math.hypot(x1 - x0, y1 - y0)
+            if nd < dist.get(n, math.inf):
+                dist[n] = nd
+                heapq.heappush(queue, (nd, n))
+    return dist
+
+
+def watch_cell(grid: CellGrid, restricted_cells: tuple[int, ...]) -> int:
+    """Where a guard waits (a task's ``rest_cell: auto``): the cell, not restricted,
+    whose longest trip to a restricted cell is shortest (the thesis's rest cell 7 is
+    "equidistant" from task r2's cells 1 and 12); ties go to the shorter trips in
+    total, then to the lowest cell number. With one restricted cell it is the nearest
+    neighbour: a guard waiting there is one move from the cell, not three."""
+    trips = {r: travel_m(grid, r) for r in restricted_cells}
+    candidates = [c for c in grid.cells if c not in trips]
+    if not candidates:
+        raise ValueError("every cell is restricted: nowhere to wait")
+
+    def cost(c: int) -> tuple[float, float, int]:
+        ds = [trips[r].get(c, math.inf) for r in restricted_cells]
+        return (round(max(ds), 9), round(sum(ds), 9), c)
+
+    return min(candidates, key=cost)
+
+
 class Anticipator:
     """Goal inference on one person's observed positions and the move it advises.
 
@@ -96,7 +148,7 @@ class Anticipator:
         self, grid: CellGrid, restricted_cells: tuple[int, ...], config: AnticipationConfig
     ):
         self.grid, self.restricted, self.config = grid, tuple(restricted_cells), config
-        self.inference = GoalInference(grid, restricted_cells, config.intent)
+        self.inference = GoalInference(grid, restricted_cells, config.intent, config.exits_m)
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
 
@@ -128,13 +180,33 @@ class Anticipator:
                 self.target = best
         return self.target != before
 
-    def advise(self, robot_cell: int | None) -> str | None:
+    def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
         """The move toward the target cell, "Do nothing" in it (wait there for the
         person: the policy, which values the cell only with the person in it, would
-        leave), or None (no target, or the robot's cell unknown: the policy decides)."""
-        if self.target is None or robot_cell is None:
+        leave), or None (the policy decides). Without a target, a policy move *into* a
+        restricted cell the person is seen and not heading for (goal probability under
+        ``stay_probability``; a decoy turning away, a passer-by, a person standing
+        next to it; ``enter_probability``) is held back ("Do nothing"): the thesis's
+        model enters on the person's cell and direction alone, a needless trip when
+        they do not come.
+        The policy decides while the person is in a restricted cell or unseen."""
+        if robot_cell is None:
             return None
-        return first_move(self.grid, robot_cell, self.target) or "Do nothing"
+        if self.target is not None:
+            return first_move(self.grid, robot_cell, self.target) or "Do nothing"
+        est = self.estimate
+        if (
+            policy_action is None
+            or est is None
+            or est.inside is not None
+            or est.age_s > self.config.max_unseen_s
+        ):
+            return None
+        direction = next((d for d in MOVING_DIRECTIONS if d.label == policy_action), None)
+        entering = None if direction is None else self.grid.neighbour(robot_cell, direction)
+        if entering in self.restricted and est.p(entering) < self.config.enter_probability:
+            return "Do nothing"
+        return None
 
     def note(self) -> dict[str, Any] | None:
         """For the step record: the target and the goal probabilities."""

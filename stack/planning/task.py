@@ -4,7 +4,8 @@ A task file is YAML with these sections (see ``config/task-r1.yaml`` and
 ``docs/MODEL.md`` for every parameter and the sentence of the thesis behind it):
 
 - ``grid``: the cells (numbering, metric size; :class:`stack.cells.CellGrid`);
-- ``restricted_cells``, ``rest_cell``, ``people``, ``discount``;
+- ``restricted_cells``, ``rest_cell`` (a cell, or ``auto``: where a guard waits,
+  :func:`stack.planning.anticipate.watch_cell`), ``people``, ``discount``;
 - ``rewards``: table 4.1;
 - ``robot``: the robot's transition model (figures A.5-A.6);
 - ``person``: a person's direction and position transition models (section 3.2.1);
@@ -27,7 +28,7 @@ import yaml
 
 from stack.cells import CellGrid, ConfigError
 from stack.config import Config, from_mapping, load_yaml, read_text_capped
-from stack.planning.anticipate import PERSON_MODELS, AnticipationConfig
+from stack.planning.anticipate import PERSON_MODELS, AnticipationConfig, watch_cell
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
@@ -165,6 +166,22 @@ class Initial(Config):
     direction: str = "not moving"  # north, south, east, west or not moving
 
 
+def _auto_rest_cell(data: Mapping[str, Any]) -> int:
+    """``rest_cell: auto``: :func:`stack.planning.anticipate.watch_cell` of the file's
+    grid and restricted cells (0, refused by :meth:`Task.check` with the real error,
+    when they are not valid)."""
+    grid = from_mapping(CellGrid, data.get("grid"), "grid")
+    restricted = data.get("restricted_cells", Task.restricted_cells)
+    if not isinstance(restricted, (list, tuple)) or not all(
+        type(c) is int and c in grid.cells for c in restricted
+    ):
+        return 0
+    try:
+        return watch_cell(grid, tuple(restricted))
+    except ValueError:
+        return 0
+
+
 @dataclass(frozen=True)
 class Task(Config):
     """Everything needed to build the POMDP of a task."""
@@ -242,6 +259,8 @@ class Task(Config):
         data = {k: v for k, v in data.items() if k != "observations"}  # older files
         if isinstance(data.get("initial"), Mapping):
             data["initial"] = _initial_labels(data["initial"])
+        if data.get("rest_cell") == "auto":
+            data["rest_cell"] = _auto_rest_cell(data)
         return from_mapping(cls, data, "")
 
     def to_dict(self) -> dict[str, Any]:

@@ -155,7 +155,14 @@ class GoalInference:
         prior[:n_r] = config.restricted_prior / n_r
         rest = 1.0 - config.restricted_prior
         wander = config.wander_share if n_dest else 1.0
-        prior[n_r:-1] = rest * (1.0 - wander) / max(n_dest, 1)
+        destinations = rest * (1.0 - wander)
+        n_exits = sum(g.name.startswith("exit ") for g in self.goals)
+        n_cells = n_dest - n_exits
+        if n_exits and n_cells:
+            prior[n_r : n_r + n_cells] = destinations * (1.0 - config.exit_share) / n_cells
+            prior[n_r + n_cells : -1] = destinations * config.exit_share / n_exits
+        else:
+            prior[n_r:-1] = destinations / max(n_dest, 1)
         prior[-1] = rest * wander
         self.prior = prior / prior.sum()
         self._steps = Displacements(config)

@@ -32,6 +32,9 @@ class IntentConfig(Config):
             restricted cell (shared equally by the restricted cells).
         wander_share: share of the "elsewhere" prior given to wandering with no goal;
             the rest is spread over the other cells and the exits.
+        exit_share: of that rest, the share of the exits (each exit an equal part;
+            the other cells share the remainder): leaving is one of the commonest
+            reasons to walk, not one destination among a dozen cells.
         other_cells_as_goals: the non-restricted cells are destinations of "elsewhere".
         switch_rate_per_s: rate at which a person draws a new goal from the prior; it
             is what makes the belief diffuse toward the prior without observations.
@@ -53,6 +56,7 @@ class IntentConfig(Config):
     lapse: float = 0.05
     restricted_prior: float = 0.5
     wander_share: float = 0.3
+    exit_share: float = 0.5
     other_cells_as_goals: bool = True
     switch_rate_per_s: float = 0.05
     stop_speed_mps: float = 0.15
@@ -67,6 +71,7 @@ class IntentConfig(Config):
         "lapse": (lambda v: 0.0 <= v < 1.0, "must be a probability in [0, 1)"),
         "restricted_prior": (lambda v: 0.0 < v < 1.0, "must be a probability in (0, 1)"),
         "wander_share": (lambda v: 0.0 <= v <= 1.0, "must be a probability in [0, 1]"),
+        "exit_share": (lambda v: 0.0 <= v <= 1.0, "must be a probability in [0, 1]"),
         "switch_rate_per_s": (lambda v: 0.0 <= v <= 10.0, "must be in [0, 10] per second"),
         "stop_speed_mps": (lambda v: 0.0 <= v < 1.0, "must be in [0, 1) m/s"),
         "position_step_m": (lambda v: 0.0 < v <= 2.0, "must be in (0, 2] m"),
