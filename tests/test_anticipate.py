@@ -196,3 +196,22 @@ def test_with_the_doorway_as_an_exit_a_person_walking_out_is_not_heading_for_cel
         targets[exits] = seen
     assert 1 in targets[()] and targets[((7.0, 5.2),)] == {None}
     assert p1[((7.0, 5.2),)] < 0.35 < p1[()]
+
+
+def test_the_robot_heads_out_just_in_time_for_its_trip():
+    """A slow walker (0.5 m/s) straight for cell 1: with the robot one move away (cell
+    3: 1 m, 2.5 s at 0.4 m/s, + 1.5 s lead) the target is set only once the person's
+    predicted entry is within those 4 s (2 m); with the robot three moves away (cell 7,
+    9 s) as soon as the goal is likely, as with its cell unknown."""
+    path = walk((0.5, 0.75), (5.2, 0.75), speed=0.5)
+    first_at = {}
+    for robot in (3, 7, None):
+        ant = Anticipator(GRID, (1,), AnticipationConfig())
+        for k, p in enumerate(path):
+            ant.observe(0.25 * k, p, robot)
+            if ant.target == 1 and robot not in first_at:
+                first_at[robot] = (p, ant.estimate.forecast(1).eta_s)
+                break
+    (x3, _), eta3 = first_at[3]
+    assert 5.0 - x3 <= 2.0 + 0.15 and eta3 <= 4.0
+    assert first_at[None][0][0] == first_at[7][0][0] < x3 - 1.0

@@ -258,7 +258,9 @@ class PlannerAgent:
         layer's goal inference. Returns the event when the layer's target changed
         ("heading for 1", "heading for none"), else None."""
         self.robot_cell = int(observed.robot) if observed.robot.isdigit() else None
-        if self.anticipator is None or not self.anticipator.observe(t, observed.position_m):
+        if self.anticipator is None or not self.anticipator.observe(
+            t, observed.position_m, self.robot_cell
+        ):
             return None
         target = self.anticipator.target
         return f"heading for {'none' if target is None else target}"

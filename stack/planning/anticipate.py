@@ -45,6 +45,11 @@ class AnticipationConfig(Config):
     go_probability: head for a restricted cell once the person's goal is it with at
         least this probability.
     stay_probability: keep heading there while the probability stays above this.
+    robot_speed_mps: the robot's mean speed over a trip of cell moves (stops and
+        decisions included; 0.41 m/s measured in the twin).
+    lead_s: heading for a cell starts once the person's predicted time to entry is
+        within the robot's trip time plus this (the intent's ``eta_s``): the robot
+        still arrives first, and a person who turns away before has not sent it.
     enter_probability: without a target, the policy's move into a restricted cell is
         held back for a person seen outside it whose goal is that cell with less than
         this probability (a decoy turning away, a passer-by, a person leaving).
@@ -60,7 +65,9 @@ class AnticipationConfig(Config):
 
     go_probability: float = 0.6
     stay_probability: float = 0.35
-    enter_probability: float = 0.35
+    robot_speed_mps: float = 0.4
+    lead_s: float = 1.5
+    enter_probability: float = 0.6
     max_unseen_s: float = 2.0
     exits_m: tuple[tuple[float, float], ...] = ()
     intent: IntentConfig = field(default_factory=IntentConfig)
@@ -70,6 +77,9 @@ class AnticipationConfig(Config):
                 "must be in (0, 1]")  # fmt: skip
         require(0.0 <= self.stay_probability <= self.go_probability, "stay_probability",
                 self.stay_probability, "must be in [0, go_probability]")  # fmt: skip
+        require(0.0 < self.robot_speed_mps <= 5.0, "robot_speed_mps", self.robot_speed_mps,
+                "must be in (0, 5] m/s")  # fmt: skip
+        require(0.0 <= self.lead_s <= 60.0, "lead_s", self.lead_s, "must be in [0, 60] s")
         require(0.0 <= self.enter_probability <= 1.0, "enter_probability",
                 self.enter_probability, "must be in [0, 1]")  # fmt: skip
         require(0.0 < self.max_unseen_s < 60.0, "max_unseen_s", self.max_unseen_s,
@@ -151,6 +161,8 @@ class Anticipator:
         self.inference = GoalInference(grid, restricted_cells, config.intent, config.exits_m)
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
+        # trip lengths from every cell to each restricted cell (moves are symmetric)
+        self._trip_m = {r: travel_m(grid, r) for r in self.restricted}
 
     @classmethod
     def for_task(cls, task: Any) -> Anticipator | None:
@@ -159,9 +171,12 @@ class Anticipator:
             return None
         return cls(task.grid, task.restricted_cells, task.anticipation)
 
-    def observe(self, t: float, position_m: tuple[float, float] | None) -> bool:
-        """Take the person's floor position at ``t`` (None: not seen); returns whether
-        the target changed (an event worth a new decision)."""
+    def observe(
+        self, t: float, position_m: tuple[float, float] | None, robot_cell: int | None = None
+    ) -> bool:
+        """Take the person's floor position at ``t`` (None: not seen) and the robot's
+        cell (None: unknown); returns whether the target changed (an event worth a new
+        decision)."""
         if position_m is None:
             est = self.inference.predict(t)
         else:
@@ -176,9 +191,19 @@ class Anticipator:
             if self.target is not None and est.p(self.target) < cfg.stay_probability:
                 self.target = None
             best = max(self.restricted, key=est.p)
-            if est.p(best) >= cfg.go_probability:
+            if est.p(best) >= cfg.go_probability and (
+                best == self.target or self._due(est, best, robot_cell)
+            ):
                 self.target = best
         return self.target != before
+
+    def _due(self, est: IntentEstimate, cell: int, robot_cell: int | None) -> bool:
+        """The person may be in ``cell`` within the robot's trip there plus ``lead_s``
+        (always, with the robot's cell unknown)."""
+        if robot_cell is None:
+            return True
+        trip_s = self._trip_m[cell].get(robot_cell, math.inf) / self.config.robot_speed_mps
+        return est.forecast(cell).eta_s <= trip_s + self.config.lead_s
 
     def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
         """The move toward the target cell, "Do nothing" in it (wait there for the
