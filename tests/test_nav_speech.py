@@ -144,3 +144,28 @@ def test_person_to_warn_with_one_and_several_people():
     assert person_to_warn("12", "4", slots) == 12
     assert person_to_warn("1", "4", slots) == 4  # nobody with the robot: the first seen
     assert person_to_warn("12", "No person", [{"person": "Unseen"}, "junk", {}]) is None
+
+
+def test_a_person_walking_into_the_guarded_cell_is_warned_before_entering():
+    """approaching(): the person in the next cell moving towards the robot's; the gate
+    warns for it (after confirm_s), as it does for a person in the cell."""
+    from stack.cells import CellGrid
+    from stack.nav.speech import approaching
+
+    g = CellGrid()  # 12 10 8 6 4 2 / 11 9 7 5 3 1
+    assert approaching("1", "3", "East 0.2-0.7", g)  # 3 is west of 1
+    assert approaching("1", "2", "South higher", g)  # 2 is north of 1
+    assert not approaching("1", "3", "West 0.2-0.7", g)  # walking away
+    assert not approaching("1", "4", "South higher", g)  # diagonal: not one step
+    assert not approaching("1", "5", "East higher", g)  # two cells away
+    assert not approaching("1", "3", "Not moving", g)  # standing at the border
+    assert not approaching("Out of the map", "3", "East higher", g)
+    assert not approaching("1", "No person", "Not moving", g)
+    people = [{"person": "7", "velocity": "East higher"}, {"person": "3", "velocity": "East 0-0.2"}]
+    assert approaching("1", "7", "East higher", g, people)  # the second person
+    gate = WarningGate((1,), grace_s=2.0, repeat_s=8.0, confirm_s=0.5)
+    assert gate.update(0.0, 1, 3, False, approaching=True) is None  # not confirmed yet
+    assert gate.update(0.6, 1, 3, False, approaching=True) == "say"
+    gate = WarningGate((1,), grace_s=2.0, repeat_s=8.0, confirm_s=0.5)
+    assert gate.update(0.0, 7, 5, False, approaching=True) is None  # robot not in a restricted cell
+    assert gate.update(0.6, 7, 5, False, approaching=True) is None

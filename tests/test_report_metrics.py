@@ -295,3 +295,20 @@ def test_set_totals_add_the_new_metrics_and_read_old_records():
     assert (t["warned_visits"], t["warned_before_entry"], t["ahead_warnings"]) == (1, 1, 1)
     assert t["min_warning_lead_s"] == t["mean_warning_lead_s"] == 2.0
     assert set_totals([])["min_warning_lead_s"] is None
+
+
+def test_a_warning_to_a_person_next_to_the_guarded_cell_is_an_approach_not_late():
+    """Issue 26's warn-before-entry: the robot in cell 1 warns a person in cell 3 (next
+    to it) who then turns away (a decoy): timely, an ``approach`` warning. The same
+    warning to someone two cells away, or from a robot outside the cell, or to someone
+    who has just left the cell, is late."""
+    decoy = timeline({(2, 8): 3, (8, 30): 7}, {(0, 30): 1})
+    w = classify_warnings(decoy, [1], [4.0, 9.0], grid=GRID)
+    assert [(x["timely"], x["approach"]) for x in w] == [(True, True), (False, False)]
+    assert [x["timely"] for x in classify_warnings(decoy, [1], [4.0])] == [False]  # no grid
+    away = timeline({(2, 8): 3}, {(0, 30): 3})  # the robot is not in the cell
+    assert classify_warnings(away, [1], [4.0], grid=GRID)[0]["timely"] is False
+    left = timeline({(2, 6): 1, (6, 30): 3}, {(0, 30): 1})  # in, then next to it
+    assert classify_warnings(left, [1], [12.0], grid=GRID)[0]["timely"] is False
+    m = guard_metrics(decoy, [1], [4.0, 9.0], [], grid=GRID)
+    assert (m["timely_warnings"], m["late_warnings"], m["approach_warnings"]) == (1, 1, 1)

@@ -59,7 +59,7 @@ from stack.hardware.base_watchdog import BaseWatchdog
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
 from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
-from stack.nav.speech import Speaker, SpeechError, WarningGate, person_to_warn
+from stack.nav.speech import Speaker, SpeechError, WarningGate, approaching, person_to_warn
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker
 from stack.perception.errors import BadScanError
@@ -299,7 +299,7 @@ class InProcessSystem:
 
         # -- speech -----------------------------------------------------------------------
         sp = p["speech"]
-        _, scfg = read_node_config(sp["config_file"], "speech", SpeechConfig)
+        self.speech_grid, scfg = read_node_config(sp["config_file"], "speech", SpeechConfig)
         if sp.get("voice"):
             scfg = replace(scfg, voice=sp["voice"])
         self.gate = WarningGate(scfg.restricted_cells, scfg.grace_s, scfg.repeat_s, scfg.confirm_s)
@@ -310,6 +310,7 @@ class InProcessSystem:
             self.say(f"[inprocess] speech disabled: {exc}")
         self.speech_robot: int | None = None
         self.speech_person: int | None = None
+        self.speech_approaching = False
 
         # -- recorder ---------------------------------------------------------------------
         self.trace = open(self.run_dir / "trace.jsonl", "w")
@@ -537,13 +538,18 @@ class InProcessSystem:
         robot, person = str(body["robot"]), str(body["person"])
         self.speech_robot = int(robot) if robot.isdigit() else None
         self.speech_person = person_to_warn(robot, person, body.get("people"))  # as the node
+        self.speech_approaching = approaching(
+            robot, person, str(body["velocity"]), self.speech_grid, body.get("people")
+        )
         self.speech_check()
 
     def speech_check(self) -> None:
         if self.speaker is not None:
             self.speaker.poll(self.now_s)
         speaking = self.speaker is not None and self.speaker.speaking
-        decision = self.gate.update(self.now_s, self.speech_robot, self.speech_person, speaking)
+        decision = self.gate.update(
+            self.now_s, self.speech_robot, self.speech_person, speaking, self.speech_approaching
+        )
         if decision == "say":
             self.publish(topic.SPEECH_WARNING, self.speaker.config.warning if self.speaker else "")
             if self.speaker is not None:

@@ -37,7 +37,14 @@ from vigil_interfaces.msg import PersonObservation, SpeechDone, Warning
 import stack.topics as topic
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
-from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningGate, person_to_warn
+from stack.nav.speech import (
+    Speaker,
+    SpeechError,
+    SpeechEvent,
+    WarningGate,
+    approaching,
+    person_to_warn,
+)
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_msgs import observation_from_msg, speech_done_to_msg, warning_to_msg
@@ -74,6 +81,7 @@ class SpeechNode(Node):
         self.config = config
         self.person_cell: int | None = None
         self.robot_cell: int | None = None
+        self.approaching = False
         self.gate = WarningGate(
             config.restricted_cells, config.grace_s, config.repeat_s, config.confirm_s
         )
@@ -112,6 +120,9 @@ class SpeechNode(Node):
             return
         self.robot_cell = int(robot) if robot.isdigit() else None
         self.person_cell = person_to_warn(robot, person, body.get("people"))
+        self.approaching = approaching(
+            robot, person, body["velocity"], self.grid, body.get("people")
+        )
         self.check()
 
     def check(self) -> None:
@@ -119,9 +130,12 @@ class SpeechNode(Node):
             for event in self.speaker.poll(self.now_s()):
                 self.publish_event(event)
         speaking = self.speaker is not None and self.speaker.speaking
-        decision = self.gate.update(self.now_s(), self.robot_cell, self.person_cell, speaking)
+        decision = self.gate.update(
+            self.now_s(), self.robot_cell, self.person_cell, speaking, self.approaching
+        )
         if decision == "say":
-            self.get_logger().info(f"person in restricted cell {self.robot_cell} with the robot")
+            how = "walking into" if self.person_cell != self.robot_cell else "in"
+            self.get_logger().info(f"person {how} restricted cell {self.robot_cell}: warning")
             self._warnings += 1
             self.warning_pub.publish(
                 warning_to_msg(self.config.warning, self._warnings, self.person_cell, self.now_s())

@@ -26,6 +26,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from stack.cells import MOVING_DIRECTIONS, CellGrid
 from stack.nav.config import SpeechConfig
 
 
@@ -415,14 +416,43 @@ def person_to_warn(robot: str, person: str, people: object = None) -> int | None
     return cells[0] if cells else None
 
 
+def approaching(
+    robot: str, person: str, velocity: str, grid: CellGrid, people: object = None
+) -> bool:
+    """Whether a person is about to walk into the robot's cell, from an observation's
+    labels: in a cell sharing a side with it and moving towards that side (velocity
+    "West 0.2-0.7" from the cell east of it). ``people``: the per-slot
+    ``[{"person": label, "velocity": label}, ...]`` of two or more people; anyone
+    approaching counts. Labels that are not cell numbers are nobody."""
+    if not robot.isdigit() or int(robot) not in grid.cells:
+        return False
+    here = int(robot)
+    pairs = [(person, velocity)]
+    if isinstance(people, list):
+        pairs += [
+            (str(p.get("person", "")), str(p.get("velocity", "")))
+            for p in people
+            if isinstance(p, dict)
+        ]
+    for cell, vel in pairs:
+        if not cell.isdigit() or int(cell) == here or int(cell) not in grid.cells:
+            continue
+        heading = next((d for d in MOVING_DIRECTIONS if vel.startswith(d.label + " ")), None)
+        if heading is not None and grid.neighbour(int(cell), heading) == here:
+            return True
+    return False
+
+
 class WarningGate:
     """When to speak the warning (thesis 3.2.2, made timely).
 
-    The robot warns while a person is in a restricted cell with it: the person's and
-    the robot's cells are the same restricted cell, seen so for ``confirm_s`` (a person
-    hesitating on the border flickers between cells: the warning waits until they are
-    in). A warning starts only while that holds; while the person stays it is
-    repeated every ``repeat_s``. Nothing is queued: a warning due while one is playing
+    The robot warns while a person is in a restricted cell with it, or walks into it
+    (``approaching``: from the next cell, towards it; a guard that got there first warns
+    before the entry): the person's and the robot's cells are the same restricted cell,
+    or the person approaches it, seen so for ``confirm_s`` (a person hesitating on the
+    border flickers between cells: the warning waits until they are in or walking in).
+    A warning starts only while that holds; while the person stays it is repeated every
+    ``repeat_s``. Nothing is queued: a warning due while one is playing
     is not said, and one still playing ``grace_s`` after the person left is cut short
     (:meth:`update` returns "stop"), so no warning plays to an empty cell.
 
@@ -446,11 +476,17 @@ class WarningGate:
         self._started_s = -math.inf  # last warning's start
 
     def update(
-        self, now_s: float, robot_cell: int | None, person_cell: int | None, speaking: bool
+        self,
+        now_s: float,
+        robot_cell: int | None,
+        person_cell: int | None,
+        speaking: bool,
+        approaching: bool = False,
     ) -> str | None:
-        """Return "say" to start a warning now, "stop" to cut the current one, else None."""
+        """Return "say" to start a warning now, "stop" to cut the current one, else None.
+        ``approaching``: a person walks into the robot's cell (:func:`approaching`)."""
         together = robot_cell is not None and robot_cell in self.restricted
-        together = together and person_cell == robot_cell
+        together = together and (person_cell == robot_cell or approaching)
         if together:
             if now_s - self._with_person_s > self.grace_s:  # a new visit: warn at once
                 self._started_s = -math.inf
@@ -462,7 +498,8 @@ class WarningGate:
         recent = now_s - self._with_person_s <= self.grace_s
         if speaking:
             return None if recent else "stop"
-        confirmed = together and now_s - (self._together_since_s or now_s) >= self.confirm_s
+        since = now_s if self._together_since_s is None else self._together_since_s
+        confirmed = together and now_s - since >= self.confirm_s  # (a start at t = 0 counts)
         if confirmed and now_s - self._started_s >= self.repeat_s:
             self._started_s = now_s
             return "say"

@@ -17,7 +17,10 @@ In short:
   the cell at the person's entry (it got there first: delay 0);
 - a warning is **timely** when it starts while the person is in a restricted cell,
   within ``WARNING_AFTER_S`` after they left one, or within ``WARNING_BEFORE_S`` before
-  they enter one (**ahead**: a guard that anticipates warns as the person approaches);
+  they enter one (**ahead**: a guard that anticipates warns as the person approaches),
+  or, with the robot in a restricted cell, while the person is next to it (diagonals
+  included) and has not left it within ``WARNING_BEFORE_S`` (an **approach**
+  warning: they may turn away, which is what it is for);
   otherwise **late**;
 - a visit's **warning lead time**: the person's entry minus the start of the first
   warning between ``WARNING_BEFORE_S`` before the entry (not before the previous
@@ -236,11 +239,15 @@ def classify_warnings(
     starts: Sequence[float],
     after_s: float = WARNING_AFTER_S,
     before_s: float = WARNING_BEFORE_S,
+    grid: CellGrid | None = None,
 ) -> list[dict[str, Any]]:
     """Each warning's start, the person's and robot's cells then, and whether it was
     timely (started while the person was in a restricted cell, within ``after_s``
-    after they left one, or within ``before_s`` before they entered one: ``ahead``)
-    or late."""
+    after they left one, or within ``before_s`` before they entered one: ``ahead``;
+    with ``grid``, also while the robot stood in a restricted cell and the person was
+    next to it, diagonals included, not having left it within ``before_s``:
+    ``approach``, a warning to someone who may then turn away) or late."""
+    restricted = tuple(restricted)
     spans = restricted_intervals(tl, restricted)
     out = []
     for s in starts:
@@ -250,14 +257,26 @@ def classify_warnings(
             ahead = next((c for c, a, _ in spans if a - before_s <= s < a), None)
             cell = ahead
         i = tl.index_at(s)
+        person = None if i is None else tl.person[i]
+        robot = None if i is None or not tl.robot_known[i] else tl.robot[i]
+        approach = (
+            cell is None
+            and grid is not None
+            and robot in restricted
+            and person is not None
+            and grid.chebyshev(person, robot) <= 1
+            # not someone who just left it: that warning is late
+            and not any(c == robot and s - before_s <= b <= s for c, _, b in spans)
+        )
         out.append(
             {
                 "t": _round(s),
-                "timely": cell is not None,
+                "timely": cell is not None or approach,
                 "ahead": ahead is not None,
+                "approach": approach,
                 "visit_cell": cell,
-                "person_cell": None if i is None else tl.person[i],
-                "robot_cell": None if i is None or not tl.robot_known[i] else tl.robot[i],
+                "person_cell": person,
+                "robot_cell": robot,
             }
         )
     return out
@@ -416,7 +435,7 @@ def guard_metrics(
     warnings' lead), warnings, false and needless trips, steps (with ``grid``: the
     visits an ideal guard could reach, and how many of those were guarded)."""
     visits = find_visits(tl, restricted, min_visit_s, grid, warning_starts=warning_starts)
-    warnings = classify_warnings(tl, restricted, warning_starts)
+    warnings = classify_warnings(tl, restricted, warning_starts, grid=grid)
     trips = false_trips(tl, restricted)
     needless = needless_trips(tl, restricted)
     counts = step_counts(tl, steps)
@@ -427,6 +446,7 @@ def guard_metrics(
         "warnings": warnings,
         "timely_warnings": sum(w["timely"] for w in warnings),
         "late_warnings": sum(not w["timely"] for w in warnings),
+        "approach_warnings": sum(w["approach"] for w in warnings),
         "ahead_warnings": sum(w["ahead"] for w in warnings),
         "false_trips": trips,
         "n_false_trips": len(trips),
@@ -466,6 +486,7 @@ def set_totals(metrics: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "max_delay_s": max(delays) if delays else None,
         "timely_warnings": total("timely_warnings") if metrics else 0,
         "late_warnings": total("late_warnings") if metrics else 0,
+        "approach_warnings": total("approach_warnings") if metrics else 0,
         "n_false_trips": total("n_false_trips") if metrics else 0,
         "n_needless_trips": newer("n_needless_trips"),
         "robot_first": newer("robot_first"),
