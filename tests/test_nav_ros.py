@@ -157,7 +157,7 @@ def test_speech_node_warns_a_person_in_the_restricted_cell_with_the_robot(ros, t
         bad = observation_to_msg({"robot": "1", "person": "1", "velocity": ""})
         bad.hidden_cells = [4]  # no fraction for it: malformed, skipped
         obs_pub.publish(bad)
-        assert spin_until(ros, lambda: speech.person_cell == 3, 3.0)
+        assert spin_until(ros, lambda: speech.warner.person_cell == 3, 3.0)
         spin_until(ros, lambda: False, 0.3)
         assert sim.speech == []
         observe("1", "1")  # together in restricted cell 1 ...

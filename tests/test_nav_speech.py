@@ -169,3 +169,23 @@ def test_a_person_walking_into_the_guarded_cell_is_warned_before_entering():
     gate = WarningGate((1,), grace_s=2.0, repeat_s=8.0, confirm_s=0.5)
     assert gate.update(0.0, 7, 5, False, approaching=True) is None  # robot not in a restricted cell
     assert gate.update(0.6, 7, 5, False, approaching=True) is None
+
+
+def test_the_reactor_reads_observation_records_as_the_node_and_the_loop_do():
+    from stack.cells import CellGrid
+    from stack.nav.config import SpeechConfig
+    from stack.nav.speech import WarningReactor
+
+    w = WarningReactor(CellGrid(), SpeechConfig(restricted_cells=(1,), confirm_s=0.5))
+    w.observe({"robot": "1", "person": "3", "velocity": "East higher"})
+    assert (w.robot_cell, w.person_cell, w.approaching) == (1, 3, True)
+    assert w.decide(0.0, False) is None and w.decide(0.6, False) == "say"
+    w.observe({"robot": "1", "person": "No person", "velocity": "Not moving"})
+    assert w.person_cell is None and not w.approaching
+    assert w.decide(4.0, True) == "stop"  # still speaking 3.4 s after: cut short
+    two = {"robot": "1", "person": "7", "velocity": "East higher",
+           "people": [{"person": "7", "velocity": "East higher"}, {"person": "1", "velocity": "Not moving"}]}  # fmt: skip
+    w.observe(two)
+    assert w.person_cell == 1  # whoever is in the robot's cell
+    with pytest.raises(KeyError):
+        w.observe({"person": "3"})

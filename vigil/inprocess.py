@@ -14,7 +14,7 @@ camera_people                 :class:`stack.perception.camera.CameraPeopleTracke
 legs                          :func:`stack.perception.legs.detect_legs` + ``LegTracker``
 observations                  :class:`stack.perception.observation.ObservationCombiner`
 navigation                    :class:`stack.nav.executor.ActionExecutor`
-speech                        :class:`stack.nav.speech.WarningGate` + ``Speaker``
+speech                        :class:`stack.nav.speech.WarningReactor` + ``Speaker``
 planner                       :class:`stack.planning.stepper.DecisionSteps`
 recorder                      ``trace.jsonl`` lines as :mod:`vigil.node_recorder`
 ============================  =================================================
@@ -59,7 +59,7 @@ from stack.hardware.base_watchdog import BaseWatchdog
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
 from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
-from stack.nav.speech import Speaker, SpeechError, WarningGate, approaching, person_to_warn
+from stack.nav.speech import Speaker, SpeechError, WarningReactor
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker
 from stack.perception.errors import BadScanError
@@ -299,18 +299,15 @@ class InProcessSystem:
 
         # -- speech -----------------------------------------------------------------------
         sp = p["speech"]
-        self.speech_grid, scfg = read_node_config(sp["config_file"], "speech", SpeechConfig)
+        speech_grid, scfg = read_node_config(sp["config_file"], "speech", SpeechConfig)
         if sp.get("voice"):
             scfg = replace(scfg, voice=sp["voice"])
-        self.gate = WarningGate(scfg.restricted_cells, scfg.grace_s, scfg.repeat_s, scfg.confirm_s)
+        self.warner = WarningReactor(speech_grid, scfg)  # the speech node's own decisions
         try:
             self.speaker: Speaker | None = Speaker(scfg, sp["out_dir"] or None)
         except SpeechError as exc:
             self.speaker = None
             self.say(f"[inprocess] speech disabled: {exc}")
-        self.speech_robot: int | None = None
-        self.speech_person: int | None = None
-        self.speech_approaching = False
 
         # -- recorder ---------------------------------------------------------------------
         self.trace = open(self.run_dir / "trace.jsonl", "w")
@@ -534,22 +531,14 @@ class InProcessSystem:
 
     # -- speech ---------------------------------------------------------------------------
     def speech_on_observation(self, text: str) -> None:
-        body = json.loads(text)
-        robot, person = str(body["robot"]), str(body["person"])
-        self.speech_robot = int(robot) if robot.isdigit() else None
-        self.speech_person = person_to_warn(robot, person, body.get("people"))  # as the node
-        self.speech_approaching = approaching(
-            robot, person, str(body["velocity"]), self.speech_grid, body.get("people")
-        )
+        self.warner.observe(json.loads(text))
         self.speech_check()
 
     def speech_check(self) -> None:
         if self.speaker is not None:
             self.speaker.poll(self.now_s)
         speaking = self.speaker is not None and self.speaker.speaking
-        decision = self.gate.update(
-            self.now_s, self.speech_robot, self.speech_person, speaking, self.speech_approaching
-        )
+        decision = self.warner.decide(self.now_s, speaking)
         if decision == "say":
             self.publish(topic.SPEECH_WARNING, self.speaker.config.warning if self.speaker else "")
             if self.speaker is not None:

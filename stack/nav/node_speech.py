@@ -1,8 +1,10 @@
 """The speech node: warns a person who is in a restricted cell with the robot (thesis
-3.2.2 and 4.4), while they are there, and reports when it has finished.
+3.2.2 and 4.4), or walking into it, while they are there, and reports when it has
+finished.
 
-When to speak is :class:`stack.nav.speech.WarningGate`: the robot's and the person's
-cells (the observations node's fused view) are the same restricted cell, or were
+When to speak is :class:`stack.nav.speech.WarningReactor` (the in-process loop runs
+the same): the robot's and the person's cells (the observations node's fused view)
+are the same restricted cell, or the person walks into it from the next cell, or did
 within ``grace_s``; a warning playing after that is cut short; nothing is queued.
 
 Subscribes (names are parameters):
@@ -37,14 +39,7 @@ from vigil_interfaces.msg import PersonObservation, SpeechDone, Warning
 import stack.topics as topic
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
-from stack.nav.speech import (
-    Speaker,
-    SpeechError,
-    SpeechEvent,
-    WarningGate,
-    approaching,
-    person_to_warn,
-)
+from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningReactor
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_msgs import observation_from_msg, speech_done_to_msg, warning_to_msg
@@ -79,12 +74,7 @@ class SpeechNode(Node):
         if voice:
             config = replace(config, voice=voice)
         self.config = config
-        self.person_cell: int | None = None
-        self.robot_cell: int | None = None
-        self.approaching = False
-        self.gate = WarningGate(
-            config.restricted_cells, config.grace_s, config.repeat_s, config.confirm_s
-        )
+        self.warner = WarningReactor(self.grid, config)
         self.speaker: Speaker | None = None
         self.speaker_error = ""
         try:
@@ -112,17 +102,12 @@ class SpeechNode(Node):
     def on_observation(self, msg: PersonObservation) -> None:
         try:
             body = observation_from_msg(msg)
-            robot, person = body["robot"], body["person"]
-        except ValueError as exc:
+            self.warner.observe(body)
+        except (ValueError, KeyError) as exc:
             self.get_logger().warning(
                 f"ignoring a malformed observation: {exc}", throttle_duration_sec=5.0
             )
             return
-        self.robot_cell = int(robot) if robot.isdigit() else None
-        self.person_cell = person_to_warn(robot, person, body.get("people"))
-        self.approaching = approaching(
-            robot, person, body["velocity"], self.grid, body.get("people")
-        )
         self.check()
 
     def check(self) -> None:
@@ -130,15 +115,14 @@ class SpeechNode(Node):
             for event in self.speaker.poll(self.now_s()):
                 self.publish_event(event)
         speaking = self.speaker is not None and self.speaker.speaking
-        decision = self.gate.update(
-            self.now_s(), self.robot_cell, self.person_cell, speaking, self.approaching
-        )
+        w = self.warner
+        decision = w.decide(self.now_s(), speaking)
         if decision == "say":
-            how = "walking into" if self.person_cell != self.robot_cell else "in"
-            self.get_logger().info(f"person {how} restricted cell {self.robot_cell}: warning")
+            how = "walking into" if w.person_cell != w.robot_cell else "in"
+            self.get_logger().info(f"person {how} restricted cell {w.robot_cell}: warning")
             self._warnings += 1
             self.warning_pub.publish(
-                warning_to_msg(self.config.warning, self._warnings, self.person_cell, self.now_s())
+                warning_to_msg(self.config.warning, self._warnings, w.person_cell, self.now_s())
             )
             self.say(None)
         elif decision == "stop" and self.speaker is not None:

@@ -23,8 +23,10 @@ import subprocess
 import time
 import wave
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from stack.cells import MOVING_DIRECTIONS, CellGrid
 from stack.nav.config import SpeechConfig
@@ -441,6 +443,42 @@ def approaching(
         if heading is not None and grid.neighbour(int(cell), heading) == here:
             return True
     return False
+
+
+class WarningReactor:
+    """The speech node's decisions without ROS (the node and the in-process loop both
+    run this): observation records in (:meth:`observe`, the observations node's JSON
+    object), "say" / "stop" / None out (:meth:`decide`).
+
+    Args:
+        grid: the task's cells.
+        config: the speech section (restricted cells, the gate's times).
+    """
+
+    def __init__(self, grid: CellGrid, config: SpeechConfig):
+        self.grid = grid
+        self.gate = WarningGate(
+            config.restricted_cells, config.grace_s, config.repeat_s, config.confirm_s
+        )
+        self.robot_cell: int | None = None
+        self.person_cell: int | None = None  # the person to warn (:func:`person_to_warn`)
+        self.approaching = False  # someone walks into the robot's cell (:func:`approaching`)
+
+    def observe(self, body: Mapping[str, Any]) -> None:
+        """Take one observation record (``robot``, ``person``, ``velocity`` labels and,
+        with several people, ``people``)."""
+        robot, person = str(body["robot"]), str(body["person"])
+        self.robot_cell = int(robot) if robot.isdigit() else None
+        self.person_cell = person_to_warn(robot, person, body.get("people"))
+        self.approaching = approaching(
+            robot, person, str(body.get("velocity", "")), self.grid, body.get("people")
+        )
+
+    def decide(self, now_s: float, speaking: bool) -> str | None:
+        """:meth:`WarningGate.update` on the latest observation."""
+        return self.gate.update(
+            now_s, self.robot_cell, self.person_cell, speaking, self.approaching
+        )
 
 
 class WarningGate:
