@@ -145,6 +145,9 @@ class GuardTask(control.Task):
         render: render the camera image at its instants; False: only its stamp moves
             (a model of the camera pipeline draws the detections from the truth,
             :mod:`stack.perception.model`).
+        reward: compute the reward table's value at every step; False: 0.0 (the
+            in-process loop scores runs from the trace, and the reward's ground truth
+            at 50 Hz was a tenth of its time).
     """
 
     def __init__(
@@ -156,9 +159,11 @@ class GuardTask(control.Task):
         tail_s: float = 5.0,
         odom_rate_hz: float = 25.0,
         render: bool = True,
+        reward: bool = True,
     ):
         super().__init__()
         self.render = bool(render)
+        self.reward = bool(reward)
         if not decision_step_s > 0 or not tail_s >= 0 or not odom_rate_hz > 0:
             raise ConfigError(
                 "decision_step_s/tail_s/odom_rate_hz",
@@ -213,6 +218,8 @@ class GuardTask(control.Task):
         return OrderedDict((k, v.copy() if v.ndim == 0 else v) for k, v in self._obs.items())
 
     def get_reward(self, physics: TwinPhysics) -> float:
+        if not self.reward:
+            return 0.0
         return self.reward_of(physics.twin, physics.command) * (
             physics.timestep() / self.decision_step_s
         )
@@ -276,6 +283,7 @@ def make_environment(
     odom_rate_hz: float = 25.0,
     time_limit_s: float = float("inf"),
     render: bool = True,
+    reward: bool = True,
 ) -> GuardEnvironment:
     """The twin as a ``dm_env.Environment`` (one step = one twin control period).
 
@@ -283,7 +291,8 @@ def make_environment(
         config: the twin's scene (with the person's script).
         model: the task model (rewards, grid).
         seed: the twin's noise seed.
-        outages, decision_step_s, tail_s, odom_rate_hz, render: see :class:`GuardTask`.
+        outages, decision_step_s, tail_s, odom_rate_hz, render, reward: see
+            :class:`GuardTask`.
         time_limit_s: an upper bound on the episode (the script's end comes first).
 
     Raises:
@@ -291,7 +300,7 @@ def make_environment(
     """
     twin = Twin(config, seed=seed)
     physics = TwinPhysics.of_twin(twin)
-    task = GuardTask(model, seed, outages, decision_step_s, tail_s, odom_rate_hz, render)
+    task = GuardTask(model, seed, outages, decision_step_s, tail_s, odom_rate_hz, render, reward)
     return GuardEnvironment(physics, task, time_limit=time_limit_s, n_sub_steps=1)
 
 

@@ -235,6 +235,7 @@ class InProcessSystem:
             odom_rate_hz=float(bp["odom_rate_hz"]),
             time_limit_s=max_sim_s,
             render=perception == "rendered",
+            reward=False,  # scored from the trace (vigil.report), as a ROS run is
         )
         twin = self.env.twin
         occ = twin.occupancy_map()

@@ -161,7 +161,7 @@ class CameraVisibility:
     # -- projection --------------------------------------------------------------
     def _project(self, pts: np.ndarray) -> np.ndarray | None:
         """(N, 3) map points to (N, 2) raster pixels; None if any is behind the camera."""
-        q = np.c_[pts, np.ones(len(pts))] @ self.P.T
+        q = np.column_stack((pts, np.ones(len(pts)))) @ self.P.T
         if np.any(q[:, 2] <= 1e-6):
             return None
         return q[:, :2] / q[:, 2:3] * self._scale
@@ -176,7 +176,8 @@ class CameraVisibility:
         for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes:
             corners = np.array([[x, y] for x in (x0, x1) for y in (y0, y1)])
             xy = pose.transform(corners)
-            pts = np.r_[np.c_[xy, np.full(4, z0)], np.c_[xy, np.full(4, z1)]]
+            pts = np.empty((8, 3))
+            pts[:4, :2], pts[4:, :2], pts[:4, 2], pts[4:, 2] = xy, xy, z0, z1
             px = self._project(pts)
             if px is not None:
                 self._fill(mask, px)
