@@ -185,3 +185,23 @@ def test_an_episode_of_two_walkers_lasts_until_the_last_one_has_stopped(model):
         assert env.twin.time_s == pytest.approx(3.5, abs=0.05)  # not 1.25 + 0.5
     finally:
         env.close()
+
+
+def test_the_twin_renders_headless_without_mujoco_gl_in_the_environment():
+    """A study's worker (or any command) that imports the twin with no MUJOCO_GL set
+    gets EGL: before, `bench/bench_fidelity.py` run without MUJOCO_GL=egl failed every
+    rendered episode with "gladLoadGL error" (GLFW, no display)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    code = "import twin.env, os; print(os.environ['MUJOCO_GL'], os.environ['PYOPENGL_PLATFORM'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True, cwd=str(REPO))  # fmt: skip
+    assert out.stdout.split() == ["egl", "egl"]
+    env["MUJOCO_GL"] = "glfw"  # a user's choice stands
+    code = "import twin, os; print(os.environ['MUJOCO_GL'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True, cwd=str(REPO))  # fmt: skip
+    assert out.stdout.strip() == "glfw"

@@ -183,8 +183,8 @@ def test_the_reactor_reads_observation_records_as_the_node_and_the_loop_do():
     w.observe({"robot": "1", "person": "No person", "velocity": "Not moving"})
     assert w.person_cell is None and not w.approaching
     assert w.decide(4.0, True) == "stop"  # still speaking 3.4 s after: cut short
-    two = {"robot": "1", "person": "7", "velocity": "East higher",
-           "people": [{"person": "7", "velocity": "East higher"}, {"person": "1", "velocity": "Not moving"}]}  # fmt: skip
+    people = [{"person": "7", "velocity": "East higher"}, {"person": "1", "velocity": "Not moving"}]
+    two = {"robot": "1", "person": "7", "velocity": "East higher", "people": people}
     w.observe(two)
     assert w.person_cell == 1  # whoever is in the robot's cell
     with pytest.raises(KeyError):
