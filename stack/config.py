@@ -223,18 +223,30 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def read_section(path: str | Path | None, section: str) -> Mapping[str, Any]:
+def read_section(
+    path: str | Path | None, section: str, parent: str | None = None
+) -> Mapping[str, Any]:
     """The raw ``section`` mapping of a YAML file ({} when the path is empty or the
-    section absent), for a node that validates it with its Config class.
+    section absent), for a node that validates it with its Config class. With
+    ``parent``, a file that has a ``parent`` mapping (a deployment file, whose
+    ``hardware:`` holds the hardware nodes' sections) is read there, so a node started
+    on its own reads the same section as the launcher gives it; other files at the top.
 
     Raises:
         ConfigError: unreadable file, not a mapping, or the section not a mapping.
     """
     if not path:
         return {}
-    sect = read_yaml(path).get(section) or {}
+    data = read_yaml(path)
+    key = section
+    if parent is not None and parent in data:
+        holder = data[parent]
+        if not isinstance(holder, Mapping):
+            raise ConfigError(parent, holder, "must be a mapping")
+        data, key = holder, f"{parent}.{section}"
+    sect = data.get(section) or {}
     if not isinstance(sect, Mapping):
-        raise ConfigError(section, sect, "must be a mapping")
+        raise ConfigError(key, sect, "must be a mapping")
     return sect
 
 

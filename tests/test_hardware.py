@@ -558,3 +558,37 @@ def test_camera_stream_node_keeps_running_without_a_stream(ros, tmp_path):
             node.destroy_node()
     with pytest.raises(ConfigError, match="camera_stream.url"):
         CameraStreamNode()
+
+
+@needs_ros
+@pytest.mark.ros
+def test_standalone_nodes_read_the_deployment_file_as_the_launcher_gives_it(ros, tmp_path):
+    """docs/HARDWARE.md starts the gate and the stream on their own with
+    ``config_file:=config/hardware.yaml``, whose sections sit under ``hardware:``;
+    before, they read top-level sections, found none and ran on built-in defaults. Now a
+    node started on its own and one started by ``vigil launch`` (which writes
+    ``hardware:`` to the run folder) hold the same configuration, and it is the file's."""
+    import yaml
+
+    from stack.hardware.node_camera_stream import CameraStreamNode
+    from vigil.run import REPO
+
+    data = yaml.safe_load((REPO / "config" / "hardware.yaml").read_text())
+    data["hardware"]["velocity_gate"]["max_linear_mps"] = 0.25  # not the default 0.3
+    deployment = tmp_path / "deployment.yaml"
+    deployment.write_text(yaml.safe_dump(data))
+    hw = data["hardware"]
+    launched = tmp_path / "hardware.yaml"  # what vigil.system writes for the launcher
+    launched.write_text(yaml.safe_dump(hw))
+    gates = [VelocityGateNode(parameter_overrides=[Parameter("config_file", value=str(f))])
+             for f in (deployment, launched)]  # fmt: skip
+    streams = [CameraStreamNode(parameter_overrides=[Parameter("config_file", value=str(f))])
+               for f in (deployment, launched)]  # fmt: skip
+    try:
+        assert gates[0].config == gates[1].config
+        assert gates[0].config.max_linear_mps == 0.25 != GateConfig().max_linear_mps
+        assert streams[0].config == streams[1].config
+        assert streams[0].config.url == hw["camera_stream"]["url"]
+    finally:
+        for node in (*gates, *streams):
+            node.destroy_node()

@@ -17,7 +17,8 @@ Publishes (names are parameters):
         without credentials); on every change and once a second.
 
 Parameters: ``config_file`` (YAML with a ``camera_stream:`` section, keys as
-:class:`StreamConfig`); each key of that section is also a parameter (``url``,
+:class:`StreamConfig`: the deployment file's ``hardware.camera_stream``, or a file with
+the section at its top); each key of that section is also a parameter (``url``,
 ``rate_hz``, ``width_px``, ``height_px``, ``reconnect_s``, ``frozen_after_frames``,
 ``open_timeout_s``) whose value overrides the file's; ``frame_id``
 (``camera_optical_frame``, the optical frame of :mod:`stack.tf`), ``camera_info_file``,
@@ -59,7 +60,7 @@ class CameraStreamNode(Node):
         super().__init__("camera_stream", **kwargs)
         p = self.declare_parameter
         v = declare(self, config_file="", frame_id=tf.CAMERA_OPTICAL, camera_info_file="")
-        section = read_section(v.config_file, "camera_stream")
+        section = read_section(v.config_file, "camera_stream", parent="hardware")
         # the file's values, checked, are the parameters' defaults (the url may be given
         # as a parameter only); the parameters are checked again
         url = section.get("url", "")

@@ -33,7 +33,8 @@ monotonic clock, whatever ``use_sim_time`` says. On SIGINT/SIGTERM the node publ
 a last zero and waits (up to 0.5 s) for the driver to acknowledge it.
 
 Parameters: ``config_file`` (YAML with a ``velocity_gate:`` section, keys as
-:class:`GateConfig`); each key of that section is also a read-only parameter
+:class:`GateConfig`: the deployment file's ``hardware.velocity_gate``, or a file with the
+section at its top); each key of that section is also a read-only parameter
 (``max_linear_mps``, ``max_angular_radps``, ``cmd_timeout_s``, ``require_arming``) whose
 value overrides the file's; ``armed`` (default false; true when ``require_arming`` is
 false), ``rate_hz`` (20, the stale check and the heartbeat), the topics above.
@@ -77,7 +78,7 @@ class VelocityGateNode(Node):
         super().__init__("velocity_gate", **kwargs)
         p = self.declare_parameter
         v = declare(self, config_file="", rate_hz=20.0)
-        section = read_section(v.config_file, "velocity_gate")
+        section = read_section(v.config_file, "velocity_gate", parent="hardware")
         read_only = ParameterDescriptor(read_only=True)
         start = GateConfig.from_dict(section, "velocity_gate")  # the file, checked
         values = {
