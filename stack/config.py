@@ -237,7 +237,7 @@ def read_section(
     """
     if not path:
         return {}
-    data = read_yaml(path)
+    data: Mapping[str, Any] = read_yaml(path)
     key = section
     if parent is not None and parent in data:
         holder = data[parent]
