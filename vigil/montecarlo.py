@@ -116,6 +116,7 @@ def run_episode(
         "n_needless_trips": m.get("n_needless_trips", 0),
         "timely_warnings": m["timely_warnings"],
         "late_warnings": m["late_warnings"],
+        "approach_warnings": m.get("approach_warnings", 0),
         "warning_leads_s": [
             v["warning_lead_s"] for v in m["visits"] if v.get("warning_lead_s") is not None
         ],

@@ -101,6 +101,7 @@ def summarise(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "mean_warning_lead_ci95_s": [r(l_lo, 2), r(l_hi, 2)],
         "timely_warnings": sum(e["timely_warnings"] for e in ok),
         "late_warnings": sum(e["late_warnings"] for e in ok),
+        "approach_warnings": sum(e.get("approach_warnings", 0) for e in ok),
         "sim_s": round(sum(e.get("sim_s", 0.0) for e in ok), 1),
         "wall_s_per_episode": r(float(np.mean([e.get("wall_s", 0.0) for e in ok])), 2)
         if ok
@@ -175,7 +176,8 @@ def summary_markdown(s: dict[str, Any], title: str) -> str:
         f"{_ci(s.get('mean_warning_lead_ci95_s') or [None], '{:.1f} s')} | first warning "
         "before (> 0) or after (< 0) the entry (bootstrap) |",
         f"| visits abandoned | {s['abandoned']} | | |",
-        f"| warnings timely / late | {s['timely_warnings']} / {s['late_warnings']} | | |",
+        f"| warnings timely / late | {s['timely_warnings']} / {s['late_warnings']} | | "
+        f"{s['approach_warnings']} of the timely to a person next to the guarded cell |",
         f"| episodes with a sensor outage | {s['episodes_with_fault']} | | |",
         f"| failed episodes | {s['failed_episodes']} | | |",
         "",
