@@ -21,7 +21,7 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, BinaryIO, ClassVar, TypeVar
+from typing import IO, Any, BinaryIO, ClassVar, TypeVar
 
 from stack.cells import ConfigError
 
@@ -164,6 +164,49 @@ def open_regular(path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES) -> Bi
     except BaseException:
         os.close(fd)
         raise
+
+
+def open_write(path: str | os.PathLike, mode: str = "w", encoding: str | None = None) -> IO[Any]:
+    """Open a file the program writes: ``"w"``/``"wb"`` create or truncate it,
+    ``"a"``/``"ab"`` create or append; never through a symbolic link (a link at
+    ``path``, left there by mistake or by someone else, is an OSError naming it, not a
+    write to wherever it points). Text modes default to UTF-8.
+
+    Raises:
+        OSError: ``path`` is a symbolic link (ELOOP), a folder, or cannot be written.
+        ValueError: a mode other than these four.
+    """
+    if mode not in ("w", "wb", "a", "ab"):
+        raise ValueError(f"open_write mode {mode!r}: one of w, wb, a, ab")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
+    flags |= os.O_APPEND if mode.startswith("a") else os.O_TRUNC
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OSError(
+                errno.ELOOP, "is a symbolic link: not written through", str(path)
+            ) from None
+        raise
+    try:
+        if "b" in mode:
+            return os.fdopen(fd, mode)
+        return os.fdopen(fd, mode, encoding=encoding or "utf-8")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def write_text(path: str | os.PathLike, text: str, encoding: str | None = None) -> None:
+    """``Path.write_text`` through :func:`open_write` (no symbolic link followed)."""
+    with open_write(path, "w", encoding) as f:
+        f.write(text)
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """``Path.write_bytes`` through :func:`open_write` (no symbolic link followed)."""
+    with open_write(path, "wb") as f:
+        f.write(data)
 
 
 def read_bytes_capped(path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES) -> bytes:

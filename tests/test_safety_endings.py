@@ -266,8 +266,8 @@ LAUNCH = textwrap.dedent(
     nodes = {"sleeper": sys.argv[3], "other": sys.argv[2]}
     specs = [ProcessSpec(n, "", restart=False, command=[sys.executable, "-u", "-c", c])
              for n, c in nodes.items()]
-    dep = SimpleNamespace(mode="hardware", ros=SimpleNamespace(domain_id=-1),
-                          nodes=SimpleNamespace(max_restarts=3, stop_timeout_s=5.0))
+    nodes = SimpleNamespace(max_restarts=3, stop_timeout_s=5.0, restart_delay_s=0.0)
+    dep = SimpleNamespace(mode="hardware", ros=SimpleNamespace(domain_id=-1), nodes=nodes)
 
     def prepare(*args, **kwargs):
         out.mkdir()

@@ -113,3 +113,45 @@ def test_a_kill_fault_naming_an_unknown_node_is_refused():
     for node in KILLABLE:
         data["faults"] = [{"kind": "kill", "node": node, "after_step": 3}]
         assert parse_scenario(data, None).faults[0].node == node
+
+
+@pytest.mark.parametrize("mode", ["w", "wb", "a", "ab"])
+def test_a_file_the_program_writes_is_never_written_through_a_link(tmp_path, mode):
+    """Issue 23: every file vigil creates or truncates is opened without following a
+    symbolic link (stack.config.open_write, used by every writer: run folders, reports,
+    policies, maps, logs). A link where a file is to be written, pointing at a user's
+    file, is refused naming it, and the user's file is unchanged."""
+    from stack.config import open_write, write_bytes, write_text
+
+    precious = tmp_path / "thesis.tex"
+    precious.write_text("years of work")
+    link = tmp_path / "summary.json"
+    link.symlink_to(precious)
+    with pytest.raises(OSError, match="symbolic link"):
+        open_write(link, mode)
+    with pytest.raises(OSError, match="symbolic link"):
+        write_text(link, "{}")
+    with pytest.raises(OSError, match="symbolic link"):
+        write_bytes(link, b"{}")
+    assert precious.read_text() == "years of work"
+    # a plain path: created, truncated, appended as asked
+    plain = tmp_path / "log.txt"
+    with open_write(plain, mode) as f:
+        f.write(b"one\n" if "b" in mode else "one\n")
+    with open_write(plain, mode) as f:
+        f.write(b"two\n" if "b" in mode else "two\n")
+    assert plain.read_text() == ("one\ntwo\n" if mode.startswith("a") else "two\n")
+    with pytest.raises(ValueError, match="mode"):
+        open_write(plain, "r+")
+
+
+def test_the_report_is_not_written_through_a_link_in_the_run_folder(tmp_path):
+    """The writers use it: a summary.json link planted in a run folder is refused."""
+    from vigil.report.html import write_index
+
+    precious = tmp_path / "notes.txt"
+    precious.write_text("mine")
+    (tmp_path / "index.html").symlink_to(precious)
+    with pytest.raises(OSError, match="symbolic link"):
+        write_index(tmp_path, "run", {})
+    assert precious.read_text() == "mine"

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import stack.topics as topic
+from stack.config import write_text
 
 REPO = Path(__file__).resolve().parents[1]
 VICTIMS = (
@@ -273,7 +274,7 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     data = yaml.safe_load(source.read_text())
     task = (source.parent / data["task"]).resolve()
     data.update(name="chaos", steps=steps, task=str(task))
-    (folder / "chaos.yaml").write_text(yaml.safe_dump(data))
+    write_text(folder / "chaos.yaml", yaml.safe_dump(data))
     config = yaml.safe_load((REPO / "config" / "twin.yaml").read_text())
     config["twin"].update(stall_timeout_s=1.0, stall_abort_s=120.0)
     config["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
@@ -282,5 +283,5 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     # its commands, so the base's own timeout is what stops it, on any machine
     config["nodes"].update(max_restarts=100, restart_delay_s=3.0)
     config["task"] = str(task)
-    (folder / "dep.yaml").write_text(yaml.safe_dump(config))
+    write_text(folder / "dep.yaml", yaml.safe_dump(config))
     return folder / "chaos.yaml", folder / "dep.yaml"

@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 import stack.topics as topic
+from stack.config import write_text
 from vigil.launch import DEFAULT_RESUME_MAX_AGE_S
 from vigil.replay import replay_json, replay_markdown, run_replay
 from vigil.solving import (
@@ -219,7 +220,7 @@ def cmd_main(args: argparse.Namespace) -> int:
             + bounds_line(result.summary())
             + f"; simulated return {ev.mean:.2f} +- {ev.ci95:.2f}"
         )
-    (out / "replay.md").write_text("# Chapter 5 replayed\n\n" + replay_markdown(results))
+    write_text(out / "replay.md", "# Chapter 5 replayed\n\n" + replay_markdown(results))
     summary["replay"] = replay_json(results)
     summary["agreement"] = sum(r.agreement for r in results)
     summary["agreement_with_ties"] = sum(r.agreement_with_ties for r in results)
@@ -227,7 +228,7 @@ def cmd_main(args: argparse.Namespace) -> int:
     for r in results:
         model = solved[r.table.task][0]
         plot_replay(model, r, out / f"table-{r.table.name}.png")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_text(out / "summary.json", json.dumps(summary, indent=2))
     print(
         f"replay agreement {summary['agreement']}/{summary['steps']} "
         f"({summary['agreement_with_ties']} counting ties)"

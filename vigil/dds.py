@@ -32,6 +32,7 @@ from pathlib import Path
 from xml.sax.saxutils import escape
 
 from stack.cells import ConfigError
+from stack.config import write_text
 
 PROFILE_FILE = "fastdds.xml"
 # participants per host and domain that find each other: Fast DDS sends its unicast
@@ -104,7 +105,7 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
 def write_profile(folder: Path, addresses: list[str] | tuple[str, ...] = ()) -> Path:
     """Write :func:`profile_xml` into ``folder``; returns its path."""
     path = Path(folder) / PROFILE_FILE
-    path.write_text(profile_xml(addresses))
+    write_text(path, profile_xml(addresses))
     return path
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
+from stack.config import write_text
 from vigil.report import write_report
 from vigil.report.metrics import set_totals
 from vigil.report.tables import set_markdown
@@ -176,13 +177,13 @@ def write_set(
     rows = [(e["scenario"], e["metrics"], e["error"]) for e in entries]
     ok = [e["metrics"] for e in entries if e["metrics"] is not None]
     record = {"scenarios": list(entries), "totals": set_totals(ok)}
-    (out / "experiments.json").write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+    write_text(out / "experiments.json", json.dumps(record, indent=2, sort_keys=True) + "\n")
     plot_set(
         out / "experiments.png",
         [(n, m) for n, m, _ in rows],
         title=f"{len(entries)} scenarios from {out}",
     )
-    (out / "experiments.md").write_text(set_section(entries, "experiments.png"))
+    write_text(out / "experiments.md", set_section(entries, "experiments.png"))
     if say is not None:
         say(f"[experiments] wrote {out}/experiments.md, experiments.json, experiments.png")
     return record
@@ -244,5 +245,5 @@ def write_docs(doc: str | Path, out: str | Path, label: str, heading: str = "") 
     figure.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(out / "experiments.png", figure)
     body = set_section(entries, figure.relative_to(doc.parent).as_posix())
-    doc.write_text(update_marked_section(doc.read_text(), label, body, heading))
+    write_text(doc, update_marked_section(doc.read_text(), label, body, heading))
     return doc

@@ -21,6 +21,8 @@ from typing import BinaryIO
 
 import numpy as np
 
+from stack.config import open_write
+
 FRAMES_FILE = "camera_frames.bin"
 MAGIC = b"VGLFRM1\n"
 _HEADER = struct.Struct("<dI")
@@ -50,7 +52,7 @@ class FrameWriter:
         self._params = [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
         self.path = Path(path)
         new = not self.path.exists() or self.path.stat().st_size == 0
-        self._f: BinaryIO | None = open(self.path, "ab")
+        self._f: BinaryIO | None = open_write(self.path, "ab")
         if new:
             self._f.write(MAGIC)
         self.frames = 0

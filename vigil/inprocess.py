@@ -54,6 +54,7 @@ import numpy as np
 
 import stack.topics as topic
 from stack.cells import ConfigError
+from stack.config import open_write, write_text
 from stack.geometry import Pose2D
 from stack.hardware.base_watchdog import BaseWatchdog
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
@@ -286,7 +287,7 @@ class InProcessSystem:
             rng = np.random.default_rng([int(bp["seed"]), MODEL_STREAM])
             self.model_camera = ModelCamera(perception_model, visibility, rng)
         else:
-            self.detections = open(self.run_dir / DETECTIONS_FILE, "w")
+            self.detections = open_write(self.run_dir / DETECTIONS_FILE, "w")
         self.obs_camera = None
         self.obs_tracks: tuple = ()
         self.obs_pose: Pose2D | None = None
@@ -311,7 +312,7 @@ class InProcessSystem:
             self.say(f"[inprocess] speech disabled: {exc}")
 
         # -- recorder ---------------------------------------------------------------------
-        self.trace = open(self.run_dir / "trace.jsonl", "w")
+        self.trace = open_write(self.run_dir / "trace.jsonl", "w")
         self.frames = None
         self._images: dict[float, np.ndarray] = {}
         if video:
@@ -347,7 +348,7 @@ class InProcessSystem:
             _Timer(SPEECH_POLL_S, self.speech_on_timer),
             _Timer(0.1, lambda: self._planner_run(self.steps.tick(self.now_s))),
         ]
-        self.steps_file.write_text("")
+        write_text(self.steps_file, "")
         self.now_s = 0.0
 
     # -- the message queue ----------------------------------------------------------------
@@ -579,7 +580,7 @@ class InProcessSystem:
                 self.publish(topic.OBSERVATIONS_REQUEST, None)
             elif c.kind == "record" and c.record is not None:
                 self.n_steps += 1
-                with open(self.steps_file, "a") as f:
+                with open_write(self.steps_file, "a") as f:
                     f.write(json.dumps(c.record, sort_keys=True) + "\n")
                 o = c.record["observation"]
                 self.say(
@@ -724,7 +725,7 @@ def run_inprocess(
         "done": result.done,
         "perception": perception,
     }
-    (run_dir / "inprocess.json").write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
+    write_text(run_dir / "inprocess.json", json.dumps(info, indent=2, sort_keys=True) + "\n")
     if not report:
         return {"inprocess": info}
     from vigil.report import write_report

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from stack.config import open_write
 from stack.exits import EXIT_DISK_FULL
 from stack.lockstep import RUN_ID_ENV
 from vigil.processes import ProcessSpec
@@ -104,7 +105,7 @@ class Launcher:
 
     def _spawn(self, spec: ProcessSpec, restarts: int = 0) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        log = open(self.log_dir / f"{spec.name}.log", "a")
+        log = open_write(self.log_dir / f"{spec.name}.log", "a")
         if restarts:
             log.write(f"\n--- restart {restarts} ---\n")
             log.flush()

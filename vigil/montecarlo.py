@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import ConfigError
+from stack.config import write_text
 from stack.planning.task import load_task
 from vigil.scenario import Scenario
 from vigil.study_stats import (  # noqa: F401 - the study's statistics, re-exported
@@ -125,7 +126,7 @@ def run_episode(
         "wall_s": round(time.monotonic() - t0, 2),
     }
     # the record beside the episode's raw files: a study stopped half-way keeps it
-    (Path(out_dir) / "episode.json").write_text(json.dumps(record, sort_keys=True) + "\n")
+    write_text(Path(out_dir) / "episode.json", json.dumps(record, sort_keys=True) + "\n")
     return record
 
 
@@ -353,11 +354,11 @@ def run_study(
         "worst": [e["episode"] for e in worst_episodes(eps)],
         "episodes": eps,
     }
-    (out / "montecarlo.json").write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+    write_text(out / "montecarlo.json", json.dumps(record, indent=2, sort_keys=True) + "\n")
     source = what if task_path is None else f"{Path(task_path).stem}, {what.split(' of ')[0]}"
     title = f"Monte Carlo: {source}" + (f", seed {seed}" if task_path is not None else "")
     text = summary_markdown(summary, title) + _worst_markdown(eps)
-    (out / "montecarlo.md").write_text(text)
+    write_text(out / "montecarlo.md", text)
     plot_study(out / "montecarlo.png", eps, summary, title)
     say(f"[montecarlo] {summary['sim_s']:.0f} s simulated in {record['wall_s']:.0f} s wall")
     say(f"[montecarlo] {out}/montecarlo.md, montecarlo.json, montecarlo.png")

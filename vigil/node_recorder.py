@@ -32,6 +32,7 @@ from sensor_msgs.msg import Image
 from vigil_interfaces.msg import CameraPerson, LegTracks, SpeechDone, TwinTruth, Warning
 
 import stack.topics as topic
+from stack.config import open_write
 from stack.perception.errors import BadFrameError
 from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
 from stack.ros_lockstep import Participant
@@ -76,7 +77,7 @@ class RecorderNode(Node):
         )
         out_dir, video, quality = Path(v.out_dir), v.video, v.jpeg_quality
         out_dir.mkdir(parents=True, exist_ok=True)
-        self.trace = open(out_dir / TRACE_FILE, "a")
+        self.trace = open_write(out_dir / TRACE_FILE, "a")
         self.frames = FrameWriter(out_dir / FRAMES_FILE, quality) if video else None
         self.images: dict[float, object] = {}
         self.truth: dict | None = None

@@ -35,7 +35,7 @@ from typing import Any
 
 import yaml
 
-from stack.config import load_yaml, read_text_capped
+from stack.config import load_yaml, read_text_capped, write_text
 from vigil.bag import BAG_DIR, ReplayError, fresh_path, read_recording
 
 REPLAYED = ("observations", "planner")  # the nodes re-run from the bag
@@ -265,8 +265,9 @@ def replay_run(
     params = replay_params(run_dir, out_dir)  # checks the run before anything is written
     out_dir.mkdir(parents=True, exist_ok=True)
     params_file = out_dir / "params.yaml"
-    params_file.write_text(
-        yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=True)
+    write_text(
+        params_file,
+        yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=True),
     )
     run_id = "replay-" + uuid.uuid4().hex[:8]
     claim = claim_domain()
@@ -312,9 +313,10 @@ def replay_run(
     if launcher.failures:
         raise ReplayError("a replayed node failed: " + "; ".join(launcher.failures))
     cmp = compare_steps(recorded, read_steps(out_dir / "steps.jsonl"))
-    (out_dir / "replay.md").write_text(
+    write_text(
+        out_dir / "replay.md",
         f"# Replay of {run_dir.name} from its bag\n\n"
         + (f"Note: {note}\n\n" if note else "")
-        + comparison_markdown(cmp)
+        + comparison_markdown(cmp),
     )
     return ReplayResult(out_dir, cmp, fed, time.monotonic() - t0, note)

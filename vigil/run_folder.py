@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 
 from stack.cells import ConfigError
+from stack.config import write_text
 
 RUN_MARK = ".vigil-run"  # written first into every run folder vigil makes
 MAX_NUMBERED = 1000
@@ -43,5 +44,5 @@ def fresh_run_dir(run_dir: Path, run_id: str) -> Path:
         else:
             raise ConfigError("--out", str(run_dir), f"{MAX_NUMBERED} numbered runs exist")
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / RUN_MARK).write_text(json.dumps({"run_id": run_id, "pid": os.getpid()}) + "\n")
+    write_text(run_dir / RUN_MARK, json.dumps({"run_id": run_id, "pid": os.getpid()}) + "\n")
     return run_dir

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import stack.topics as topic
 from stack.cells import ConfigError
+from stack.config import write_text
 
 ENCLAVE_ROOT = "/vigil"
 BASE_TOPIC = topic.CMD_VEL
@@ -201,7 +202,7 @@ def create_keystore(
             "-signer", str(ca_cert), "-inkey", str(ca_key),
         )  # fmt: skip
 
-    (encl / "governance.xml").write_text(governance_xml(domain_id))
+    write_text(encl / "governance.xml", governance_xml(domain_id))
     sign(encl / "governance.xml", encl / "governance.p7s")
     names = []
     for enclave, grant in enclaves(base_topic).items():
@@ -218,7 +219,7 @@ def create_keystore(
         )  # fmt: skip
         csr.unlink()
         perms = d / "permissions.xml"
-        perms.write_text(permissions_xml(enclave, grant, domain_id, base_topic))
+        write_text(perms, permissions_xml(enclave, grant, domain_id, base_topic))
         sign(perms, d / "permissions.p7s")
         for link, target in (
             ("identity_ca.cert.pem", public / "ca.cert.pem"),

@@ -34,7 +34,14 @@ import numpy as np
 import yaml
 from scipy import ndimage
 
-from stack.config import load_yaml, open_regular, read_bytes_capped, read_text_capped
+from stack.config import (
+    load_yaml,
+    open_regular,
+    read_bytes_capped,
+    read_text_capped,
+    write_bytes,
+    write_text,
+)
 
 FREE = 0
 OCCUPIED = 100
@@ -248,7 +255,7 @@ def save_map_yaml(
     img[occ_map.data >= 50] = 0
     img = img[::-1]  # image rows run southwards
     h, w = img.shape
-    pgm.write_bytes(f"P5\n{w} {h}\n255\n".encode() + img.tobytes())
+    write_bytes(pgm, f"P5\n{w} {h}\n255\n".encode() + img.tobytes())
     meta = {
         "image": pgm.name,
         "resolution": occ_map.resolution_m,
@@ -258,7 +265,7 @@ def save_map_yaml(
         "free_thresh": float(free_thresh),
         "mode": "trinary",
     }
-    yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+    write_text(yaml_path, yaml.safe_dump(meta, sort_keys=False))
     return yaml_path
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import MOVING_DIRECTIONS, CellGrid
+from stack.config import open_write, write_text
 from stack.nav.config import SpeechConfig
 
 
@@ -257,7 +258,7 @@ class Speaker:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             log = self.out_dir / self.LOG_NAME
             if not log.exists():
-                log.write_text("time_s\tvoice\tduration_s\twav\ttext\n")
+                write_text(log, "time_s\tvoice\tduration_s\twav\ttext\n")
         self._queue: deque[_Request] = deque()
         self._current: _Request | None = None
         self._current_utt: Utterance | None = None
@@ -382,7 +383,7 @@ class Speaker:
         assert self.out_dir is not None
         wav = self.out_dir / f"utterance_{req.id:04d}.wav"
         utt = synthesize(req.text, wav, self.config, req.voice)
-        with (self.out_dir / self.LOG_NAME).open("a") as log:
+        with open_write(self.out_dir / self.LOG_NAME, "a") as log:
             log.write(f"{now_s:.3f}\t{utt.voice}\t{utt.duration_s:.3f}\t{wav.name}\t{utt.text}\n")
         return utt
 

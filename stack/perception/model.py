@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 
 from stack.cells import ConfigError
+from stack.config import write_text
 from stack.geometry import Pose2D
 from stack.perception.visibility import CameraVisibility
 
@@ -127,10 +128,11 @@ class PerceptionModel:
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
-        path.write_text(
+        write_text(
+            path,
             "# The camera pipeline's model (stack/perception/model.py), fitted by\n"
             "# `vigil fit-perception`; meta says from which rendered runs and when.\n"
-            + yaml.safe_dump(self.to_dict(), sort_keys=False, width=100)
+            + yaml.safe_dump(self.to_dict(), sort_keys=False, width=100),
         )
         return path
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from stack.config import read_text_capped
+from stack.config import read_text_capped, write_text
 from stack.planning import belief as belief_ops
 from stack.planning.anticipate import Anticipator
 from stack.planning.model import FactoredModel
@@ -152,7 +152,7 @@ def save_state(path: str | Path, state: dict[str, Any]) -> None:
     """Write a planner's state atomically (a crash mid-write leaves the old file intact)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(state))
+    write_text(tmp, json.dumps(state))
     os.replace(tmp, path)
 
 

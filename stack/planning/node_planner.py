@@ -59,6 +59,7 @@ from vigil_interfaces.msg import (
 
 import stack.topics as topic
 from stack.cells import ConfigError
+from stack.config import open_write
 from stack.planning.agent import ObservationError, Observed, PlannerAgent, StateFileError
 from stack.planning.anticipate import Anticipator
 from stack.planning.factored import PeopleModel
@@ -218,7 +219,7 @@ class PlannerNode(Node):
     def write_record(self, record: dict) -> None:
         if not self.steps_file:
             return
-        with open(self.steps_file, "a") as f:
+        with open_write(self.steps_file, "a") as f:
             f.write(json.dumps(record, sort_keys=True) + "\n")
             f.flush()
             os.fsync(f.fileno())

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from stack.config import open_regular, read_bytes_capped
+from stack.config import open_regular, open_write, read_bytes_capped
 from stack.planning import clock
 
 
@@ -141,7 +141,7 @@ class AlphaPolicy:
         layout: dict[str, Any] = {}
         if self.blocks is not None:
             layout = {"blocks": self.blocks, "obs": self.obs}
-        with open(tmp, "wb") as f:  # a file object: numpy adds no ".npz" to the name
+        with open_write(tmp, "wb") as f:  # a file object: numpy adds no ".npz" to the name
             np.savez_compressed(
                 f,
                 alphas=self.alphas,
@@ -252,7 +252,7 @@ def write_policy_xml(policy: AlphaPolicy, path: str | os.PathLike, model: str = 
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="ascii") as f:
+    with open_write(tmp, "w", "ascii") as f:
         f.write("\n".join(head) + "\n")
         for line in format_vectors(policy.alphas, policy.actions, obs=policy.obs):
             f.write(line)

@@ -38,6 +38,7 @@ from typing import TextIO
 import numpy as np
 import scipy.sparse as sp
 
+from stack.config import write_text
 from stack.planning.pomdp import POMDP
 
 __all__ = [
@@ -945,4 +946,4 @@ def write_pomdp(pomdp: POMDP, path_or_file: str | os.PathLike | TextIO) -> None:
     if hasattr(path_or_file, "write"):
         path_or_file.write(text)
         return
-    Path(path_or_file).write_text(text, encoding="utf-8")
+    write_text(path_or_file, text)

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stack.cells import CellGrid
+from stack.config import write_text
 from stack.planning.model import FactoredModel
 from stack.vocabulary import ACTIONS, OUT_OF_MAP
 from vigil.report.metrics import Timeline, guard_metrics, timeline_from_trace
@@ -296,8 +297,8 @@ def write_report(
     md += "\n" + metrics_markdown(summary["metrics"])
     if "people" in summary:
         md += "\n" + people_markdown(summary["people"])
-    (run_dir / "steps.md").write_text(md, encoding="utf-8")
-    (run_dir / "steps.csv").write_text(steps_csv(rows), encoding="utf-8")
+    write_text(run_dir / "steps.md", md, encoding="utf-8")
+    write_text(run_dir / "steps.csv", steps_csv(rows), encoding="utf-8")
     files = ["steps.md", "steps.csv"]
     if plots:
         from vigil.report.figures import plot_run, plot_timeline
@@ -333,8 +334,10 @@ def write_report(
             if say is not None:
                 say(f"[report] {path.name}: {len(trace)} frames in {time.monotonic() - t0:.1f} s")
     summary["files"] = sorted(files + ["summary.json", "index.html"])
-    (run_dir / "summary.json").write_text(
-        json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8"
+    write_text(
+        run_dir / "summary.json",
+        json.dumps(summary, indent=2, sort_keys=True) + "\n",
+        encoding="utf-8",
     )
     from vigil.report.html import write_index
 

@@ -10,6 +10,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from stack.config import write_text
+
 INDEX_FILE = "index.html"
 
 _STYLE = """
@@ -139,5 +141,5 @@ def write_index(run_dir: str | Path, title: str, summary: Mapping[str, Any]) -> 
     path = run_dir / INDEX_FILE
     steps = run_dir / "steps.csv"
     text = steps.read_text(encoding="utf-8") if steps.exists() else ""
-    path.write_text(index_html(title, summary, files, text), encoding="utf-8")
+    write_text(path, index_html(title, summary, files, text), encoding="utf-8")
     return path
