@@ -12,10 +12,10 @@ from stack.nav.speech import (
     Speaker,
     SpeechError,
     UnknownVoiceError,
-    WarningGate,
     synthesize,
     wav_duration_s,
 )
+from stack.nav.warning import WarningGate
 
 pytestmark = pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="needs espeak-ng")
 
@@ -133,7 +133,7 @@ def test_speech_refuses_a_text_longer_than_the_cap(tmp_path):
 
 
 def test_person_to_warn_with_one_and_several_people():
-    from stack.nav.speech import person_to_warn
+    from stack.nav.warning import person_to_warn
 
     # one person: the label itself (as before the people slots)
     assert person_to_warn("1", "1") == 1
@@ -150,7 +150,7 @@ def test_a_person_walking_into_the_guarded_cell_is_warned_before_entering():
     """approaching(): the person in the next cell moving towards the robot's; the gate
     warns for it (after confirm_s), as it does for a person in the cell."""
     from stack.cells import CellGrid
-    from stack.nav.speech import approaching
+    from stack.nav.warning import approaching
 
     g = CellGrid()  # 12 10 8 6 4 2 / 11 9 7 5 3 1
     assert approaching("1", "3", "East 0.2-0.7", g)  # 3 is west of 1
@@ -174,7 +174,7 @@ def test_a_person_walking_into_the_guarded_cell_is_warned_before_entering():
 def test_the_reactor_reads_observation_records_as_the_node_and_the_loop_do():
     from stack.cells import CellGrid
     from stack.nav.config import SpeechConfig
-    from stack.nav.speech import WarningReactor
+    from stack.nav.warning import WarningReactor
 
     w = WarningReactor(CellGrid(), SpeechConfig(restricted_cells=(1,), confirm_s=0.5))
     w.observe({"robot": "1", "person": "3", "velocity": "East higher"})

@@ -14,7 +14,7 @@ camera_people                 :class:`stack.perception.camera.CameraPeopleTracke
 legs                          :func:`stack.perception.legs.detect_legs` + ``LegTracker``
 observations                  :class:`stack.perception.observation.ObservationCombiner`
 navigation                    :class:`stack.nav.executor.ActionExecutor`
-speech                        :class:`stack.nav.speech.WarningReactor` + ``Speaker``
+speech                        :class:`stack.nav.warning.WarningReactor` + ``Speaker``
 planner                       :class:`stack.planning.stepper.DecisionSteps`
 recorder                      ``trace.jsonl`` lines as :mod:`vigil.node_recorder`
 ============================  =================================================
@@ -60,7 +60,8 @@ from stack.hardware.base_watchdog import BaseWatchdog
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
 from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
-from stack.nav.speech import Speaker, SpeechError, WarningReactor
+from stack.nav.speech import Speaker, SpeechError
+from stack.nav.warning import WarningReactor
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker
 from stack.perception.errors import BadScanError

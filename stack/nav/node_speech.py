@@ -2,7 +2,7 @@
 3.2.2 and 4.4), or walking into it, while they are there, and reports when it has
 finished.
 
-When to speak is :class:`stack.nav.speech.WarningReactor` (the in-process loop runs
+When to speak is :class:`stack.nav.warning.WarningReactor` (the in-process loop runs
 the same): the robot's and the person's cells (the observations node's fused view)
 are the same restricted cell, or the person walks into it from the next cell, or did
 within ``grace_s``; a warning playing after that is cut short; nothing is queued.
@@ -11,7 +11,7 @@ Subscribes (names are parameters):
     ``/observations`` vigil_interfaces/PersonObservation: the observations node's
         (``robot`` and ``person`` labels: a cell number, or anything else for none; with several
         people also ``people``, one label per person slot: whoever is in the robot's
-        cell is warned, :func:`stack.nav.speech.person_to_warn`).
+        cell is warned, :func:`stack.nav.warning.person_to_warn`).
     ``/speech/say`` std_msgs/String: say this text now (empty: the configured warning).
 
 Publishes:
@@ -39,7 +39,8 @@ from vigil_interfaces.msg import PersonObservation, SpeechDone, Warning
 import stack.topics as topic
 from stack.cells import CellGrid
 from stack.nav.config import SpeechConfig, read_node_config
-from stack.nav.speech import Speaker, SpeechError, SpeechEvent, WarningReactor
+from stack.nav.speech import Speaker, SpeechError, SpeechEvent
+from stack.nav.warning import WarningReactor
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_msgs import observation_from_msg, speech_done_to_msg, warning_to_msg
