@@ -312,3 +312,22 @@ def test_a_warning_to_a_person_next_to_the_guarded_cell_is_an_approach_not_late(
     assert classify_warnings(left, [1], [12.0], grid=GRID)[0]["timely"] is False
     m = guard_metrics(decoy, [1], [4.0, 9.0], [], grid=GRID)
     assert (m["timely_warnings"], m["late_warnings"], m["approach_warnings"]) == (1, 1, 1)
+
+
+def test_a_warning_to_a_person_just_off_the_grid_edge_next_to_the_cell_is_an_approach():
+    """The door is 1 m east of the grid: a person walking in is 0.05-0.3 m off the grid
+    beside cell 2 for a moment, and the camera (0.1 m foot-point error) already sees
+    them in cell 2 walking towards the robot in cell 1. Within EDGE_M (0.3 m, the
+    observations' border margin) of a cell next to the guarded one is an approach;
+    further off the grid it is not."""
+
+    def trace(px):
+        return [{"t": k * 0.5, "robot": [5.5, 0.75, 0.0], "person": [px, 2.3]} for k in range(20)]
+
+    near = timeline_from_trace(trace(6.1), GRID, (-3.5, -2.2, 8.0, 5.2))
+    assert near.person[0] is None and near.person_edge[0] == 2
+    w = classify_warnings(near, [1], [2.0], grid=GRID)
+    assert w[0]["timely"] and w[0]["approach"]
+    far = timeline_from_trace(trace(6.6), GRID, (-3.5, -2.2, 8.0, 5.2))
+    assert far.person_edge[0] is None
+    assert classify_warnings(far, [1], [2.0], grid=GRID)[0]["timely"] is False

@@ -19,7 +19,8 @@ In short:
   within ``WARNING_AFTER_S`` after they left one, or within ``WARNING_BEFORE_S`` before
   they enter one (**ahead**: a guard that anticipates warns as the person approaches),
   or, with the robot in a restricted cell, while the person is next to it (diagonals
-  included) and has not left it within ``WARNING_BEFORE_S`` (an **approach**
+  included; off the grid, within 0.3 m of such a cell, the observations' border margin)
+  and has not left it within ``WARNING_BEFORE_S`` (an **approach**
   warning: they may turn away, which is what it is for);
   otherwise **late**;
 - a visit's **warning lead time**: the person's entry minus the start of the first
@@ -249,7 +250,8 @@ def classify_warnings(
     timely (started while the person was in a restricted cell, within ``after_s``
     after they left one, or within ``before_s`` before they entered one: ``ahead``;
     with ``grid``, also while the robot stood in a restricted cell and the person was
-    next to it, diagonals included, not having left it within ``before_s``:
+    next to it, diagonals included (or off the grid within ``EDGE_M`` of such a cell),
+    not having left it within ``before_s``:
     ``approach``, a warning to someone who may then turn away) or late."""
     restricted = tuple(restricted)
     spans = restricted_intervals(tl, restricted)
@@ -263,12 +265,13 @@ def classify_warnings(
         i = tl.index_at(s)
         person = None if i is None else tl.person[i]
         robot = None if i is None or not tl.robot_known[i] else tl.robot[i]
+        near = person if i is None or not tl.person_edge else tl.person_edge[i]
         approach = (
             cell is None
             and grid is not None
             and robot in restricted
-            and person is not None
-            and grid.chebyshev(person, robot) <= 1
+            and near is not None
+            and grid.chebyshev(near, robot) <= 1
             # not someone who just left it: that warning is late
             and not any(c == robot and s - before_s <= b <= s for c, _, b in spans)
         )

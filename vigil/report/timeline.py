@@ -8,6 +8,7 @@ cell holds from that trace record until the next one.
 from __future__ import annotations
 
 import bisect
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -35,12 +36,16 @@ class Timeline:
     person: tuple[int | None, ...]
     present: tuple[bool, ...]
     source: str = "ground truth"
+    # the person's cell, or just off the grid (within EDGE_M) the nearest one; () unknown
+    person_edge: tuple[int | None, ...] = ()
 
     def __post_init__(self) -> None:
         n = len(self.t)
         for name in ("robot", "robot_known", "person", "present"):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"timeline {name} has {len(getattr(self, name))} entries, t {n}")
+        if self.person_edge and len(self.person_edge) != n:
+            raise ValueError(f"timeline person_edge has {len(self.person_edge)} entries, t {n}")
         if any(b < a for a, b in zip(self.t, self.t[1:], strict=False)):
             raise ValueError("timeline times must not decrease")
 
@@ -88,6 +93,7 @@ def timeline_from_trace(
             is walker ``walker`` (0-based) instead of the first.
     """
     t, robot, known, person, present, sources = [], [], [], [], [], set()
+    edge: list[int | None] = []
     for rec in trace:
         if until_t is not None and float(rec["t"]) > until_t + 1e-9:
             break
@@ -100,6 +106,7 @@ def timeline_from_trace(
                 people = rec.get("people") or []
                 p = people[walker].get("position") if walker < len(people) else None
             p_cell = grid.cell_at(p[0], p[1]) if p is not None else None
+            edge.append(p_cell if p is None or p_cell is not None else _edge_cell(grid, p))
             if p is None:
                 here = False
             elif room_m is None:
@@ -114,10 +121,26 @@ def timeline_from_trace(
             cam = rec.get("camera") or {}
             p_cell = cam.get("cell") if cam.get("status") == "person" else None
             here = p_cell is not None
+            edge.append(p_cell)
         t.append(float(rec["t"]))
         robot.append(r_cell)
         known.append(r_known)
         person.append(p_cell)
         present.append(here)
     source = " + ".join(sorted(sources)) if sources else "none"
-    return Timeline(tuple(t), tuple(robot), tuple(known), tuple(person), tuple(present), source)
+    return Timeline(
+        tuple(t), tuple(robot), tuple(known), tuple(person), tuple(present), source, tuple(edge)
+    )
+
+
+EDGE_M = 0.3  # the observations node's border_margin_m: this close off the grid is its edge
+
+
+def _edge_cell(grid: CellGrid, p: Sequence[float]) -> int | None:
+    """The grid's cell nearest a point off the grid, if the point is within ``EDGE_M``."""
+    x0, y0 = grid.origin_m
+    w, h = grid.size_m
+    cx, cy = min(max(p[0], x0), x0 + w - 1e-6), min(max(p[1], y0), y0 + h - 1e-6)
+    if math.hypot(p[0] - cx, p[1] - cy) > EDGE_M:
+        return None
+    return grid.cell_at(cx, cy)
