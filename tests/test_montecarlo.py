@@ -287,3 +287,24 @@ def test_the_shipped_perception_model_loads_and_says_where_it_came_from():
     m = PerceptionModel.load(DEFAULT_PERCEPTION_MODEL)
     assert m.meta["date"] and m.meta["command"].startswith("vigil fit-perception")
     assert m.meta["frames"] > 1000 and 0.0 < m.error_rho < 1.0
+
+
+@pytest.mark.slow
+def test_rescoring_a_study_gives_its_figures_again_and_follows_a_changed_metric(tmp_path):
+    """`vigil montecarlo --rescore DIR`: the episodes' reports are written again from
+    their raw records; unchanged metric code gives the same summary, and an episode
+    whose record was altered (as an older metric would have left it) is corrected."""
+    from vigil.montecarlo import rescore_study
+
+    out = tmp_path / "s"
+    a = run_study(TASK, 2, out, seed=3, workers=1, study=SHORT, say=lambda _s: None)
+    saved = json.loads((out / "montecarlo.json").read_text())
+    saved["episodes"][0]["late_warnings"] += 7  # what a different metric had said
+    (out / "montecarlo.json").write_text(json.dumps(saved))
+    again = rescore_study(out, say=lambda _s: None)
+    assert _timeless(again["summary"]) == _timeless(a["summary"])
+    assert again["episodes"][0]["late_warnings"] == a["episodes"][0]["late_warnings"]
+    record = json.loads((out / "episodes" / "000" / "episode.json").read_text())
+    assert record["late_warnings"] == a["episodes"][0]["late_warnings"]
+    with pytest.raises(ConfigError, match="not a study folder"):
+        rescore_study(tmp_path / "nothing", say=lambda _s: None)

@@ -451,6 +451,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="the camera: its fitted model (fast, default) or rendered + HOG (the reference)",
     )
     p.add_argument("--perception-model", type=Path, default=None, help="the model file")
+    p.add_argument("--rescore", type=Path, default=None, metavar="DIR",
+                   help="score the study in DIR again with today's metrics (no runs)")  # fmt: skip
     p.set_defaults(func=cmd_montecarlo)
 
     p = _command(sub, "launch", "start the whole system from a deployment file; Ctrl-C stops it")
@@ -580,9 +582,15 @@ def cmd_fit_perception(args: argparse.Namespace) -> int:
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     from stack.cells import ConfigError
-    from vigil.montecarlo import load_scenario_folder, run_study
+    from vigil.montecarlo import load_scenario_folder, rescore_study, run_study
     from vigil.walks import DEFAULT_WALKS, load_walks
 
+    if args.rescore is not None:
+        if args.task is not None or args.scenarios is not None:
+            raise ConfigError("--rescore", str(args.rescore), "takes no TASK or --scenarios")
+        record = rescore_study(args.rescore)
+        print(json.dumps(record["summary"], sort_keys=True))
+        return 0
     if (args.task is None) == (args.scenarios is None):
         raise ConfigError("TASK/--scenarios", args.task, "give a task or --scenarios DIR")
     study = load_walks(args.walks or DEFAULT_WALKS, p_fault=args.p_fault,

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import ConfigError
-from stack.config import write_text
+from stack.config import read_text_capped, write_text
 from stack.planning.task import load_task
 from vigil.scenario import Scenario
 from vigil.study_stats import (  # noqa: F401 - the study's statistics, re-exported
@@ -97,7 +97,6 @@ def run_episode(
         perception=perception,
         perception_model=perception_model,
     )
-    m = summary["metrics"]
     record = {
         "episode": scenario.name,
         "title": scenario.title,
@@ -105,6 +104,18 @@ def run_episode(
         "seed": scenario.seed,
         "faults": [asdict(f) for f in scenario.faults],
         "steps": summary["steps"],
+        **metric_fields(summary["metrics"]),
+        "sim_s": summary["inprocess"]["sim_s"],
+        "wall_s": round(time.monotonic() - t0, 2),
+    }
+    # the record beside the episode's raw files: a study stopped half-way keeps it
+    write_text(Path(out_dir) / "episode.json", json.dumps(record, sort_keys=True) + "\n")
+    return record
+
+
+def metric_fields(m: dict[str, Any]) -> dict[str, Any]:
+    """An episode record's metrics, from its report's ``metrics``."""
+    return {
         "n_visits": m["n_visits"],
         "guarded": m["guarded"],
         "reachable": m.get("reachable", 0),
@@ -122,12 +133,7 @@ def run_episode(
             v["warning_lead_s"] for v in m["visits"] if v.get("warning_lead_s") is not None
         ],
         "miss_rate": m["miss_rate"],
-        "sim_s": summary["inprocess"]["sim_s"],
-        "wall_s": round(time.monotonic() - t0, 2),
     }
-    # the record beside the episode's raw files: a study stopped half-way keeps it
-    write_text(Path(out_dir) / "episode.json", json.dumps(record, sort_keys=True) + "\n")
-    return record
 
 
 VISIT_KEYS = (
@@ -339,7 +345,6 @@ def run_study(
                 f"about {_duration(left)} left)")  # fmt: skip
             last_say = now
     eps = [r for r in results if r is not None]
-    summary = summarise(eps, seed)
     record = {
         "task": None if task_path is None else str(task_path),
         "tasks": sorted({e.get("task", "") for e in eps}),
@@ -350,18 +355,71 @@ def run_study(
         "perception": perception,
         "perception_model": model_file,
         "wall_s": round(time.monotonic() - t0, 1),
-        "summary": summary,
-        "worst": [e["episode"] for e in worst_episodes(eps)],
         "episodes": eps,
     }
-    write_text(out / "montecarlo.json", json.dumps(record, indent=2, sort_keys=True) + "\n")
     source = what if task_path is None else f"{Path(task_path).stem}, {what.split(' of ')[0]}"
-    title = f"Monte Carlo: {source}" + (f", seed {seed}" if task_path is not None else "")
-    text = summary_markdown(summary, title) + _worst_markdown(eps)
-    write_text(out / "montecarlo.md", text)
-    plot_study(out / "montecarlo.png", eps, summary, title)
-    say(f"[montecarlo] {summary['sim_s']:.0f} s simulated in {record['wall_s']:.0f} s wall")
+    record["title"] = f"Monte Carlo: {source}" + (f", seed {seed}" if task_path is not None else "")
+    _write_study(out, record)
+    sim_s, wall_s = record["summary"]["sim_s"], record["wall_s"]
+    say(f"[montecarlo] {sim_s:.0f} s simulated in {wall_s:.0f} s wall")
     say(f"[montecarlo] {out}/montecarlo.md, montecarlo.json, montecarlo.png")
+    return record
+
+
+def _write_study(out: Path, record: dict[str, Any]) -> None:
+    """The study's summary, worst episodes, ``montecarlo.json``, ``.md`` and ``.png``."""
+    eps = record["episodes"]
+    record["summary"] = summary = summarise(eps, record["seed"])
+    record["worst"] = [e["episode"] for e in worst_episodes(eps)]
+    write_text(out / "montecarlo.json", json.dumps(record, indent=2, sort_keys=True) + "\n")
+    text = summary_markdown(summary, record["title"]) + _worst_markdown(eps)
+    write_text(out / "montecarlo.md", text)
+    plot_study(out / "montecarlo.png", eps, summary, record["title"])
+
+
+def _episode_task(folder: Path) -> Path:
+    """The task file an episode ran (its planner's ``task_file`` in ``params.yaml``)."""
+    import yaml
+
+    params = yaml.safe_load(read_text_capped(folder / "params.yaml")) or {}
+    return Path(params["planner"]["ros__parameters"]["task_file"])
+
+
+def rescore_study(out: str | Path, say: Callable[[str], None] = print) -> dict[str, Any]:
+    """Score a finished study again with today's metric code: every episode's report
+    is written anew from its raw records (``steps.jsonl``, ``trace.jsonl``, the speech
+    log; no plots), its ``episode.json`` and the study's summary and files with it. For
+    when a metric's definition changed after the study ran; the runs are not repeated.
+
+    Raises:
+        ConfigError: ``out`` holds no ``montecarlo.json``.
+    """
+    from vigil.report import write_report
+
+    out = Path(out)
+    try:
+        record = json.loads(read_text_capped(out / "montecarlo.json", 256 * 2**20))
+    except (OSError, ValueError) as exc:
+        raise ConfigError("--rescore", str(out), f"is not a study folder: {exc}") from None
+    record.setdefault("title", f"Monte Carlo: {out.name}")
+    folders = {}  # episode name -> its folder (random walks: 000, ...; scenarios: their names)
+    for f in sorted((out / "episodes").glob("*/episode.json")):
+        folders[json.loads(read_text_capped(f)).get("episode")] = f.parent
+    t0, last = time.monotonic(), -math.inf
+    eps = record["episodes"]
+    for n, ep in enumerate(eps, start=1):
+        if "error" in ep or ep["episode"] not in folders:
+            continue
+        folder = folders[ep["episode"]]
+        summary = write_report(folder, _episode_task(folder), plots=False, video=False)
+        ep.update(metric_fields(summary["metrics"]))
+        write_text(folder / "episode.json", json.dumps(ep, sort_keys=True) + "\n")
+        if time.monotonic() - last >= 1.0 or n == len(eps):
+            say(f"[montecarlo] rescored {n}/{len(eps)}")
+            last = time.monotonic()
+    record["rescored_s"] = round(time.monotonic() - t0, 1)
+    _write_study(out, record)
+    say(f"[montecarlo] {out}/montecarlo.md, montecarlo.json, montecarlo.png (rescored)")
     return record
 
 
