@@ -63,6 +63,10 @@ def test_a_silent_gate_stops_the_base_before_the_command_timeout():
     assert w.output(0.25) == ZERO and w.reason == GATE_SILENT
     w.heartbeat(0.3)  # a quiet gate keeps beating: only the command's age counts
     assert w.output(0.4) == (0.3, 0.0, 0.0) and w.reason == OK
+    # looked at only once both have timed out (a loaded machine): the dead gate is named
+    assert w.output(1.0) == ZERO and w.reason == GATE_SILENT
+    w.heartbeat(1.0)
+    assert w.output(1.05) == ZERO and w.reason == STALE  # beating, the command old
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -1.0, 0.0, "0.5", True, None])

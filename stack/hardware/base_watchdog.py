@@ -89,14 +89,16 @@ class BaseWatchdog:
         if self._cmd_s == -math.inf:
             self.reason = NO_COMMAND
             return ZERO
-        age = now_s - self._cmd_s
-        if not (0.0 <= age <= self.cmd_timeout_s):  # stale, or a clock that ran backwards
-            self.reason = STALE
-            return ZERO
+        # a dead gate explains stale commands too: when both hold, the gate is named
+        # (a loaded machine may look only after both timeouts have passed)
         if self.heartbeat_timeout_s is not None and not (
             0.0 <= now_s - self._beat_s <= self.heartbeat_timeout_s
         ):
             self.reason = GATE_SILENT
+            return ZERO
+        age = now_s - self._cmd_s
+        if not (0.0 <= age <= self.cmd_timeout_s):  # stale, or a clock that ran backwards
+            self.reason = STALE
             return ZERO
         self.reason = OK
         return self._cmd
