@@ -52,11 +52,26 @@ def _deployment(tmp_path: Path, planner: dict | None = None, **nodes) -> Path:
     return path
 
 
-def _start_run(tmp_path: Path, out: Path, config: Path, *extra: str) -> subprocess.Popen:
+LONG_STEPS = 2000  # the table's last row repeats: a run an idle machine cannot finish
+
+
+def _long_scenario(tmp_path: Path) -> Path:
+    """5.1.1 with LONG_STEPS steps: a signal or a kill sent after step 1 always comes
+    before the end (12 table steps took less than the signal's delivery when idle)."""
+    data = yaml.safe_load(SCENARIO.read_text())
+    data.update(steps=LONG_STEPS, task=str((SCENARIO.parent / data["task"]).resolve()))
+    path = tmp_path / "long.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _start_run(
+    tmp_path: Path, out: Path, config: Path, *extra: str, scenario: Path = SCENARIO
+) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(REPO))
     env.pop("ROS_DOMAIN_ID", None)  # the run claims its own
     return subprocess.Popen(
-        [sys.executable, "-m", "vigil.cli", "run", str(SCENARIO), "--config", str(config),
+        [sys.executable, "-m", "vigil.cli", "run", str(scenario), "--config", str(config),
          "--observations", "table", "--out", str(out), *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
@@ -85,7 +100,7 @@ def test_a_signal_to_vigil_run_mid_run_writes_run_json_and_exits_with_its_code(t
     the steps made is written, run.json names the signal, exit 143 (130). Before, SIGTERM
     killed vigil on the spot (no run.json, no report) and Ctrl-C ended in a traceback."""
     out = tmp_path / "run"
-    proc = _start_run(tmp_path, out, _deployment(tmp_path))
+    proc = _start_run(tmp_path, out, _deployment(tmp_path), scenario=_long_scenario(tmp_path))
     try:
         _wait_steps(out, 1, proc)
         proc.send_signal(sig)
@@ -97,7 +112,7 @@ def test_a_signal_to_vigil_run_mid_run_writes_run_json_and_exits_with_its_code(t
     assert proc.returncode == code, (stdout, stderr)
     record = _run_json(out)
     assert record["ending"] == name and record["exit_code"] == code
-    assert re.fullmatch(rf"{name}: stopped at step \d+/12", record["cause"])
+    assert re.fullmatch(rf"{name}: stopped at step \d+/{LONG_STEPS}", record["cause"])
     assert record["exit_codes"] == {"planner": 0, "table_player": 0}  # they left cleanly
     assert record["report"] == "written" and (out / "steps.md").read_text().strip()
     assert stderr.strip().splitlines()[-1] == f"vigil run: {record['cause']}"
@@ -107,7 +122,8 @@ def test_a_signal_to_vigil_run_mid_run_writes_run_json_and_exits_with_its_code(t
 def test_a_killed_node_is_named_in_run_json_and_exit_code_3(tmp_path):
     """A node SIGKILLed from outside (no restart left): the cause names it and the signal."""
     out = tmp_path / "run"
-    proc = _start_run(tmp_path, out, _deployment(tmp_path, max_restarts=0))
+    proc = _start_run(tmp_path, out, _deployment(tmp_path, max_restarts=0),
+                      scenario=_long_scenario(tmp_path))  # fmt: skip
     try:
         _wait_steps(out, 1, proc)
         log = ""

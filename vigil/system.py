@@ -289,7 +289,7 @@ def prepare_table(dep: Deployment, run_dir: Path, scenario: Scenario, say=print)
             "state_file": str(run_dir / "planner_state.json"),
             "steps_file": str(run_dir / "steps.jsonl"),
             "max_steps": scenario.steps,
-            "start_delay_s": 1.0,
+            "start_delay_s": dep.planner.start_delay_s,  # the deployment's, as in the twin
             "min_step_s": 0.0,
             "initial_robot_cell": scenario.robot_cell,
             "initial_person_cell": scenario.belief_person or 0,
