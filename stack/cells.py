@@ -14,6 +14,7 @@ map position of the region's south-west corner.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -183,6 +184,19 @@ class CellGrid:
         col = int(fx)
         row = self.rows - 1 - int(fy)
         return self.numbering[row][col]
+
+    def cell_near(self, x: float, y: float, margin_m: float) -> int | None:
+        """:meth:`cell_at`, or for a point within ``margin_m`` outside the region the
+        nearest cell (a foot point just past the edge); None further out."""
+        cell = self.cell_at(x, y)
+        if cell is not None or margin_m <= 0:
+            return cell
+        x0, y0 = self.origin_m
+        w, h = self.size_m
+        cx, cy = min(max(x, x0), x0 + w - 1e-6), min(max(y, y0), y0 + h - 1e-6)
+        if math.hypot(x - cx, y - cy) > margin_m:
+            return None
+        return self.cell_at(cx, cy)
 
     # -- construction -----------------------------------------------------
     @classmethod

@@ -310,16 +310,7 @@ class ObservationCombiner:
         """The cell of a map point, or the nearest cell within ``border_margin_m``."""
         if not (math.isfinite(x) and math.isfinite(y)):
             return None
-        cell = self.grid.cell_at(x, y)
-        m = self.config.border_margin_m
-        if cell is not None or m <= 0:
-            return cell
-        x0, y0 = self.grid.origin_m
-        w, h = self.grid.size_m
-        cx, cy = min(max(x, x0), x0 + w - 1e-6), min(max(y, y0), y0 + h - 1e-6)
-        if math.hypot(x - cx, y - cy) > m:
-            return None
-        return self.grid.cell_at(cx, cy)
+        return self.grid.cell_near(x, y, self.config.border_margin_m)
 
     def hidden(self, camera_sees: bool, stamp_s: float) -> dict[int, float]:
         """Each cell's fraction the camera cannot see now (only cells > 0)."""

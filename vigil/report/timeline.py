@@ -8,7 +8,6 @@ cell holds from that trace record until the next one.
 from __future__ import annotations
 
 import bisect
-import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -106,7 +105,7 @@ def timeline_from_trace(
                 people = rec.get("people") or []
                 p = people[walker].get("position") if walker < len(people) else None
             p_cell = grid.cell_at(p[0], p[1]) if p is not None else None
-            edge.append(p_cell if p is None or p_cell is not None else _edge_cell(grid, p))
+            edge.append(None if p is None else grid.cell_near(p[0], p[1], EDGE_M))
             if p is None:
                 here = False
             elif room_m is None:
@@ -134,13 +133,3 @@ def timeline_from_trace(
 
 
 EDGE_M = 0.3  # the observations node's border_margin_m: this close off the grid is its edge
-
-
-def _edge_cell(grid: CellGrid, p: Sequence[float]) -> int | None:
-    """The grid's cell nearest a point off the grid, if the point is within ``EDGE_M``."""
-    x0, y0 = grid.origin_m
-    w, h = grid.size_m
-    cx, cy = min(max(p[0], x0), x0 + w - 1e-6), min(max(p[1], y0), y0 + h - 1e-6)
-    if math.hypot(p[0] - cx, p[1] - cy) > EDGE_M:
-        return None
-    return grid.cell_at(cx, cy)
