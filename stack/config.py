@@ -248,6 +248,14 @@ def load_yaml(text: str) -> Any:
     return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
 
 
+def dump_yaml(data: Any, **kwargs: Any) -> str:
+    """``yaml.safe_dump`` through libyaml when PyYAML has it (the same representation;
+    a run writes its parameters and calibration files, a study does so per episode)."""
+    import yaml
+
+    return yaml.dump(data, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), **kwargs)
+
+
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML file holding a mapping (an empty file is an empty mapping).
 

@@ -194,24 +194,34 @@ class PersonScript:
         i = max(0, bisect.bisect_right(self._starts, t) - 1)
         return i if self._phases[i].speed == 0.0 else None
 
-    def _pose(self, t: float) -> PersonPose:
+    def motion(self, t: float) -> tuple[tuple[float, float], float, tuple[float, float]]:
+        """Where the pelvis is at ``t``, the heading and the velocity: ``pose(t)``'s
+        ``position_m``, ``heading_rad`` and ``velocity_mps`` (the same numbers) without
+        the body's segments (the ground truth needs only these, at 25 Hz)."""
+        ph, f, u, vel = self._along(t)
+        pelvis_xy = ph.start + u * f
+        return (float(pelvis_xy[0]), float(pelvis_xy[1])), ph.heading, vel
+
+    def _along(self, t: float) -> tuple[_Phase, np.ndarray, float, tuple[float, float]]:
+        """The phase at ``t``, its unit direction, the distance walked along it and the
+        velocity."""
         i = max(0, bisect.bisect_right(self._starts, t) - 1)
         ph = self._phases[i]
         f = np.array([math.cos(ph.heading), math.sin(ph.heading)])
+        if ph.speed == 0.0:
+            return ph, f, 0.0, (0.0, 0.0)
+        s = (t - ph.t0) * ph.speed  # distance walked along the segment
+        return ph, f, s, (float(f[0] * ph.speed), float(f[1] * ph.speed))
+
+    def _pose(self, t: float) -> PersonPose:
+        ph, f, u, vel = self._along(t)
         left = np.array([-f[1], f[0]])  # unit vector to the person's left
         if ph.speed == 0.0:
-            u = 0.0
             feet_u = np.array([0.0, 0.0])
             lift = np.array([0.0, 0.0])
-            origin = ph.start
-            vel = (0.0, 0.0)
         else:
-            s = (t - ph.t0) * ph.speed  # distance walked along the segment
-            origin = ph.start
-            u = s
-            feet_u, lift = _feet_along(s, ph.speed, ph.n_steps, ph.end - ph.start, ph.first_foot)
-            vel = (float(f[0] * ph.speed), float(f[1] * ph.speed))
-        return self._assemble(t, origin, f, left, u, feet_u, lift, ph.heading, vel)
+            feet_u, lift = _feet_along(u, ph.speed, ph.n_steps, ph.end - ph.start, ph.first_foot)
+        return self._assemble(t, ph.start, f, left, u, feet_u, lift, ph.heading, vel)
 
     def _assemble(
         self,

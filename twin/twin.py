@@ -95,14 +95,12 @@ class PersonTruth:
         velocity_mps: (vx, vy) in the map frame.
         cell: the cell holding the pelvis, None outside the region.
         in_room: False once the person has left through the door.
-        feet_m: (2, 3) ankle positions (left, right) [m].
     """
 
     pose: Pose2D
     velocity_mps: tuple[float, float]
     cell: int | None
     in_room: bool
-    feet_m: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -186,7 +184,8 @@ class Twin:
         spec, self.layout = build_spec(self.config)
         self.spec = spec
         self.model = spec.compile()
-        self.data = mujoco.MjData(self.model)
+        self._data = mujoco.MjData(self.model)
+        self._people_stale = False  # the walkers moved on since they were last placed
         m = self.model
         self._robot_body = m.body(ROBOT_BODY).id
         self._lidar_site = m.site(LIDAR_SITE).id
@@ -227,16 +226,17 @@ class Twin:
     # -- lifecycle ----------------------------------------------------------
     def reset(self) -> None:
         """Put the robot at its start cell, the person at the script's start, time at 0."""
-        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_resetData(self.model, self._data)
         x, y = self.config.grid.center(self.config.robot.start_cell)
         yaw = self.config.robot.start_yaw_rad
         for adr, v in zip(self._qadr, (x, y, yaw), strict=True):
-            self.data.qpos[adr] = v
+            self._data.qpos[adr] = v
         self._cmd = np.zeros(3)  # the rate-limited command actually applied (body frame)
         self._odom = np.array([x, y, yaw])
         self._odom_vel = np.zeros(3)
         self._place_person(force=True)  # mj_resetData moved the mocap bodies back
-        mujoco.mj_forward(self.model, self.data)
+        self._people_stale = False
+        mujoco.mj_forward(self.model, self._data)
 
     def set_robot_pose(self, pose: Pose2D) -> None:
         """Teleport the robot (at rest) to ``pose``; odometry restarts from there.
@@ -245,12 +245,12 @@ class Twin:
             pose: the new pose in the map frame.
         """
         for adr, v in zip(self._qadr, (pose.x_m, pose.y_m, pose.yaw_rad), strict=True):
-            self.data.qpos[adr] = v
-        self.data.qvel[list(self._dadr)] = 0.0
+            self._data.qpos[adr] = v
+        self._data.qvel[list(self._dadr)] = 0.0
         self._cmd = np.zeros(3)
         self._odom = np.array([pose.x_m, pose.y_m, pose.yaw_rad])
         self._odom_vel = np.zeros(3)
-        mujoco.mj_forward(self.model, self.data)
+        mujoco.mj_forward(self.model, self._data)
 
     def close(self) -> None:
         """Free the renderer's GL context."""
@@ -266,7 +266,7 @@ class Twin:
 
     @property
     def time_s(self) -> float:
-        return float(self.data.time)
+        return float(self._data.time)
 
     # -- stepping -----------------------------------------------------------
     def step(self, command: VelocityCommand | None = None) -> None:
@@ -300,22 +300,22 @@ class Twin:
 
         before = self._robot_pose_array()
         for _ in range(self._n_substeps):
-            yaw = self.data.qpos[self._qadr[2]]
+            yaw = self._data.qpos[self._qadr[2]]
             c, s = math.cos(yaw), math.sin(yaw)
-            ctrl = self.data.ctrl
+            ctrl = self._data.ctrl
             ctrl[self._act[0]] = c * self._cmd[0] - s * self._cmd[1]
             ctrl[self._act[1]] = s * self._cmd[0] + c * self._cmd[1]
             ctrl[self._act[2]] = self._cmd[2]
             if diff:  # no slip sideways: keep only the slides' velocity along the heading
-                qv, ix, iy = self.data.qvel, self._dadr[0], self._dadr[1]
+                qv, ix, iy = self._data.qvel, self._dadr[0], self._dadr[1]
                 along = c * qv[ix] + s * qv[iy]
                 qv[ix], qv[iy] = c * along, s * along
-            mujoco.mj_step(self.model, self.data)
-        # the person is kinematic and touches nothing, so moving it once per control
-        # period is enough (and 5x cheaper than at every physics step); mj_kinematics
-        # brings the moved mocap bodies into the positions the sensors read
-        self._place_person()
-        mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_step(self.model, self._data)
+        # the walkers are kinematic and touch nothing, so the physics never needs them:
+        # they are placed when something looks (:attr:`data`, the lidar, the camera),
+        # at that instant's pose (a scan at 10 Hz, not every 20 ms period)
+        self._people_stale = bool(self.people)
+        mujoco.mj_kinematics(self.model, self._data)
         self._integrate_odometry(before, self._robot_pose_array(), dt)
 
     def run(self, duration_s: float, command: VelocityCommand | None = None) -> None:
@@ -325,8 +325,8 @@ class Twin:
 
     def _robot_pose_array(self) -> np.ndarray:
         # read the pose from the body (FEASIBILITY/issue 3: never from the slide values)
-        pos = self.data.xpos[self._robot_body]
-        mat = self.data.xmat[self._robot_body]
+        pos = self._data.xpos[self._robot_body]
+        mat = self._data.xmat[self._robot_body]
         return np.array([pos[0], pos[1], math.atan2(mat[3], mat[0])])
 
     def _integrate_odometry(self, before: np.ndarray, after: np.ndarray, dt: float) -> None:
@@ -355,8 +355,21 @@ class Twin:
         """When the last walker stops for good [s] (0 without people)."""
         return max((p.end_time_s for p in self.people), default=0.0)
 
+    @property
+    def data(self) -> mujoco.MjData:
+        """The simulation's state, the walkers placed at the current time (they move
+        only when something looks: :meth:`_sync_people`)."""
+        self._sync_people()
+        return self._data
+
+    def _sync_people(self) -> None:
+        if self._people_stale:
+            self._people_stale = False
+            self._place_person()
+            mujoco.mj_kinematics(self.model, self._data)
+
     def _place_person(self, force: bool = False) -> None:
-        now = float(self.data.time)
+        now = float(self._data.time)
         if force or getattr(self, "_placed", None) is None:
             self._placed: list[int | None] = [None] * len(self.people)
         placed = self._placed
@@ -368,7 +381,7 @@ class Twin:
             placed[i] = still
 
     def _place_one(self, p: PersonPose, mocap: dict[str, int]) -> None:
-        mp, mq = self.data.mocap_pos, self.data.mocap_quat
+        mp, mq = self._data.mocap_pos, self._data.mocap_quat
         t = mocap["torso"]
         mp[t] = (p.position_m[0], p.position_m[1], -p.pelvis_drop_m)
         mq[t] = (math.cos(p.heading_rad / 2), 0.0, 0.0, math.sin(p.heading_rad / 2))
@@ -433,7 +446,7 @@ class Twin:
 
     def scan(self) -> LaserScan:
         """One lidar scan from the robot's current pose (range noise from the twin's rng)."""
-        origin = self.data.site_xpos[self._lidar_site].copy()
+        origin = self._data.site_xpos[self._lidar_site].copy()
         yaw = self._robot_pose_array()[2]
         return self.lidar.scan(self.model, self.data, origin, yaw, self.rng)
 
@@ -446,21 +459,19 @@ class Twin:
         """The true state of the robot and every person."""
         x, y, yaw = self._robot_pose_array()
         d = self._dadr
-        vw = self.data.qvel[list(d)]
+        vw = self._data.qvel[list(d)]
         c, s = math.cos(yaw), math.sin(yaw)
         vel = (float(c * vw[0] + s * vw[1]), float(-s * vw[0] + c * vw[1]), float(vw[2]))
         grid = self.config.grid
         people = []
         for script in self.people:
-            p: PersonPose = script.pose(self.time_s)
-            px, py = p.position_m
+            (px, py), heading, velocity = script.motion(self.time_s)
             people.append(
                 PersonTruth(
-                    pose=Pose2D(px, py, p.heading_rad),
-                    velocity_mps=p.velocity_mps,
+                    pose=Pose2D(px, py, heading),
+                    velocity_mps=velocity,
                     cell=grid.cell_at(px, py),
                     in_room=self.layout.in_room(px, py),
-                    feet_m=p.ankles_m.copy(),
                 )
             )
         return GroundTruth(
@@ -474,8 +485,8 @@ class Twin:
 
     def camera_pose(self) -> CameraPose:
         """The ceiling camera's optical frame in the map frame."""
-        pos = self.data.cam_xpos[self._camera].copy()
-        rot = self.data.cam_xmat[self._camera].reshape(3, 3) @ OPTICAL_FROM_MUJOCO_CAMERA
+        pos = self._data.cam_xpos[self._camera].copy()
+        rot = self._data.cam_xmat[self._camera].reshape(3, 3) @ OPTICAL_FROM_MUJOCO_CAMERA
         return CameraPose(pos, rot)
 
     def lidar_mount_m(self) -> tuple[float, float, float]:
@@ -489,7 +500,7 @@ class Twin:
         mc = self.config.map
         return occupancy_from_model(
             self.model,
-            self.data,
+            self._data,
             self.layout.room,
             mc.resolution_m,
             (mc.z_min_m, mc.z_max_m),

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import stack.topics as topic
-from stack.config import write_text
+from stack.config import dump_yaml, load_yaml, read_text_capped, write_text
 
 REPO = Path(__file__).resolve().parents[1]
 VICTIMS = (
@@ -268,14 +268,12 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     (not 30), so the twin runs on while a killed node restarts (3 s later) and only the
     base's own timeout can stop it; with 30 s the twin waits for the restarted
     navigation and no simulated time passes without commands."""
-    import yaml
-
     source = scenario or REPO / "scenarios" / "5.1.1.yaml"
-    data = yaml.safe_load(source.read_text())
+    data = load_yaml(read_text_capped(source))
     task = (source.parent / data["task"]).resolve()
     data.update(name="chaos", steps=steps, task=str(task))
-    write_text(folder / "chaos.yaml", yaml.safe_dump(data))
-    config = yaml.safe_load((REPO / "config" / "twin.yaml").read_text())
+    write_text(folder / "chaos.yaml", dump_yaml(data))
+    config = load_yaml(read_text_capped(REPO / "config" / "twin.yaml"))
     config["twin"].update(stall_timeout_s=1.0, stall_abort_s=120.0)
     config["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
     # a killed node comes back 3 s later (not as soon as Python starts, ~1 s on an idle
@@ -283,5 +281,5 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     # its commands, so the base's own timeout is what stops it, on any machine
     config["nodes"].update(max_restarts=100, restart_delay_s=3.0)
     config["task"] = str(task)
-    write_text(folder / "dep.yaml", yaml.safe_dump(config))
+    write_text(folder / "dep.yaml", dump_yaml(config))
     return folder / "chaos.yaml", folder / "dep.yaml"

@@ -35,7 +35,7 @@ from typing import Any
 
 import yaml
 
-from stack.config import load_yaml, read_text_capped, write_text
+from stack.config import dump_yaml, load_yaml, read_text_capped, write_text
 from vigil.bag import BAG_DIR, ReplayError, fresh_path, read_recording
 
 REPLAYED = ("observations", "planner")  # the nodes re-run from the bag
@@ -267,7 +267,7 @@ def replay_run(
     params_file = out_dir / "params.yaml"
     write_text(
         params_file,
-        yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=True),
+        dump_yaml({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=True),
     )
     run_id = "replay-" + uuid.uuid4().hex[:8]
     claim = claim_domain()

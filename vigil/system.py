@@ -19,11 +19,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
-from stack.config import read_yaml, write_text
+from stack.config import dump_yaml, read_yaml, write_text
 from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment
 from vigil.processes import ProcessSpec
@@ -115,7 +113,7 @@ def prepare(
     if people > 1:  # issue 16: the camera reports everyone, the observations per slot
         stack_cfg["camera"] = {**stack_cfg.get("camera", {}), "max_people": people}
     stack_file = run_dir / "stack.yaml"
-    write_text(stack_file, yaml.safe_dump(stack_cfg, sort_keys=True))
+    write_text(stack_file, dump_yaml(stack_cfg, sort_keys=True))
 
     policy = _policy(dep, task, people, say)
     common = {"lockstep": dep.lockstep, "use_sim_time": False}
@@ -143,7 +141,7 @@ def prepare(
             door_m = layout_of(TwinConfig.from_dict(scene)).door_center_m
             scene.update(_scene_people(scene, scenario, grid, door_m))
         twin_file = run_dir / "twin.yaml"
-        write_text(twin_file, yaml.safe_dump({"twin": scene}, sort_keys=False))
+        write_text(twin_file, dump_yaml({"twin": scene}, sort_keys=False))
         twin_cfg = TwinConfig.from_dict(scene)
         outages = [
             [f.kind.split("_")[0], f.at_s, f.at_s + f.duration_s]
@@ -167,7 +165,7 @@ def prepare(
     else:
         calibration = dep.resolve(dep.perception.calibration)
         hw_file = run_dir / "hardware.yaml"
-        write_text(hw_file, yaml.safe_dump(dep.hardware, sort_keys=True))
+        write_text(hw_file, dump_yaml(dep.hardware, sort_keys=True))
         params["camera_stream"] = {"config_file": str(hw_file)}
         info = dep.resolve(dep.hardware.get("camera_info", ""))
         if info is not None:  # the camera's intrinsics: /camera/camera_info beside the images
@@ -314,7 +312,7 @@ def _write(
 ) -> System:
     params_file = run_dir / "params.yaml"
     doc = {name: {"ros__parameters": params[name]} for name in names}
-    write_text(params_file, yaml.safe_dump(doc, sort_keys=True))
+    write_text(params_file, dump_yaml(doc, sort_keys=True))
     specs = [
         ProcessSpec(
             name,

@@ -35,6 +35,7 @@ import yaml
 from scipy import ndimage
 
 from stack.config import (
+    dump_yaml,
     load_yaml,
     open_regular,
     read_bytes_capped,
@@ -265,7 +266,7 @@ def save_map_yaml(
         "free_thresh": float(free_thresh),
         "mode": "trinary",
     }
-    write_text(yaml_path, yaml.safe_dump(meta, sort_keys=False))
+    write_text(yaml_path, dump_yaml(meta, sort_keys=False))
     return yaml_path
 
 

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 import yaml
 
-from stack.config import load_yaml, read_text_capped, write_text
+from stack.config import dump_yaml, load_yaml, read_text_capped, write_text
 from stack.perception.errors import CalibrationError
 
 MIN_POINTS = 4
@@ -313,7 +313,7 @@ def save_calibration(path: str | Path, calibration: Calibration) -> None:
     }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text(path, yaml.safe_dump(data, sort_keys=False))
+    write_text(path, dump_yaml(data, sort_keys=False))
 
 
 def load_calibration(path: str | Path) -> Calibration:
@@ -467,4 +467,4 @@ def save_points_file(path: str | Path, points: FloorPoints) -> None:
     ]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+    write_text(path, dump_yaml(data, sort_keys=False, default_flow_style=None))

@@ -252,6 +252,12 @@ def segment_scan(scan: Scan, config: LegConfig) -> list[np.ndarray]:
     Returns:
         Arrays of beam indices, one per segment, in beam order.
     """
+    idx, starts, ends = _segment_bounds(scan, config)
+    return [idx[a:b] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)]
+
+
+def _segment_bounds(scan: Scan, config: LegConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The valid beams' indices and each segment's [start, end) positions among them."""
     r = scan.ranges_m
     with np.errstate(invalid="ignore"):
         valid = scan.valid & (r <= config.max_range_m)
@@ -260,14 +266,15 @@ def segment_scan(scan: Scan, config: LegConfig) -> list[np.ndarray]:
     ratio = math.sin(dphi) / math.sin(lam - dphi) if lam > dphi else math.inf
     idx = np.flatnonzero(valid)
     if idx.size == 0:
-        return []
+        return idx, idx, idx
     a, b = r[idx[:-1]], r[idx[1:]]
     # Distance between consecutive end points (law of cosines) against the breakpoint.
     jump = np.sqrt(np.maximum(0.0, a**2 + b**2 - 2.0 * a * b * math.cos(dphi)))
     d_max = a * ratio + 3.0 * config.range_sigma_m
-    breaks = (np.diff(idx) != 1) | (jump > d_max)
-    segments = np.split(idx, np.flatnonzero(breaks) + 1)
-    return segments
+    breaks = np.flatnonzero((np.diff(idx) != 1) | (jump > d_max)) + 1
+    starts = np.concatenate(([0], breaks))
+    ends = np.concatenate((breaks, [idx.size]))
+    return idx, starts, ends
 
 
 def segment_features(points: np.ndarray) -> tuple[float, float]:
@@ -317,16 +324,23 @@ def detect_legs(
     if config.expected_beams is not None and n != config.expected_beams:
         raise BadScanError(f"scan has {n} beams, expected {config.expected_beams}")
     pts_laser = scan.points()
-    segments = segment_scan(scan, config)
+    idx, starts, ends = _segment_bounds(scan, config)
+    # the cheap tests on every segment at once (beam count, end-to-end width), then the
+    # few that pass one by one (a scan has tens of segments, a handful leg-sized)
+    count = ends - starts
+    if idx.size:
+        chord = pts_laser[idx[ends - 1]] - pts_laser[idx[starts]]
+        widths = np.hypot(chord[:, 0], chord[:, 1])
+    else:
+        widths = np.zeros(0)
+    keep = (count >= config.min_points) & (count <= config.max_points)
+    keep &= (widths >= config.min_width_m) & (widths <= config.max_width_m)
     legs: list[Leg] = []
     on_obstacles = 0
-    for seg in segments:
-        if not config.min_points <= len(seg) <= config.max_points:
-            continue
+    for k in np.flatnonzero(keep).tolist():
+        seg = idx[starts[k] : ends[k]]
         p = pts_laser[seg]
         width, bulge = segment_features(p)
-        if not (config.min_width_m <= width <= config.max_width_m):
-            continue
         if not (config.min_bulge_m <= bulge <= config.max_bulge_m):
             continue
         p_map = laser_pose.transform(p)
@@ -340,7 +354,7 @@ def detect_legs(
     people = pair_legs(legs, config.max_pair_distance_m, config.allow_single_leg)
     return LegDetections(
         stamp_s=scan.stamp_s,
-        segments=len(segments),
+        segments=int(starts.size),
         legs=tuple(legs),
         people=people,
         on_obstacles=on_obstacles,

@@ -40,10 +40,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from stack.cells import ConfigError
-from stack.config import write_text
+from stack.config import dump_yaml, write_text
 from stack.geometry import Pose2D
 from stack.perception.visibility import CameraVisibility
 
@@ -132,7 +131,7 @@ class PerceptionModel:
             path,
             "# The camera pipeline's model (stack/perception/model.py), fitted by\n"
             "# `vigil fit-perception`; meta says from which rendered runs and when.\n"
-            + yaml.safe_dump(self.to_dict(), sort_keys=False, width=100),
+            + dump_yaml(self.to_dict(), sort_keys=False, width=100),
         )
         return path
 
