@@ -136,19 +136,32 @@ def _check_value(key: str, value: Any, hint: Any) -> None:
 MAX_FILE_BYTES = 16 * 2**20  # no configuration, task, map or state file is near this
 
 
-def open_regular(path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES) -> BinaryIO:
+def open_regular(
+    path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES, follow_links: bool = True
+) -> BinaryIO:
     """Open a file for reading only if it is a regular file of at most ``max_bytes``.
 
     A device (``/dev/zero``, ``/dev/random``), a named pipe (which would block the
     reader for ever), a socket or a folder is refused before a byte is read; so is a
     regular file larger than ``max_bytes`` (by its size). The file is opened first and
     checked through its descriptor, so it cannot be swapped between check and read.
+    ``follow_links=False``: a symbolic link at ``path`` is refused too (``O_NOFOLLOW``),
+    for a file the program wrote itself and that should never be a link (a bag's MCAP).
 
     Raises:
-        IsADirectoryError: a folder; FileNotFoundError and other OSError: unreadable.
+        IsADirectoryError: a folder; FileNotFoundError and other OSError: unreadable, or
+            (``follow_links=False``) a symbolic link (ELOOP, naming it).
         ValueError: not a regular file, or larger than ``max_bytes``.
     """
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO must not block the open
+    flags = os.O_RDONLY | os.O_NONBLOCK  # a FIFO must not block the open
+    if not follow_links:
+        flags |= os.O_NOFOLLOW
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP and not follow_links:
+            raise OSError(errno.ELOOP, "is a symbolic link: not read", str(path)) from None
+        raise
     try:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):

@@ -2,7 +2,7 @@
 
 :class:`BagWriter` takes messages as CDR bytes (as a raw ROS subscription hands them
 over) with the ROS type name and a log time, and writes a rosbag2 folder (``metadata.yaml``
-+ ``<name>_0.mcap``) that ``rosbags`` and Foxglove read. The message definitions come
++ ``<name>.mcap``) that ``rosbags`` and Foxglove read. The message definitions come
 from the ``rosbags`` typestore of ROS 2 Jazzy (standard types) and from the ``.msg`` files
 under ``interfaces/`` (vigil_interfaces, and tf2_msgs where the store lacks one), so each
 connection carries its schema.
@@ -12,6 +12,7 @@ camera's frames: about 900 kB each at full rate would make the bag the run's lar
 by far).
 
 The writer never touches a path it did not create: an existing bag folder is an error.
+A bag left unclosed (its writer killed) is salvaged by :mod:`vigil.bag_salvage`.
 
 :func:`read_recording` reads a lock-step run's bag back split by ``/lockstep/tick`` (the
 bag node writes one before each tick's messages), for ``vigil replay-bag``.

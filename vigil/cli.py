@@ -8,6 +8,7 @@ vigil replay --table all                 chapter 5's tables against our planner
 vigil replay-report --out DIR            solve, replay chapter 5, simulate, report
 vigil run SCENARIO [--config F] [--seed S] [--out DIR]   an experiment through ROS in the twin
 vigil replay-bag RUN [--out DIR]         re-play a run's bag into its planner; same steps?
+vigil bag-reindex BAG                    salvage a killed bag node's bag into BAG_recovered
 vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
 vigil launch CONFIG [--out DIR] [--resume]  start the whole system; Ctrl-C stops it
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
@@ -392,6 +393,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = _command(
         sub,
+        "bag-reindex",
+        "salvage a bag whose writer was killed (no metadata.yaml): its complete messages "
+        "into a new, indexed bag BAG_recovered beside it; the original is left as it is "
+        "(exit 2 when there is nothing to salvage)",
+    )
+    p.add_argument("bag", help="the bag's folder, e.g. runs/5.1.1/bag")
+    p.set_defaults(func=cmd_bag_reindex)
+
+    p = _command(
+        sub,
         "experiments",
         "run a folder of scenarios; metric table per scenario and totals, and a figure",
     )
@@ -539,6 +550,18 @@ def cmd_replay_bag(args: argparse.Namespace) -> int:
         print(f"note: {result.note}")
     print(f"[replay-bag] {result.out_dir}/replay.md ({result.wall_s:.0f} s)")
     return 0 if result.comparison.matches else 1
+
+
+def cmd_bag_reindex(args: argparse.Namespace) -> int:
+    from vigil.bag_salvage import closed_cleanly, salvage_bag
+
+    bag = Path(args.bag)
+    if closed_cleanly(bag):
+        print(f"{bag} has its metadata.yaml: it was closed cleanly, nothing to salvage")
+        return 0
+    result = salvage_bag(bag)  # SalvageError (a ValueError): one line, exit 2 (main)
+    print("\n".join(result.lines()))
+    return 0
 
 
 def cmd_experiments(args: argparse.Namespace) -> int:

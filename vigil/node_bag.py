@@ -28,7 +28,8 @@ slow the run (it may only fall behind). Camera frames are kept to one per
 ``camera_period_s`` of log time.
 SIGINT (the launcher's stop) closes the bag cleanly (:func:`stack.ros_main.spin_node`
 destroys the node); a SIGKILLed recorder leaves an MCAP without its summary and no
-``metadata.yaml``. A full disk: the writer holds a reserve (:data:`RESERVE_BYTES`) that
+``metadata.yaml`` (``vigil bag-reindex`` salvages its complete messages,
+:mod:`vigil.bag_salvage`). A full disk: the writer holds a reserve (:data:`RESERVE_BYTES`) that
 it frees to write the summary and ``metadata.yaml``; the node stops recording, closes
 the bag and exits :data:`stack.exits.EXIT_DISK_FULL` (issue 23).
 

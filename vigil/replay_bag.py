@@ -37,6 +37,7 @@ import yaml
 
 from stack.config import dump_yaml, load_yaml, read_text_capped, write_text
 from vigil.bag import BAG_DIR, ReplayError, fresh_path, read_recording
+from vigil.bag_salvage import RECOVERED_SUFFIX, closed_cleanly, recovered_path
 
 REPLAYED = ("observations", "planner")  # the nodes re-run from the bag
 REPLAY_DIR = "replay"  # inside the run folder (replay_1, ... when taken)
@@ -45,7 +46,8 @@ MAX_STEPS_BYTES = 256 * 2**20  # steps.jsonl: a record per decision step, far be
 
 
 def find_bag(run_dir: Path) -> Path:
-    """The run's bag folder, or :class:`ReplayError` saying what is missing."""
+    """The run's bag folder (``bag_recovered`` when ``bag`` was not closed and
+    ``vigil bag-reindex`` salvaged it), or :class:`ReplayError` saying what is missing."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise ReplayError(f"{run_dir}: no such run folder")
@@ -55,9 +57,14 @@ def find_bag(run_dir: Path) -> Path:
             f"{run_dir} has no bag ({bag} is missing): only runs recorded with the bag node "
             "(vigil run) can be replayed"
         )
-    if not (bag / "metadata.yaml").is_file():
+    if not closed_cleanly(bag):
+        salvaged = recovered_path(bag)
+        if closed_cleanly(salvaged):  # what vigil bag-reindex recovered from it
+            return salvaged
         raise ReplayError(
-            f"{bag} has no metadata.yaml: the bag was not closed (the recorder was killed?)"
+            f"{bag} has no metadata.yaml: the bag was not closed (the recorder was killed?); "
+            f"salvage its complete messages with `vigil bag-reindex {bag}` (it writes "
+            f"{salvaged}, which replay-bag then replays)"
         )
     return bag
 
@@ -249,6 +256,12 @@ def replay_run(
     if not recorded:
         raise ReplayError(f"{run_dir} has no step records (steps.jsonl): nothing to compare")
     note = restart_note(recorded)
+    if bag.name.endswith(RECOVERED_SUFFIX):
+        salvaged = (
+            f"the bag is {bag.name}, salvaged from a bag that was not closed: "
+            "steps after its last message cannot be replayed"
+        )
+        note = f"{note}; {salvaged}" if note else salvaged
     if note:
         say(f"[replay-bag] note: {note}")
     t0 = time.monotonic()
