@@ -223,7 +223,9 @@ class PlannerAgent:
         self.anticipator = anticipator
         self.robot_cell: int | None = None  # the last observed robot cell
         self.anticipated: dict[str, Any] | None = None  # the last decision's layer note
-        self._choose = policy_chooser(policy, pomdp, lookahead=True, tie_tolerance=tie_tolerance)
+        self._choose = policy_chooser(
+            policy, pomdp, lookahead=True, tie_tolerance=tie_tolerance, blocks=model.robot_blocks()
+        )
         b0 = pomdp.b0 if initial_belief is None else np.asarray(initial_belief, float)
         if b0.shape != (pomdp.n_states,) or not np.isclose(b0.sum(), 1.0):
             raise ValueError(f"initial belief must be {pomdp.n_states} probabilities summing to 1")

@@ -139,6 +139,12 @@ class FactoredModel:
             idx += [self.position_index(cell), velocity_index(velocity)]
         return int(np.ravel_multi_index(idx, self.obs_shape))
 
+    def robot_blocks(self) -> np.ndarray:
+        """(n_states,) the robot index of every flat state: the blocks the observations
+        reveal (every observation names the robot's cell), for the lookahead's
+        per-block vectors (:class:`stack.planning.pbvi.BlockVectors`)."""
+        return np.unravel_index(np.arange(self.n_states), self.state_shape)[0]
+
     def decode_state(self, s: int) -> tuple[int, list[tuple[int, int]]]:
         """(robot index, [(position index, direction index)]) of a flat state."""
         idx = np.unravel_index(int(s), self.state_shape)

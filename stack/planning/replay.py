@@ -10,6 +10,7 @@ and our beliefs with the values the text quotes.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -316,8 +317,15 @@ def replay_table(
     return TableResult(table, steps, quotes, beliefs)
 
 
+_BLOCK_VECTORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def policy_chooser(
-    policy: AlphaPolicy, pomdp: POMDP, lookahead: bool = True, tie_tolerance: float = TIE_TOLERANCE
+    policy: AlphaPolicy,
+    pomdp: POMDP,
+    lookahead: bool = True,
+    tie_tolerance: float = TIE_TOLERANCE,
+    blocks: np.ndarray | None = None,
 ):
     """A ``choose`` function for :func:`replay_table` from an alpha-vector policy.
 
@@ -329,16 +337,26 @@ def policy_chooser(
     equal (default :data:`TIE_TOLERANCE`: equal up to rounding, typically two equally
     short routes). Among them "Do nothing" wins, then North, South, East, West, so
     the choice is deterministic. ``tie_tolerance=0`` is the plain argmax.
+
+    ``blocks`` (S,): a partition of the states that every observation reveals (the
+    task's robot cell, :meth:`FactoredModel.robot_blocks`): the lookahead then scores
+    each observation with the vectors that can be best in its block
+    (:class:`stack.planning.pbvi.BlockVectors`; the same values, ten times faster).
     """
     stay = ACTIONS.index("Do nothing")
     preference = [stay] + [a for a in range(len(ACTIONS)) if a != stay]
-    from stack.planning.pbvi import Backup
+    from stack.planning.pbvi import Backup, BlockVectors
 
     backup = Backup(pomdp)
+    by_block = None
+    if blocks is not None:  # one per policy and partition: a study runs many episodes
+        by_block = _BLOCK_VECTORS.get(policy)
+        if by_block is None or not np.array_equal(by_block.blocks, blocks):
+            by_block = _BLOCK_VECTORS[policy] = BlockVectors(policy.alphas, blocks)
 
     def choose(b: np.ndarray) -> tuple[int, np.ndarray]:
         if lookahead:
-            q = backup.lookahead_values(policy.alphas, b)
+            q = backup.lookahead_values(policy.alphas, b, by_block)
         else:
             q = policy.action_values(b, pomdp.n_actions)
         best = q.max()
