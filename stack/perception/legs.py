@@ -287,16 +287,20 @@ def segment_features(points: np.ndarray) -> tuple[float, float]:
         width_m: distance between the end points; bulge_m: mean distance of the
         points from the chord, positive towards the sensor (0 for N < 3).
     """
-    p0, p1 = points[0], points[-1]
-    chord = p1 - p0
+    chord = points[-1] - points[0]
     width = float(np.hypot(*chord))
+    return width, _bulge(points, chord, width)
+
+
+def _bulge(points: np.ndarray, chord: np.ndarray, width: float) -> float:
+    """:func:`segment_features`'s bulge, the chord and its length given."""
     if len(points) < 3 or width == 0.0:
-        return width, 0.0
+        return 0.0
+    p0 = points[0]
     normal = np.array([-chord[1], chord[0]]) / width
     if np.dot(normal, -p0) < 0:  # point the normal towards the sensor
         normal = -normal
-    bulge = float(np.mean((points[1:-1] - p0) @ normal))
-    return width, bulge
+    return float(np.mean((points[1:-1] - p0) @ normal))
 
 
 def detect_legs(
@@ -337,20 +341,29 @@ def detect_legs(
     keep &= (widths >= config.min_width_m) & (widths <= config.max_width_m)
     legs: list[Leg] = []
     on_obstacles = 0
-    for k in np.flatnonzero(keep).tolist():
-        seg = idx[starts[k] : ends[k]]
+    kept = np.flatnonzero(keep)
+    if kept.size:
+        # the survivors' points in one array: bulge, map frame and static map at once
+        seg = np.concatenate([idx[starts[k] : ends[k]] for k in kept.tolist()])
+        size = count[kept]
+        first = np.concatenate(([0], np.cumsum(size)[:-1]))
         p = pts_laser[seg]
-        width, bulge = segment_features(p)
-        if not (config.min_bulge_m <= bulge <= config.max_bulge_m):
-            continue
+        bulges = [
+            _bulge(p[a : a + m], chord[k], float(widths[k]))
+            for a, m, k in zip(first.tolist(), size.tolist(), kept.tolist(), strict=True)
+        ]
         p_map = laser_pose.transform(p)
         if static_map is not None:
             near = static_map.distance_m(p_map) <= config.obstacle_clearance_m
-            if near.mean() >= config.obstacle_fraction:
+            near_frac = np.add.reduceat(near.astype(float), first) / size
+        for j, k in enumerate(kept.tolist()):
+            if not (config.min_bulge_m <= bulges[j] <= config.max_bulge_m):
+                continue
+            if static_map is not None and near_frac[j] >= config.obstacle_fraction:
                 on_obstacles += 1
                 continue
-        c = p_map.mean(axis=0)
-        legs.append(Leg((float(c[0]), float(c[1])), width, len(seg), bulge))
+            c = p_map[first[j] : first[j] + size[j]].mean(axis=0)
+            legs.append(Leg((float(c[0]), float(c[1])), float(widths[k]), int(size[j]), bulges[j]))
     people = pair_legs(legs, config.max_pair_distance_m, config.allow_single_leg)
     return LegDetections(
         stamp_s=scan.stamp_s,
