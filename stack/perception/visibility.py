@@ -171,7 +171,15 @@ class CameraVisibility:
         cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
 
     def robot_mask(self, pose: Pose2D) -> np.ndarray:
-        """The robot's silhouette in the raster image (uint8 0/1)."""
+        """The robot's silhouette in the raster image (uint8 0/1; read-only: the last
+        pose's is kept, for a robot at rest and a step that asks twice)."""
+        if self._mask_pose != pose:
+            mask = self._draw_robot(pose)
+            mask.setflags(write=False)
+            self._mask, self._mask_pose = mask, pose
+        return self._mask
+
+    def _draw_robot(self, pose: Pose2D) -> np.ndarray:
         mask = np.zeros(self.shape, np.uint8)
         for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes:
             corners = np.array([[x, y] for x in (x0, x1) for y in (y0, y1)])
@@ -182,12 +190,6 @@ class CameraVisibility:
             if px is not None:
                 self._fill(mask, px)
         return mask
-
-    def _robot(self, pose: Pose2D) -> np.ndarray:
-        """:meth:`robot_mask`, kept for the last pose (one step asks for it twice)."""
-        if self._mask_pose != pose:
-            self._mask, self._mask_pose = self.robot_mask(pose), pose
-        return self._mask
 
     def _person_quads(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Raster corners of the whole silhouette and of its legs at floor point (x, y)."""
@@ -266,7 +268,7 @@ class CameraVisibility:
         """
         if robot_pose is None:
             return dict(self._static)
-        robot = self._robot(robot_pose)
+        robot = self.robot_mask(robot_pose)
         if not robot.any():
             return dict(self._static)
         # :meth:`point` for every sample at once: the silhouettes do not move, only the
@@ -325,6 +327,6 @@ class CameraVisibility:
 
     def point_hidden(self, x: float, y: float, robot_pose: Pose2D | None) -> bool:
         """Whether a person at floor point (x, y) is hidden from the camera."""
-        robot = None if robot_pose is None else self._robot(robot_pose)
+        robot = None if robot_pose is None else self.robot_mask(robot_pose)
         rxy = None if robot_pose is None else (robot_pose.x_m, robot_pose.y_m)
         return self.point(x, y, robot, rxy).hidden
