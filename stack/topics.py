@@ -21,6 +21,10 @@ ARM = "/arm"
 # std_msgs/UInt64, a count: the velocity gate is alive (its timer ran), at rate_hz whatever
 # its state, so a base-side watchdog can tell a dead gate from a quiet one
 GATE_HEARTBEAT = "/velocity_gate/heartbeat"
+# the gate's parameter services (rcl_interfaces): `vigil arm`, `vigil disarm` and `vigil
+# status` set and read its ``armed`` parameter there (the node is named velocity_gate)
+GATE_SET_PARAMETERS = "/velocity_gate/set_parameters"
+GATE_GET_PARAMETERS = "/velocity_gate/get_parameters"
 STOP = "/stop"
 GOAL_POSE = "/goal_pose"
 TF = "/tf"  # tf2_msgs/TFMessage: odom -> base_link (bridge), map -> odom (localisation)

@@ -11,6 +11,9 @@ vigil replay-bag RUN [--out DIR]         re-play a run's bag into its planner; s
 vigil bag-reindex BAG                    salvage a killed bag node's bag into BAG_recovered
 vigil experiments DIR --out OUT [--docs F --label L]   a scenario set and its metric table
 vigil launch CONFIG [--out DIR] [--resume]  start the whole system; Ctrl-C stops it
+vigil arm CONFIG [--force]               arm the robot's velocity gate, confirmed (docs/HARDWARE.md)
+vigil disarm CONFIG                      disarm it (parameter and /arm), confirmed
+vigil status CONFIG [--wait S] [--json]  the gate, the base, every /diagnostics status
 vigil calibrate (--twin | --points F) -o CAL   the camera's floor homography
 vigil security keystore DIR --domain N   an SROS2 keystore for hardware mode (docs/SAFETY.md)
 vigil security check                     can the installed DDS enforce it?
@@ -488,6 +491,51 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_launch)
 
+    p = _command(
+        sub,
+        "arm",
+        "arm the robot's velocity gate through its parameter service and confirm it from "
+        "the gate's own status (exit 3: no gate answered, 4: the gate refused or did not "
+        "confirm, 5: a check refused, see --force)",
+    )
+    _operator_args(p)
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=1.5,
+        help="seconds to listen to /diagnostics before arming, for the checks",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="arm although a check refuses (a component at ERROR, caps above the "
+        "deployment's, a non-finite command, another publisher of the base topic)",
+    )
+    p.set_defaults(func=cmd_arm)
+
+    p = _command(
+        sub,
+        "disarm",
+        "disarm the robot's velocity gate: its parameter and false on its arm topic at once, "
+        "until the gate confirms (exit 3: no gate answered, 4: not confirmed)",
+    )
+    _operator_args(p)
+    p.set_defaults(func=cmd_disarm)
+
+    p = _command(
+        sub,
+        "status",
+        "the velocity gate (armed, reason, caps, heartbeat), the base's last command, the "
+        "camera and every /diagnostics status heard (exit 0: all OK, 1: otherwise, a "
+        "disarmed gate included)",
+    )
+    _operator_args(p)
+    p.add_argument(
+        "--wait", type=float, default=2.0, help="seconds to listen once the gate is found"
+    )
+    p.add_argument("--json", action="store_true", help="print the state as JSON")
+    p.set_defaults(func=cmd_status)
+
     p = _command(sub, "calibrate", "the ceiling camera's floor homography")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--twin", help="twin config YAML ('default' for the built-in scene)")
@@ -658,6 +706,68 @@ def cmd_launch(args: argparse.Namespace) -> int:
     from vigil.launch import launch
 
     return launch(args.config, args.out, resume=args.resume, resume_max_age_s=args.resume_max_age_s)
+
+
+def _operator_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", help="the robot's deployment file, e.g. config/hardware.yaml")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=5.0,
+        help="seconds to wait for the gate to appear (DDS discovery takes 0-3 s), and "
+        "again for its answer",
+    )
+
+
+def _seconds(name: str, value: float) -> float:
+    import math
+
+    from stack.cells import ConfigError
+
+    if not (math.isfinite(value) and 0 < value <= 3600):
+        raise ConfigError(name, value, "must be a number of seconds in (0, 3600]")
+    return value
+
+
+def _operator(args: argparse.Namespace, run) -> int:
+    """Run an operator command: its one-line errors and exit codes (vigil/operator.py)."""
+    from vigil.deployment import load_deployment
+    from vigil.operator import OperatorError, hardware_deployment
+
+    for name in ("timeout", "wait"):
+        if hasattr(args, name):
+            _seconds(f"--{name}", getattr(args, name))
+    dep = hardware_deployment(load_deployment(args.config))
+    try:
+        return run(dep)
+    except OperatorError as err:
+        print(f"vigil {args.command}: error: {err}", file=sys.stderr)
+        return err.code
+    except KeyboardInterrupt:
+        print(f"vigil {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def cmd_arm(args: argparse.Namespace) -> int:
+    from vigil.operator import arm
+
+    return _operator(args, lambda dep: arm(dep, args.timeout, args.wait, args.force, warn=_stderr))
+
+
+def cmd_disarm(args: argparse.Namespace) -> int:
+    from vigil.operator import disarm
+
+    return _operator(args, lambda dep: disarm(dep, args.timeout))
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from vigil.operator import status
+
+    return _operator(args, lambda dep: status(dep, args.wait, args.json, args.timeout))
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

@@ -352,6 +352,20 @@ def _check_hardware(dep: Deployment) -> None:
         require_support()  # a keystore DDS would not enforce is refused, not ignored
 
 
+def gate_topics(dep: Deployment) -> dict[str, str]:
+    """The velocity gate's topics under ``dep``, as its ``*_topic`` parameters: what
+    ``vigil launch`` gives the gate and what ``vigil arm``, ``disarm`` and ``status`` use
+    (the gate's caps are in ``hardware.velocity_gate``; its topics are fixed but the
+    base's, ``topics.cmd_vel``)."""
+    return {
+        "input_topic": NAV_CMD_VEL,
+        "output_topic": dep.topics.cmd_vel,
+        "arm_topic": topic.ARM,
+        "diagnostics_topic": topic.DIAGNOSTICS,
+        "heartbeat_topic": topic.GATE_HEARTBEAT,
+    }
+
+
 def load_deployment(path: str | Path) -> Deployment:
     """Read and validate a deployment file.
 

@@ -23,7 +23,7 @@ import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.config import dump_yaml, read_yaml, write_text
 from vigil.dds import dds_env, write_profile
-from vigil.deployment import Deployment
+from vigil.deployment import Deployment, gate_topics
 from vigil.processes import ProcessSpec
 from vigil.scenario import Scenario
 from vigil.security import security_env
@@ -173,8 +173,7 @@ def prepare(
         params["velocity_gate"] = {
             "config_file": str(hw_file),
             "armed": bool(dep.hardware.get("armed", False)),
-            "input_topic": topic.NAV_CMD_VEL,
-            "output_topic": dep.topics.cmd_vel,
+            **gate_topics(dep),  # the topics vigil arm/disarm/status use too
         }
 
     cfg = str(stack_file)

@@ -5,9 +5,10 @@ talks to the robot's base driver. It forwards a command only while an operator h
 armed it, caps the planar speed and the yaw rate, and sends zeros when commands stop
 arriving (see :mod:`stack.hardware.velocity_gate`).
 
-Arming: ``ros2 param set /velocity_gate armed true`` or publish true on ``/arm``; false
-(either way) disarms and sends a zero at once. The ``armed`` parameter always shows the
-gate's state, whichever way it was set.
+Arming: ``vigil arm CONFIG`` (:mod:`vigil.operator`: the ``armed`` parameter through
+``/velocity_gate/set_parameters``, as ``ros2 param set /velocity_gate armed true``) or
+true on ``/arm``; false (either way, ``vigil disarm`` uses both) disarms and sends a zero
+at once. The ``armed`` parameter always shows the gate's state, whichever way it was set.
 
 Subscribes (names are parameters):
     ``/nav/cmd_vel`` geometry_msgs/Twist (``input_topic``): the commands to gate.
