@@ -23,6 +23,9 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+# one BLAS thread, as a study's workers have (vigil.montecarlo): a worker's CPU time
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
 
 from vigil.inprocess import run_inprocess  # noqa: E402
 from vigil.montecarlo import episode_scenarios  # noqa: E402

@@ -427,3 +427,11 @@ class Coordinator:
                 self.log.append(("error", f"lock-step: {line}"))
             self._wait_since = now_s
         return WAIT
+
+
+def stamp_parts(t_s: float) -> tuple[int, int]:
+    """(sec, nanosec) of a time [s] as a builtin_interfaces/Time stamps it: rounded to a
+    whole number of nanoseconds first, so that 2.9999999999 s is 3 s (not 2 s with the
+    nanoseconds wrapped to 0; the twin bridge and the in-process loop both use this)."""
+    sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+    return sec, nanosec

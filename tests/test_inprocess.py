@@ -26,15 +26,47 @@ person:
     - {{to: outside, speed_mps: 1.0, pause_s: 30.0}}
 """
 
+# Two people (task r2 for two) and a camera outage: the first to cell 1, the second
+# to cell 10 and out; the camera is off for 3 s while both are inside.
+TWO = """\
+name: mc-two
+title: Two people, one to cell 1, a camera outage
+task: {task}
+seed: 17
+steps: 8
+robot_cell: 7
+belief: {{person: none, direction: not moving}}
+people:
+  - start: outside
+    walk:
+      - {{to: door, speed_mps: 1.0}}
+      - {{to: [5.5, 0.9], speed_mps: 0.9, pause_s: 8.0}}
+      - {{to: door, speed_mps: 1.0}}
+      - {{to: outside, speed_mps: 1.0, pause_s: 30.0}}
+  - start: [7.0, 7.4]
+    walk:
+      - {{to: door, speed_mps: 1.0}}
+      - {{to: [1.6, 2.2], speed_mps: 0.8, pause_s: 3.0}}
+      - {{to: door, speed_mps: 1.0}}
+      - {{to: outside, speed_mps: 1.0, pause_s: 30.0}}
+faults:
+  - {{kind: camera_off, at_s: 6.0, duration_s: 3.0}}
+"""
+
 
 def test_ros_time_keeps_nanoseconds_as_a_stamp_does():
     assert ros_time(0.1 + 1e-12) == pytest.approx(0.1, abs=1e-12)
     assert ros_time(2.000000000499) == 2.0
-    # as twin.bridge_node.stamp_of: nanoseconds that round up to 1e9 wrap to 0 without
-    # carrying into the seconds, so the twin's t = 2.999999999999891 is stamped 2.0 (a
-    # bridge bug, reported; mirrored here so that both runs see the same clock)
-    assert ros_time(2.999999999999891) == 2.0
+    # as twin.bridge_node.stamp_of: the twin's accumulated t = 2.999999999999891 is
+    # 3 s (the nanoseconds carry into the seconds; they once wrapped to 0: 2 s, and
+    # every node's clock stepped back a second at each whole second)
+    assert ros_time(2.999999999999891) == 3.0
     assert ros_time(1.5) == 1.5
+    from twin.bridge_node import stamp_of
+
+    for t in (2.999999999999891, 0.04 * 75, 1e-10, 12.3456789):
+        s = stamp_of(t)
+        assert ros_time(t) == float(s.sec) + 1e-9 * float(s.nanosec)
 
 
 def test_timers_fire_on_the_first_tick_then_at_the_first_tick_past_each_period():
@@ -127,3 +159,24 @@ def test_the_perception_model_runs_the_same_loop_without_rendering(tmp_path):
     frames = [frame_record(json.loads(x)) for x in lines]
     assert len(frames) >= 10 * rendered["inprocess"]["sim_s"] - 2  # 10 Hz
     assert any(f.detections for f in frames) and all(len(f.people) == 1 for f in frames)
+
+
+@pytest.mark.slow
+def test_two_people_and_a_fault_run_in_process_with_the_online_planner(tmp_path):
+    """The in-process loop runs the two-person task as the ROS run does (the same
+    planner set-up and observations core): the online planner on person slots, each
+    step's observation with one label pair per slot, a camera outage seen as such."""
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO.format(task=REPO / "config" / "task-r2-n2.yaml"))
+    runs = [
+        run_inprocess(scenario, tmp_path / f"m{k}", say=lambda _s: None, perception="model")
+        for k in range(2)
+    ]
+    a = (tmp_path / "m0" / "steps.jsonl").read_text()
+    assert a == (tmp_path / "m1" / "steps.jsonl").read_text()  # same seed, same run
+    steps = _records(tmp_path / "m0" / "steps.jsonl")
+    assert len(steps) == 8
+    assert all(len(s["observation"]["people"]) == 2 for s in steps)
+    summary = runs[0]
+    assert [p["person"] for p in summary["people"]["per_person"]] == [1, 2]
+    assert summary["people"]["n_visits"] >= 1  # the first walker's stay in cell 1

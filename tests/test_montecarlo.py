@@ -308,3 +308,57 @@ def test_rescoring_a_study_gives_its_figures_again_and_follows_a_changed_metric(
     assert record["late_warnings"] == a["episodes"][0]["late_warnings"]
     with pytest.raises(ConfigError, match="not a study folder"):
         rescore_study(tmp_path / "nothing", say=lambda _s: None)
+
+
+def test_a_two_person_task_draws_a_walk_per_person_the_second_setting_off_later():
+    from vigil.walks import DEFAULT_WALKS, load_walks
+
+    study = load_walks(DEFAULT_WALKS)
+    task2 = REPO / "config" / "task-r2-n2.yaml"
+    eps = episode_scenarios(task2, 30, seed=3, study=study)
+    assert eps == episode_scenarios(task2, 30, seed=3, study=study)
+    grid = load_task(task2).grid
+    for sc in eps:
+        assert len(sc.walkers) == 2 and sc.title.count(" | ") == 1
+        second = sc.others[0]
+        # waits outside, then walks in like anybody: door, cells of the grid, out
+        wait = second.walk[0]
+        assert wait.to == "outside" and 0.0 <= wait.pause_s <= 10.0
+        assert second.walk[1].to == "door" and second.walk[-1].to == "outside"
+        assert all(grid.cell_at(*leg.to) is not None for leg in second.walk[2:-2])
+    assert len({sc.others[0].walk[0].pause_s for sc in eps}) > 20  # drawn, not fixed
+    # one walker by the walks file's say, and a one-person task keeps its walks
+    one = episode_scenarios(task2, 5, seed=3, study=load_walks(DEFAULT_WALKS, people=1))
+    assert all(not sc.others for sc in one)
+    r1 = episode_scenarios(TASK, 5, seed=3, study=study)
+    assert all(not sc.others for sc in r1)
+    with pytest.raises(ConfigError, match="people"):
+        StudyConfig(people=9)
+
+
+def test_a_several_people_episode_counts_every_walkers_visits():
+    from vigil.montecarlo import metric_fields
+
+    def visit(cell, guarded, delay):
+        return {"cell": cell, "person_arrival_t": 3.0, "person_duration_s": 4.0,
+                "guarded": guarded, "reachable": True, "robot_first": False,
+                "delay_s": delay, "warning_lead_s": None}  # fmt: skip
+
+    first = {"n_visits": 1, "guarded": 1, "reachable": 1, "guarded_reachable": 1,
+             "robot_first": 0, "abandoned": 0, "visits": [visit(1, True, 1.0)],
+             "n_false_trips": 0, "n_needless_trips": 0, "timely_warnings": 1,
+             "late_warnings": 0, "miss_rate": 0.0}  # fmt: skip
+    summary = {"metrics": first}
+    assert metric_fields(summary)["n_visits"] == 1
+    summary["people"] = {
+        "per_person": [
+            {"person": 1, "visits": [visit(1, True, 1.0)], "abandoned": 0},
+            {"person": 2, "visits": [visit(12, False, None)], "abandoned": 1},
+        ],
+        "n_visits": 2, "guarded": 1, "reachable": 2, "guarded_reachable": 1,
+        "robot_first": 0, "n_false_trips": 0, "n_needless_trips": 1,
+    }  # fmt: skip
+    m = metric_fields(summary)
+    assert (m["n_visits"], m["guarded"], m["reachable"], m["abandoned"]) == (2, 1, 2, 1)
+    assert [(v["person"], v["cell"]) for v in m["visits"]] == [(1, 1), (2, 12)]
+    assert m["delays_s"] == [1.0] and m["n_needless_trips"] == 1

@@ -19,7 +19,8 @@ def test_recorder_writes_raw_records(tmp_path):
     from sensor_msgs.msg import Image
 
     from stack.ros_msgs import camera_to_msg, truth_to_msg, warning_to_msg
-    from vigil.node_recorder import TRUTH_GAP_S, RecorderNode
+    from vigil.node_recorder import RecorderNode
+    from vigil.trace_records import TRUTH_GAP_S
 
     rclpy.init()
     try:

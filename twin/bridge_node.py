@@ -66,6 +66,7 @@ from stack.lockstep import (
     TICK_TOPIC,
     Coordinator,
     Ledger,
+    stamp_parts,
 )
 from stack.ros_main import spin_node
 from stack.ros_msgs import ack_from_msg, truth_to_msg
@@ -84,7 +85,7 @@ def stamp_of(t_s: float) -> Time:
     Rounded as a whole number of nanoseconds first, so that 2.9999999999 s is
     3.000000000 s (not 2 s with the nanoseconds wrapped to 0).
     """
-    sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+    sec, nanosec = stamp_parts(t_s)
     return Time(sec=sec, nanosec=nanosec)
 
 

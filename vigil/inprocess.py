@@ -41,8 +41,6 @@ readable with all of them in one place.
 from __future__ import annotations
 
 import json
-import math
-import os
 import time
 from collections import deque
 from collections.abc import Callable
@@ -57,6 +55,7 @@ from stack.cells import ConfigError
 from stack.config import open_write, write_text
 from stack.geometry import Pose2D
 from stack.hardware.base_watchdog import BaseWatchdog
+from stack.lockstep import stamp_parts
 from stack.nav.config import FollowerConfig, SpeechConfig, read_node_config
 from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
@@ -69,21 +68,19 @@ from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs
 from stack.perception.messages import camera_state_from_json, legs_to_dict, tracks_from_dict
 from stack.perception.model import DETECTIONS_FILE, ModelCamera, PerceptionModel, PersonFrame
-from stack.perception.observation import CombinerConfig, ObservationCombiner
+from stack.perception.observation import CombinerConfig
+from stack.perception.observer import Observer
 from stack.perception.tracker import LegTracker, TrackerConfig
-from stack.perception.visibility import CameraVisibility, VisibilityConfig
-from stack.planning.agent import ObservationError, Observed, PlannerAgent
-from stack.planning.anticipate import Anticipator
-from stack.planning.model import build_model
-from stack.planning.policy import AlphaPolicy
+from stack.planning.agent import ObservationError, Observed
+from stack.planning.runtime import PlannerStart, make_planner, online_config, task_model
 from stack.planning.stepper import DecisionSteps, StepTiming
-from stack.planning.task import load_task
 from twin.config import load_twin_config
 from twin.env import GuardEnvironment, Outage, make_environment
 from twin.twin import truth_record
 from vigil.deployment import Deployment, load_deployment
 from vigil.scenario import Scenario, load_scenario
 from vigil.system import System, prepare
+from vigil.trace_records import TraceRecords
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
@@ -99,36 +96,15 @@ MODEL_STREAM = 0x5EE  # the model camera's random stream, beside the twin's seed
 
 
 def ros_time(t_s: float) -> float:
-    """``t_s`` through a builtin_interfaces/Time as the bridge stamps it (what a node
-    reads back). As ``twin.bridge_node.stamp_of``, nanoseconds that round up to 1e9 wrap
-    to 0 without carrying into the seconds: the twin's accumulated 2.999999999999891 s
-    reads 2.0 s. That is a bridge bug (every node's clock steps back one second for that
-    tick, at every whole second from 3 s on); it is mirrored here on purpose so that the
-    in-process loop sees the clock the ROS run sees, and goes when the bridge is fixed."""
-    sec = int(math.floor(t_s))
-    nanosec = int(round((t_s - sec) * 1e9)) % 1_000_000_000
+    """``t_s`` through a builtin_interfaces/Time as the bridge stamps it
+    (:func:`stack.lockstep.stamp_parts`) and a node reads it back."""
+    sec, nanosec = stamp_parts(t_s)
     return float(sec) + 1e-9 * float(nanosec)
 
 
 def f32(x: float) -> float:
     """A float through a float32 message field."""
     return float(np.float32(x))
-
-
-_PLANNING: dict[tuple, tuple] = {}
-
-
-def _planning_of(task_file: str, policy_file: str):
-    """The task's model, flat POMDP and policy, made once per worker process for the same
-    files (a study runs hundreds of episodes of one task; none of the three changes)."""
-    key = tuple((str(f), os.stat(f).st_mtime_ns, os.stat(f).st_size) for f in (task_file,
-                policy_file))  # fmt: skip
-    if key not in _PLANNING:
-        model = build_model(load_task(task_file))
-        pomdp = model.flat()
-        _PLANNING.clear()
-        _PLANNING[key] = (model, pomdp, AlphaPolicy.load(policy_file, pomdp.n_states))
-    return _PLANNING[key]
 
 
 class _Timer:
@@ -201,17 +177,15 @@ class InProcessSystem:
 
         # -- the planner (as stack.planning.node_planner) --------------------------------
         pp = p["planner"]
-        model, pomdp, policy = _planning_of(pp["task_file"], pp["policy_file"])
-        ini = model.task.initial
-        person = int(pp.get("initial_person_cell", -1))
-        first_person = ini.person if person < 0 else (person or None)
-        b0 = model.initial_belief(
-            int(pp.get("initial_robot_cell", 0)) or ini.robot,
-            [(first_person, pp.get("initial_direction", "") or ini.direction)] * model.people,
+        start = PlannerStart(
+            int(pp.get("initial_robot_cell", 0)),
+            int(pp.get("initial_person_cell", -1)),
+            str(pp.get("initial_direction", "")),
         )
-        self.agent = PlannerAgent(
-            model, pomdp, policy, b0, anticipator=Anticipator.for_task(model.task)
-        )
+        setup = make_planner(pp["task_file"], pp["policy_file"], start, online_config(pp))
+        self.agent = setup.agent
+        first_person = setup.first_person
+        model = task_model(pp["task_file"])  # the twin's task: rewards and grid
         timing = StepTiming(
             start_delay_s=float(pp["start_delay_s"]),
             min_step_s=float(pp["min_step_s"]),
@@ -272,15 +246,11 @@ class InProcessSystem:
 
         # -- observations -----------------------------------------------------------------
         op = p["observations"]
-        ogrid, osec = load_config_file(op["config_file"])
-        visibility = CameraVisibility(
-            load_calibration(op["calibration_file"]).homography,
-            ogrid,
-            VisibilityConfig.from_dict(osec.get("visibility")),
+        self.observer = Observer(
+            op["config_file"], op["calibration_file"], int(op.get("people", 1))
         )
-        self.combiner = ObservationCombiner(
-            ogrid, CombinerConfig.from_dict(osec.get("observations")), visibility
-        )
+        visibility = self.observer.visibility
+        assert visibility is not None  # a twin run always has the camera's calibration
         self.model_camera: ModelCamera | None = None
         self.detections = None
         if perception == "model":
@@ -289,9 +259,6 @@ class InProcessSystem:
             self.model_camera = ModelCamera(perception_model, visibility, rng)
         else:
             self.detections = open_write(self.run_dir / DETECTIONS_FILE, "w")
-        self.obs_camera = None
-        self.obs_tracks: tuple = ()
-        self.obs_pose: Pose2D | None = None
 
         # -- navigation -------------------------------------------------------------------
         np_ = p["navigation"]
@@ -320,10 +287,7 @@ class InProcessSystem:
             from vigil.frames import FRAMES_FILE, FrameWriter
 
             self.frames = FrameWriter(self.run_dir / FRAMES_FILE, 90)
-        self.rec_truth: dict | None = None
-        self.rec_odom: list[float] | None = None
-        self.rec_legs: list = []
-        self.rec_speech: list[str] = []
+        self.records = TraceRecords()  # as the recorder node (vigil.trace_records)
 
         # -- wiring: the topics each core's node subscribes to, in the system's node order --
         self._sub(topic.CLOCK, self._clock)
@@ -504,18 +468,17 @@ class InProcessSystem:
 
     # -- observations ---------------------------------------------------------------------
     def obs_on_person(self, text: str) -> None:
-        self.obs_camera = camera_state_from_json(text, self.now_s)
+        self.observer.on_camera(camera_state_from_json(text, self.now_s))
 
     def obs_on_legs(self, data: dict) -> None:
-        self.obs_tracks = tracks_from_dict(data, self.now_s)
+        self.observer.on_tracks(tracks_from_dict(data, self.now_s))
 
     def obs_on_odom(self, msg: tuple[float, Pose2D]) -> None:
-        self.obs_pose = msg[1]
+        self.observer.on_pose(msg[1])
 
     def obs_publish(self) -> None:
-        pose, self.obs_pose = self.obs_pose, None  # a pose is used once (as the node)
-        obs = self.combiner.combine(self.now_s, self.obs_camera, self.obs_tracks, pose)
-        self.publish(topic.OBSERVATIONS, obs.to_json())
+        _, record = self.observer.observe(self.now_s)
+        self.publish(topic.OBSERVATIONS, json.dumps(record))
 
     # -- navigation -----------------------------------------------------------------------
     def nav_on_pose(self, msg: tuple[float, Pose2D]) -> None:
@@ -594,21 +557,18 @@ class InProcessSystem:
 
     # -- recorder -------------------------------------------------------------------------
     def rec_on_truth(self, record: dict) -> None:
-        self.rec_truth = record
+        gap = self.records.on_truth(record)
+        if gap is not None:
+            self._trace_write(gap, None)  # the camera is silent (outage)
 
     def rec_on_odom(self, msg: tuple[float, Pose2D]) -> None:
-        p = msg[1]
-        self.rec_odom = [round(p.x_m, 4), round(p.y_m, 4), round(p.yaw_rad, 4)]
+        self.records.on_odom(msg[1])
 
     def rec_on_legs(self, data: dict) -> None:
-        self.rec_legs = [
-            t["position_m"]
-            for t in data.get("tracks", [])
-            if t.get("confirmed") and "position_m" in t
-        ]
+        self.records.on_legs(data)
 
     def rec_on_warning(self, text: str) -> None:
-        self.rec_speech.append(text or "warning")
+        self.records.on_warning(text)
 
     def rec_on_image(self, msg: tuple[float, np.ndarray]) -> None:
         if self.frames is not None:
@@ -617,28 +577,12 @@ class InProcessSystem:
                 del self._images[min(self._images)]
 
     def rec_on_person(self, text: str) -> None:
-        camera = json.loads(text)
-        stamp = round(float(camera.get("stamp_s") or 0.0), 6)
-        truth = self.rec_truth or {}
-        record = {
-            "t": truth.get("t", stamp),
-            "robot": truth.get("robot"),
-            "robot_cell": truth.get("robot_cell"),
-            "person": truth.get("person"),
-            "person_cell": truth.get("person_cell"),
-            "person_velocity": truth.get("person_velocity"),
-            "odom": self.rec_odom,
-            "camera": {
-                k: camera.get(k)
-                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
-            },
-            "legs": self.rec_legs,
-            "speech": self.rec_speech or None,
-        }
-        self.rec_speech = []
+        self._trace_write(*self.records.on_person(json.loads(text)))
+
+    def _trace_write(self, record: dict, stamp: float | None) -> None:
         self.trace.write(json.dumps(record, sort_keys=True) + "\n")
         if self.frames is not None:
-            rgb = self._images.pop(stamp, None)
+            rgb = self._images.pop(stamp, None) if stamp is not None else None
             self.frames.add(record["t"], None if rgb is None else rgb[:, :, ::-1].copy())
 
     def close(self) -> None:

@@ -104,7 +104,7 @@ def run_episode(
         "seed": scenario.seed,
         "faults": [asdict(f) for f in scenario.faults],
         "steps": summary["steps"],
-        **metric_fields(summary["metrics"]),
+        **metric_fields(summary),
         "sim_s": summary["inprocess"]["sim_s"],
         "wall_s": round(time.monotonic() - t0, 2),
     }
@@ -113,9 +113,11 @@ def run_episode(
     return record
 
 
-def metric_fields(m: dict[str, Any]) -> dict[str, Any]:
-    """An episode record's metrics, from its report's ``metrics``."""
-    return {
+def metric_fields(summary: dict[str, Any]) -> dict[str, Any]:
+    """An episode record's metrics, from its report's summary (``metrics``; with several
+    walkers, their visits and trips from ``people``, :mod:`vigil.report.people`)."""
+    m = summary["metrics"]
+    out = {
         "n_visits": m["n_visits"],
         "guarded": m["guarded"],
         "reachable": m.get("reachable", 0),
@@ -134,6 +136,26 @@ def metric_fields(m: dict[str, Any]) -> dict[str, Any]:
         ],
         "miss_rate": m["miss_rate"],
     }
+    people = summary.get("people")
+    if people:  # every walker's visits (the one-person fields count the first's)
+        visits: list[dict[str, Any]] = [
+            {**{k: v.get(k) for k in VISIT_KEYS}, "person": p["person"]}
+            for p in people["per_person"]
+            for v in p["visits"]
+        ]
+        out.update(
+            {k: people[k] for k in ("n_visits", "guarded", "reachable", "guarded_reachable")},
+            robot_first=people["robot_first"],
+            abandoned=sum(p["abandoned"] for p in people["per_person"]),
+            delays_s=[v["delay_s"] for v in visits if v["delay_s"] is not None],
+            visits=visits,
+            n_false_trips=people["n_false_trips"],
+            n_needless_trips=people["n_needless_trips"],
+            warning_leads_s=[
+                v["warning_lead_s"] for v in visits if v["warning_lead_s"] is not None
+            ],
+        )
+    return out
 
 
 VISIT_KEYS = (
@@ -412,7 +434,7 @@ def rescore_study(out: str | Path, say: Callable[[str], None] = print) -> dict[s
             continue
         folder = folders[ep["episode"]]
         summary = write_report(folder, _episode_task(folder), plots=False, video=False)
-        ep.update(metric_fields(summary["metrics"]))
+        ep.update(metric_fields(summary))
         write_text(folder / "episode.json", json.dumps(ep, sort_keys=True) + "\n")
         if time.monotonic() - last >= 1.0 or n == len(eps):
             say(f"[montecarlo] rescored {n}/{len(eps)}")

@@ -40,9 +40,9 @@ from stack.ros_main import spin_node
 from stack.ros_msgs import camera_from_msg, legs_from_msg, speech_done_from_msg, truth_from_msg
 from stack.ros_params import declare
 from vigil.frames import FRAMES_FILE, FrameWriter
+from vigil.trace_records import TraceRecords
 
 TRACE_FILE = "trace.jsonl"
-TRUTH_GAP_S = 0.25  # camera silent this long: trace the ground truth without it
 
 
 def _skips_bad_messages(callback):
@@ -80,11 +80,7 @@ class RecorderNode(Node):
         self.trace = open_write(out_dir / TRACE_FILE, "a")
         self.frames = FrameWriter(out_dir / FRAMES_FILE, quality) if video else None
         self.images: dict[float, object] = {}
-        self.truth: dict | None = None
-        self.odom: list[float] | None = None
-        self.legs: list = []
-        self.speech: list[str] = []
-        self.last_t = 0.0  # the last trace record's time
+        self.records = TraceRecords()  # what each trace record holds (vigil.trace_records)
         ls = self.lockstep = Participant(self, v.lockstep)
         ls.subscription(Image, topic.CAMERA_IMAGE, self.on_image, 5)
         ls.subscription(CameraPerson, topic.PERSON, self.on_person, 10)
@@ -103,26 +99,22 @@ class RecorderNode(Node):
 
     @_skips_bad_messages
     def on_truth(self, msg: TwinTruth) -> None:
-        self.truth = truth_from_msg(msg)
-        t = (self.truth or {}).get("t")
-        if isinstance(t, int | float) and t - self.last_t >= TRUTH_GAP_S - 1e-9:
-            self.write(float(t), None, None)  # the camera is silent (outage)
+        record = self.records.on_truth(truth_from_msg(msg) or {})
+        if record is not None:
+            self.write(record, None)  # the camera is silent (outage)
 
     def on_odom(self, msg: Odometry) -> None:
         try:
-            pose = pose_from_msg(msg.pose.pose)
-            self.odom = [round(pose.x_m, 4), round(pose.y_m, 4), round(pose.yaw_rad, 4)]
+            self.records.on_odom(pose_from_msg(msg.pose.pose))
         except ValueError:
-            self.odom = None
+            self.records.on_odom(None)
 
     @_skips_bad_messages
     def on_legs(self, msg: LegTracks) -> None:
-        data = legs_from_msg(msg)
-        tracks = data.get("tracks", [])
-        self.legs = [t["position_m"] for t in tracks if t.get("confirmed") and "position_m" in t]
+        self.records.on_legs(legs_from_msg(msg))
 
     def on_warning(self, msg: Warning) -> None:
-        self.speech.append(msg.text or "warning")  # every one: two may come between records
+        self.records.on_warning(msg.text)
 
     @_skips_bad_messages
     def on_speech_done(self, msg: SpeechDone) -> None:
@@ -134,37 +126,10 @@ class RecorderNode(Node):
 
     @_skips_bad_messages
     def on_person(self, msg: CameraPerson) -> None:
-        camera = camera_from_msg(msg)
-        stamp = round(float(camera.get("stamp_s") or 0.0), 6)
-        truth = self.truth or {}
-        self.write(
-            truth.get("t", stamp),
-            {
-                k: camera.get(k)
-                for k in ("status", "position_m", "cell", "direction", "boxes", "foot_px")
-            },
-            stamp,
-        )
+        self.write(*self.records.on_person(camera_from_msg(msg)))
 
-    def write(self, t: float, camera: dict | None, stamp: float | None) -> None:
-        """One trace record (the latest truth, odometry, legs, speech) and its frame."""
-        truth = self.truth or {}
-        record = {
-            "t": t,
-            "robot": truth.get("robot"),
-            "robot_cell": truth.get("robot_cell"),
-            "person": truth.get("person"),
-            "person_cell": truth.get("person_cell"),
-            "person_velocity": truth.get("person_velocity"),
-            "odom": self.odom,
-            "camera": camera,
-            "legs": self.legs,
-            "speech": self.speech or None,
-        }
-        if truth.get("people"):  # several walkers (issue 16): each one's truth
-            record["people"] = truth["people"]
-        self.speech = []
-        self.last_t = float(t)
+    def write(self, record: dict, stamp: float | None) -> None:
+        """One trace record and, with the video, the frame stamped ``stamp``."""
         self.trace.write(json.dumps(record, sort_keys=True) + "\n")
         self.trace.flush()
         if self.frames is not None:

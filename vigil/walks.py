@@ -41,7 +41,7 @@ import numpy as np
 from stack.cells import ConfigError
 from stack.planning.task import Task
 from twin.config import MAX_WALK_SPEED_MPS
-from vigil.scenario import Fault, Leg, Scenario
+from vigil.scenario import Fault, Leg, Scenario, Walker
 
 DEFAULT_WALKS = Path(__file__).resolve().parents[1] / "config" / "walks.yaml"
 BEHAVIOURS = ("targets", "direct", "wander", "hesitate", "two_visits", "decoy", "pass_by")
@@ -54,6 +54,7 @@ PAIRS = (
     "border_pause_s",
     "outage_s",
     "outage_at_s",
+    "start_gap_s",
 )
 
 
@@ -76,6 +77,9 @@ class StudyConfig:
         outage_s: (low, high) outage length [s]; it starts within ``outage_at_s``.
         tail_s: the episode runs this long after the person has left.
         max_sim_s: no episode runs longer (simulated seconds).
+        people: walkers per episode (None: the task's ``people``), each with a walk of
+            their own; the second and later set off ``start_gap_s`` after the first.
+        start_gap_s: (low, high) how much later than the first each other walker starts.
     """
 
     speed_mps: tuple[float, float] = (0.4, 1.4)
@@ -95,6 +99,8 @@ class StudyConfig:
     outage_at_s: tuple[float, float] = (3.0, 15.0)
     tail_s: float = 5.0
     max_sim_s: float = 60.0
+    people: int | None = None
+    start_gap_s: tuple[float, float] = (0.0, 10.0)
 
     def __post_init__(self) -> None:
         for name in PAIRS:
@@ -130,6 +136,11 @@ class StudyConfig:
             raise ConfigError("tail_s", self.tail_s, "must lie in [0, 600] s")
         if not (_finite(self.max_sim_s) and 0 < self.max_sim_s <= 3600):
             raise ConfigError("max_sim_s", self.max_sim_s, "must lie in (0, 3600] s")
+        if self.people is not None and not (
+            isinstance(self.people, int) and not isinstance(self.people, bool)
+            and 1 <= self.people <= 4
+        ):  # fmt: skip
+            raise ConfigError("people", self.people, "must be 1 to 4 walkers (or absent)")
 
 
 def _finite(v: Any) -> bool:
@@ -288,6 +299,40 @@ def random_scenario(
 
     The robot starts at the task's rest cell; the planner believes nobody is there.
     """
+    walkers: list[tuple[tuple[Leg, ...], str]] = [_draw_walk(task, rng, study)]
+    for _ in range((study.people or task.people) - 1):
+        legs, what = _draw_walk(task, rng, study)
+        gap = _uniform(rng, study.start_gap_s)  # then this walker sets off
+        walkers.append(((Leg("outside", legs[0].speed_mps, gap), *legs), what))
+    faults: list[Fault] = []
+    fault = ""
+    if rng.random() < study.p_fault:
+        kind = "camera_off" if rng.random() < 0.5 else "lidar_off"
+        at, dur = _uniform(rng, study.outage_at_s), _uniform(rng, study.outage_s)
+        faults.append(Fault(kind, at_s=at, duration_s=dur))
+        fault = f" {kind.split('_')[0]}-{dur:g}s"
+    others = "".join(f" | {what}" for _, what in walkers[1:])
+    return Scenario(
+        name=f"mc-{index:03d}",
+        title=f"random walk {index}: {walkers[0][1]}{fault}{others}",
+        task=Path(task_path).resolve(),
+        seed=int(rng.integers(0, 2**31 - 1)),
+        steps=0,  # until the episode ends
+        robot_cell=task.rest_cell,
+        belief_person=None,
+        belief_direction="not moving",
+        start="outside",
+        walk=walkers[0][0],
+        faults=tuple(faults),
+        others=tuple(Walker("outside", legs) for legs, _ in walkers[1:]),
+    )
+
+
+def _draw_walk(
+    task: Task, rng: np.random.Generator, study: StudyConfig
+) -> tuple[tuple[Leg, ...], str]:
+    """One walker's walk from the door and back out: its legs and its description
+    ("runner decoy d1 o6": speed class, behaviour, the stops)."""
     names = [b for b in BEHAVIOURS if study.behaviours.get(b, 0) > 0]
     behaviour = "targets"
     if names != ["targets"]:  # one behaviour alone draws nothing (the first generator's walks)
@@ -303,25 +348,6 @@ def random_scenario(
     w = _Walk(task, rng, study, speeds)
     _behave(w, behaviour)
     speed = w.speed()
-    walk = [*w.legs, Leg("door", speed), Leg("outside", speed)]
-    kinds = list(w.kinds)
-    faults: list[Fault] = []
-    if rng.random() < study.p_fault:
-        kind = "camera_off" if rng.random() < 0.5 else "lidar_off"
-        at, dur = _uniform(rng, study.outage_at_s), _uniform(rng, study.outage_s)
-        faults.append(Fault(kind, at_s=at, duration_s=dur))
-        kinds.append(f"{kind.split('_')[0]}-{dur:g}s")
     label = "" if behaviour == "targets" else f"{behaviour} "
-    return Scenario(
-        name=f"mc-{index:03d}",
-        title=f"random walk {index}: {tag}{label}" + " ".join(kinds),
-        task=Path(task_path).resolve(),
-        seed=int(rng.integers(0, 2**31 - 1)),
-        steps=0,  # until the episode ends
-        robot_cell=task.rest_cell,
-        belief_person=None,
-        belief_direction="not moving",
-        start="outside",
-        walk=tuple(walk),
-        faults=tuple(faults),
-    )
+    legs = (*w.legs, Leg("door", speed), Leg("outside", speed))
+    return legs, f"{tag}{label}" + " ".join(w.kinds)

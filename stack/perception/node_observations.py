@@ -41,14 +41,10 @@ from vigil_interfaces.msg import CameraPerson, LegTracks, PersonObservation
 
 import stack.topics as topic
 from stack.cells import ConfigError
-from stack.perception._config import load_config_file
-from stack.perception.errors import CalibrationError
-from stack.perception.homography import load_calibration
 from stack.perception.legs import Pose2D
 from stack.perception.messages import camera_state_from_dict, pose_from_msg, tracks_from_dict
-from stack.perception.multi import PeoplePerception, SlotConfig, SlotPerson, slot_labels
-from stack.perception.observation import NOT_MOVING, CombinerConfig, ObservationCombiner
-from stack.perception.visibility import CameraVisibility, VisibilityConfig
+from stack.perception.observation import NOT_MOVING
+from stack.perception.observer import Observer
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_msgs import camera_from_msg, legs_from_msg, observation_to_msg
@@ -88,37 +84,9 @@ class ObservationsNode(Node):
         )
         if period_s < 0:
             raise ConfigError("decision_period_s", period_s, "must be >= 0")
-        if v.people < 1:
-            raise ConfigError("people", v.people, "must be >= 1")
-        grid, sections = load_config_file(v.config_file)
-        # several people (issue 16): person slots; one person: the combiner alone
-        self.people = (
-            PeoplePerception(
-                grid, SlotConfig.from_dict({**(sections.get("slots") or {}), "slots": v.people})
-            )
-            if v.people > 1
-            else None
+        self.core = Observer(
+            v.config_file, calibration_file, v.people, on_error=self.get_logger().error
         )
-        self.slot_people: tuple[SlotPerson, ...] = tuple(SlotPerson(k) for k in range(v.people))
-        visibility = None
-        if calibration_file:
-            try:
-                visibility = CameraVisibility(
-                    load_calibration(calibration_file).homography,
-                    grid,
-                    VisibilityConfig.from_dict(sections.get("visibility")),
-                )
-            except (CalibrationError, ValueError, OSError) as err:
-                self.get_logger().error(
-                    f"camera visibility off ({calibration_file}: {err}): the robot's shadow "
-                    "is not known and a camera that sees nobody means nobody"
-                )
-        self.combiner = ObservationCombiner(
-            grid, CombinerConfig.from_dict(sections.get("observations")), visibility
-        )
-        self.camera = None
-        self.tracks = ()
-        self.pose: Pose2D | None = None
         ls = self.lockstep = Participant(self, v.lockstep)
         base = topics["observations"]
         self.pub = ls.publisher(PersonObservation, base, 10)
@@ -141,40 +109,32 @@ class ObservationsNode(Node):
 
     def on_person(self, msg: CameraPerson) -> None:
         try:
-            self.camera = camera_state_from_dict(camera_from_msg(msg), self._now_s())
-            if self.people is not None:
-                self.slot_people = self.people.update(
-                    self.camera.stamp_s, self.camera.people_m, self.tracks
-                )
+            self.core.on_camera(camera_state_from_dict(camera_from_msg(msg), self._now_s()))
         except ValueError as err:
             self.get_logger().warning(f"person message ignored: {err}", throttle_duration_sec=5.0)
 
     def on_legs(self, msg: LegTracks) -> None:
         try:
-            self.tracks = tracks_from_dict(legs_from_msg(msg), self._now_s())
+            self.core.on_tracks(tracks_from_dict(legs_from_msg(msg), self._now_s()))
         except (ValueError, TypeError) as err:
             self.get_logger().warning(f"legs message ignored: {err}", throttle_duration_sec=5.0)
 
     def on_odom(self, msg: Odometry) -> None:
         try:
-            self.pose = pose_from_msg(msg.pose.pose)
+            self.core.on_pose(pose_from_msg(msg.pose.pose))
         except ValueError as err:
             self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
 
     def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
         """The map pose through TF (``pose_source: tf``)."""
-        self.pose = pose
+        self.core.on_pose(pose)
 
     def publish_now(self) -> None:
-        pose, self.pose = self.pose, None  # a pose is used once; none new: same cell
         try:
-            obs = self.combiner.combine(self._now_s(), self.camera, self.tracks, pose)
+            obs, record = self.core.observe(self._now_s())
         except (ValueError, ArithmeticError) as err:  # never die of one bad input
             self.get_logger().error(f"observation skipped: {err}", throttle_duration_sec=5.0)
             return
-        record = obs.to_dict()
-        if self.people is not None:
-            record["people"] = slot_labels(self.slot_people, obs.blind)
         self.pub.publish(observation_to_msg(record))
         if not self.label_pubs:
             return

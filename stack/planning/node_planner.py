@@ -58,17 +58,11 @@ from vigil_interfaces.msg import (
 )
 
 import stack.topics as topic
-from stack.cells import ConfigError
 from stack.config import open_write
 from stack.planning.agent import ObservationError, Observed, PlannerAgent, StateFileError
-from stack.planning.anticipate import Anticipator
-from stack.planning.factored import PeopleModel
-from stack.planning.model import build_model
-from stack.planning.online import OnlineConfig
-from stack.planning.people_agent import PeopleAgent, initial_people_belief
-from stack.planning.policy import AlphaPolicy
+from stack.planning.people_agent import PeopleAgent
+from stack.planning.runtime import ONLINE_DEFAULTS, PlannerStart, make_planner, online_config
 from stack.planning.stepper import Command, DecisionSteps, StepTiming
-from stack.planning.task import load_task
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_msgs import (
@@ -104,38 +98,10 @@ class PlannerNode(Node):
         direction = v.initial_direction
         # one parameter per field, defaulting to the field's default
         timing = StepTiming(**vars(declare(self, **dataclasses.asdict(StepTiming()))))
-        o = declare(self, online_depth=2, online_samples=32, online_time_limit_s=0.0)
-        online = OnlineConfig(
-            depth=o.online_depth,
-            samples=o.online_samples,
-            time_limit_s=o.online_time_limit_s or None,
-        )
-        if not task_file:
-            raise ConfigError("task_file", task_file, "is needed")
-        task = load_task(task_file)
-        ini = task.initial
-        first_person = ini.person if person < 0 else (person or None)
-        self.agent: PlannerAgent | PeopleAgent
-        if task.people >= 2:  # issue 16: the online planner on the factored belief
-            pm = PeopleModel.of(task)
-            b = initial_people_belief(
-                pm, robot or ini.robot, first_person, direction or ini.direction
-            )
-            self.agent = PeopleAgent(pm, b, online)
-            what_policy = f"online planner (depth {online.depth}, {online.samples} samples)"
-        else:
-            if not policy_file:
-                raise ConfigError("policy_file", policy_file, "is needed for one person")
-            model = build_model(task)
-            pomdp = model.flat()
-            policy = AlphaPolicy.load(policy_file, pomdp.n_states, model_hash=pomdp.fingerprint())
-            b0 = model.initial_belief(
-                robot or ini.robot, [(first_person, direction or ini.direction)] * model.people
-            )
-            self.agent = PlannerAgent(
-                model, pomdp, policy, b0, anticipator=Anticipator.for_task(model.task)
-            )
-            what_policy = f"{len(policy.alphas)} vectors"
+        online = online_config(vars(declare(self, **ONLINE_DEFAULTS)))
+        setup = make_planner(task_file, policy_file, PlannerStart(robot, person, direction), online)
+        self.agent: PlannerAgent | PeopleAgent = setup.agent
+        first_person, what_policy = setup.first_person, setup.description
         resumed = False
         if self.state_file:
             try:
