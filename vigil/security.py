@@ -15,7 +15,8 @@ topic's data are encrypted, read and write access are controlled. Permissions
 (:data:`ENCLAVES`): only ``/vigil/velocity_gate`` may publish the base's command topic,
 only ``/vigil/operator`` may publish ``/arm`` or set the gate's parameters (the other
 way to arm), only ``/vigil/base_driver`` (the MBot's driver) may subscribe to the base
-topic; every other node may use any other topic.
+topic, only ``/vigil/observations`` may publish ``/observations`` (what the planner
+believes); every other node may use any other topic (the sensors' included).
 
 Whether it can be enforced (:func:`security_support`): the ``rmw_fastrtps_cpp`` wheel from
 PyPI here ships Fast DDS 2.14.5 built without DDS Security (no
@@ -73,6 +74,7 @@ def enclaves(base_topic: str = BASE_TOPIC) -> dict[str, Grant]:
     out["velocity_gate"] = Grant(publish=(base_topic, topic.GATE_HEARTBEAT), subscribe=(topic.ARM,))
     out["operator"] = Grant(publish=(topic.ARM,), set_gate_params=True)
     out["base_driver"] = Grant(subscribe=(base_topic,))
+    out["observations"] = Grant(publish=(topic.OBSERVATIONS,))  # what the planner believes
     return out
 
 
@@ -144,7 +146,8 @@ def permissions_xml(enclave: str, grant: Grant, domain_id: int, base_topic: str)
     now = datetime.now(UTC)
     start = now.strftime("%Y-%m-%dT%H:%M:%S")
     end = (now + timedelta(days=3650)).strftime("%Y-%m-%dT%H:%M:%S")
-    guarded = (base_topic, topic.ARM, topic.GATE_HEARTBEAT)  # a forged heartbeat hides a dead gate
+    # a forged heartbeat hides a dead gate; forged observations steer the planner
+    guarded = (base_topic, topic.ARM, topic.GATE_HEARTBEAT, topic.OBSERVATIONS)
     guarded_pub = {f"rt{t}" for t in guarded} - {f"rt{t}" for t in grant.publish}
     guarded_sub = {f"rt{base_topic}"} - {f"rt{t}" for t in grant.subscribe}
     params = {
