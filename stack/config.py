@@ -13,17 +13,21 @@ configurations of their class) and then the class's own rules: ``_rules`` (field
 from __future__ import annotations
 
 import dataclasses
-import errno
 import math
-import os
-import stat
 import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any, BinaryIO, ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from stack.cells import ConfigError
+from stack.files import MAX_FILE_BYTES as MAX_FILE_BYTES  # re-exported: the file
+from stack.files import open_regular as open_regular  # helpers lived here first
+from stack.files import open_write as open_write
+from stack.files import read_bytes_capped as read_bytes_capped
+from stack.files import read_text_capped as read_text_capped
+from stack.files import write_bytes as write_bytes
+from stack.files import write_text as write_text
 
 T = TypeVar("T")
 Rule = tuple[Any, str]  # (predicate on the value, rule text)
@@ -131,126 +135,6 @@ def _check_value(key: str, value: Any, hint: Any) -> None:
     elif isinstance(hint, type) and dataclasses.is_dataclass(hint):
         if not isinstance(value, hint):
             raise ConfigError(key, value, f"must be a {hint.__name__}")
-
-
-MAX_FILE_BYTES = 16 * 2**20  # no configuration, task, map or state file is near this
-
-
-def open_regular(
-    path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES, follow_links: bool = True
-) -> BinaryIO:
-    """Open a file for reading only if it is a regular file of at most ``max_bytes``.
-
-    A device (``/dev/zero``, ``/dev/random``), a named pipe (which would block the
-    reader for ever), a socket or a folder is refused before a byte is read; so is a
-    regular file larger than ``max_bytes`` (by its size). The file is opened first and
-    checked through its descriptor, so it cannot be swapped between check and read.
-    ``follow_links=False``: a symbolic link at ``path`` is refused too (``O_NOFOLLOW``),
-    for a file the program wrote itself and that should never be a link (a bag's MCAP).
-
-    Raises:
-        IsADirectoryError: a folder; FileNotFoundError and other OSError: unreadable, or
-            (``follow_links=False``) a symbolic link (ELOOP, naming it).
-        ValueError: not a regular file, or larger than ``max_bytes``.
-    """
-    flags = os.O_RDONLY | os.O_NONBLOCK  # a FIFO must not block the open
-    if not follow_links:
-        flags |= os.O_NOFOLLOW
-    try:
-        fd = os.open(path, flags)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP and not follow_links:
-            raise OSError(errno.ELOOP, "is a symbolic link: not read", str(path)) from None
-        raise
-    try:
-        st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", str(path))
-        if not stat.S_ISREG(st.st_mode):
-            raise ValueError(f"{path}: not a regular file (a device, a pipe or a socket)")
-        if st.st_size > max_bytes:
-            raise ValueError(
-                f"{path}: {st.st_size} bytes, longer than {max_bytes} bytes, not a file vigil reads"
-            )
-        os.set_blocking(fd, True)
-        return os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
-
-
-def open_write(path: str | os.PathLike, mode: str = "w", encoding: str | None = None) -> IO[Any]:
-    """Open a file the program writes: ``"w"``/``"wb"`` create or truncate it,
-    ``"a"``/``"ab"`` create or append; never through a symbolic link (a link at
-    ``path``, left there by mistake or by someone else, is an OSError naming it, not a
-    write to wherever it points). Text modes default to UTF-8.
-
-    Raises:
-        OSError: ``path`` is a symbolic link (ELOOP), a folder, or cannot be written.
-        ValueError: a mode other than these four.
-    """
-    if mode not in ("w", "wb", "a", "ab"):
-        raise ValueError(f"open_write mode {mode!r}: one of w, wb, a, ab")
-    flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
-    flags |= os.O_APPEND if mode.startswith("a") else os.O_TRUNC
-    try:
-        fd = os.open(path, flags, 0o644)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise OSError(
-                errno.ELOOP, "is a symbolic link: not written through", str(path)
-            ) from None
-        raise
-    try:
-        if "b" in mode:
-            return os.fdopen(fd, mode)
-        return os.fdopen(fd, mode, encoding=encoding or "utf-8")
-    except BaseException:
-        os.close(fd)
-        raise
-
-
-def write_text(path: str | os.PathLike, text: str, encoding: str | None = None) -> None:
-    """``Path.write_text`` through :func:`open_write` (no symbolic link followed)."""
-    with open_write(path, "w", encoding) as f:
-        f.write(text)
-
-
-def write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """``Path.write_bytes`` through :func:`open_write` (no symbolic link followed)."""
-    with open_write(path, "wb") as f:
-        f.write(data)
-
-
-def read_bytes_capped(path: str | os.PathLike, max_bytes: int = MAX_FILE_BYTES) -> bytes:
-    """A regular file's bytes, at most ``max_bytes`` (see :func:`open_regular`); a file
-    that grows past the cap while read is refused too.
-
-    Raises:
-        OSError: unreadable, or a folder.
-        ValueError: not a regular file, or longer than ``max_bytes``.
-    """
-    with open_regular(path, max_bytes) as f:
-        data = f.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise ValueError(f"{path}: longer than {max_bytes} bytes, not a file vigil reads")
-    return data
-
-
-def read_text_capped(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> str:
-    """A text file's content, refusing one longer than ``max_bytes`` before reading it all
-    (``/dev/zero``, a log passed by mistake) and anything but a regular file (a device,
-    a named pipe): never an unbounded allocation, never a read that blocks for ever.
-
-    Raises:
-        OSError: unreadable, or a directory.
-        ValueError: not a regular file, longer than ``max_bytes``, or not UTF-8 text.
-    """
-    data = read_bytes_capped(path, max_bytes)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
 def load_yaml(text: str) -> Any:

@@ -106,6 +106,28 @@ def test_a_peer_on_another_host_can_neither_arm_nor_drive(other_host, tmp_path):
         claim.release()
 
 
+def test_a_host_on_the_robot_network_is_heard_without_sros2(other_host, tmp_path):
+    """The whitelist is no authentication (docs/SAFETY.md, "Threat model"): in hardware
+    mode ``ros.interfaces`` lists this PC's address on the robot network, and a host on
+    that network that knows the domain id reaches the nodes, ``/arm`` and the base topic
+    alike. Only DDS Security (SROS2) would refuse it, which the middleware here lacks."""
+    ns, host_ip = other_host
+    claim = claim_domain()
+    try:
+        env = base_env(claim.domain_id)
+        intruder = [
+            "ip", "netns", "exec", ns, "env", f"ROS_DOMAIN_ID={claim.domain_id}",
+            f"ROS_STATIC_PEERS={host_ip}", "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET",
+            f"PYTHONPATH={REPO}", sys.executable, str(HERE / "publish_arm.py"), "6",
+        ]  # fmt: skip
+        robot = {**env, **dds_env(write_profile(tmp_path, [host_ip]), localhost_only=False)}
+        line = listen_while(robot, intruder)
+        arm, cmd = (int(part.split("=")[1]) for part in line.split()[1:])
+        assert arm > 0 and cmd > 0, line
+    finally:
+        claim.release()
+
+
 def test_every_node_the_launcher_starts_gets_the_profile(tmp_path):
     import yaml
 

@@ -67,6 +67,8 @@ def test_keystore_layout_signatures_and_permissions(keystore):
         assert may_drive == (name == "/vigil/velocity_gate"), name
         assert may_beat == (name == "/vigil/velocity_gate"), name
         assert may_arm == (name == "/vigil/operator"), name
+        may_observe = "rt/observations" not in pub_denied  # a forged one steers the planner
+        assert may_observe == (name == "/vigil/observations"), name
         assert ("rq/velocity_gate/set_parametersRequest" not in pub_denied) == (
             name == "/vigil/operator"
         )

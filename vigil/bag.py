@@ -11,7 +11,12 @@ connection carries its schema.
 camera's frames: about 900 kB each at full rate would make the bag the run's largest file
 by far).
 
-The writer never touches a path it did not create: an existing bag folder is an error.
+The writer never touches a path it did not create: an existing bag folder (or a symbolic
+link under its name, dangling or not) is an error (``mkdir`` makes the bag's folder,
+and fails on any entry under the name), and ``metadata.yaml`` is written at the close
+only into the very folder it made (not one swapped in under the name since, nor
+through a link planted inside it). The folder a bag goes in is the run folder, which
+:func:`vigil.run_folder.fresh_run_dir` checks is the user's and not writable by others.
 A bag left unclosed (its writer killed) is salvaged by :mod:`vigil.bag_salvage`.
 
 :func:`read_recording` reads a lock-step run's bag back split by ``/lockstep/tick`` (the
@@ -20,7 +25,10 @@ bag node writes one before each tick's messages), for ``vigil replay-bag``.
 
 from __future__ import annotations
 
+import errno
 import importlib
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +37,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 import stack.topics as topic
+from stack.files import refuse_link
 from vigil.ending import allocate
 
 REPO = Path(__file__).resolve().parents[1]
@@ -41,9 +50,10 @@ class BagError(ValueError):
 
 
 def fresh_path(folder: Path, name: str = BAG_DIR) -> Path:
-    """``folder/name``, or ``name_1``, ``name_2``... if taken (a restarted recorder)."""
+    """``folder/name``, or ``name_1``, ``name_2``... if taken (a restarted recorder; a
+    symbolic link under the name, even a dangling one, takes it too)."""
     path, n = Path(folder) / name, 0
-    while path.exists():
+    while os.path.lexists(path):
         n += 1
         path = Path(folder) / f"{name}_{n}"
     return path
@@ -104,7 +114,9 @@ class BagWriter:
         reserve_bytes: int = 0,
     ):
         path = Path(path)
-        if path.exists():
+        if os.path.islink(path):
+            raise FileExistsError(f"bag {path} is a symbolic link: not writing through it")
+        if os.path.lexists(path):
             raise FileExistsError(f"bag {path} already exists: not overwriting it")
         self.path = path
         # room for the summary and metadata.yaml on a disk that fills up (freed by close)
@@ -115,7 +127,9 @@ class BagWriter:
         self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         if compress:
             self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self.writer.open()
+        self.writer.open()  # mkdir: fails on any entry under the name, a link too
+        made = os.lstat(path)
+        self._made = (made.st_dev, made.st_ino)  # the folder this writer made
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}
         self.closed = False
@@ -141,12 +155,41 @@ class BagWriter:
 
     def close(self) -> None:
         """Write the MCAP summary and metadata.yaml; safe to call twice. The reserve (if
-        any) is freed first: a bag whose disk filled up still gets its index."""
+        any) is freed first: a bag whose disk filled up still gets its index.
+
+        Raises:
+            OSError: the bag's folder is no longer the one this writer made (replaced by
+                another folder or a symbolic link), or ``metadata.yaml`` (or rosbags'
+                ``metadata.yaml.tmp``) in it is a symbolic link: ``rosbags`` writes
+                those by name and would follow the link. The MCAP, written through its
+                open descriptor, is then closed without its summary (``vigil
+                bag-reindex`` salvages it) and nothing more is written.
+        """
         if not self.closed:
             self.closed = True
             if self.reserve is not None:
                 self.reserve.unlink(missing_ok=True)
+            try:
+                self._check_folder()
+            except OSError:
+                self.writer.abort()
+                raise
             self.writer.close()
+
+    def _check_folder(self) -> None:
+        try:
+            st = os.lstat(self.path)
+        except FileNotFoundError:
+            st = None
+        if st is None or not stat.S_ISDIR(st.st_mode) or (st.st_dev, st.st_ino) != self._made:
+            raise OSError(
+                errno.ELOOP,
+                "is no longer the folder this bag writer made (moved, or replaced by another"
+                " folder or a symbolic link): metadata.yaml not written",
+                str(self.path),
+            )
+        for name in ("metadata.yaml", "metadata.yaml.tmp"):
+            refuse_link(self.path / name, "metadata.yaml not written through it")
 
 
 # -- reading a run's bag for a replay (vigil replay-bag) ----------------------------

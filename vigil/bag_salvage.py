@@ -19,7 +19,7 @@ reindex`` writes a ``metadata.yaml`` into the bag folder and leaves the MCAP as 
 ``rosbags`` opens no MCAP without its footer, so a new file is needed, and the writer
 never touches a path it did not create.) An existing ``<bag>_recovered`` is refused.
 
-Hostile input: the MCAP is opened with :func:`stack.config.open_regular` without
+Hostile input: the MCAP is opened with :func:`stack.files.open_regular` without
 following a link (a link, a device, a pipe or a file over :data:`MAX_BAG_BYTES` is
 refused before a byte is read) and read only up to its size at the open (a writer still
 running cannot make the reader endless); a record longer than :data:`MAX_RECORD_BYTES`

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -29,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
-from stack.config import write_text
+from stack.config import read_bytes_capped, write_bytes, write_text
 from vigil.report import write_report
 from vigil.report.metrics import set_totals
 from vigil.report.tables import set_markdown
@@ -243,7 +242,7 @@ def write_docs(doc: str | Path, out: str | Path, label: str, heading: str = "") 
     entries = json.loads((out / "experiments.json").read_text())["scenarios"]
     figure = doc.parent / "experiments" / f"{label}.png"
     figure.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(out / "experiments.png", figure)
+    write_bytes(figure, read_bytes_capped(out / "experiments.png"))  # never through a link
     body = set_section(entries, figure.relative_to(doc.parent).as_posix())
     write_text(doc, update_marked_section(doc.read_text(), label, body, heading))
     return doc

@@ -21,8 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from stack.config import open_write
 from stack.exits import EXIT_DISK_FULL
+from stack.files import make_dir, open_write
 from stack.lockstep import RUN_ID_ENV
 from vigil.processes import ProcessSpec
 from vigil.resume import (  # re-exported: the resumption's rules
@@ -104,7 +104,8 @@ class Launcher:
             self.first_failure = (name, rc, line)
 
     def _spawn(self, spec: ProcessSpec, restarts: int = 0) -> None:
-        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.log_dir.parent.mkdir(parents=True, exist_ok=True)
+        make_dir(self.log_dir)  # never a link planted under the name
         log = open_write(self.log_dir / f"{spec.name}.log", "a")
         if restarts:
             log.write(f"\n--- restart {restarts} ---\n")

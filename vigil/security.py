@@ -15,7 +15,8 @@ topic's data are encrypted, read and write access are controlled. Permissions
 (:data:`ENCLAVES`): only ``/vigil/velocity_gate`` may publish the base's command topic,
 only ``/vigil/operator`` may publish ``/arm`` or set the gate's parameters (the other
 way to arm), only ``/vigil/base_driver`` (the MBot's driver) may subscribe to the base
-topic; every other node may use any other topic.
+topic, only ``/vigil/observations`` may publish ``/observations`` (what the planner
+believes); every other node may use any other topic (the sensors' included).
 
 Whether it can be enforced (:func:`security_support`): the ``rmw_fastrtps_cpp`` wheel from
 PyPI here ships Fast DDS 2.14.5 built without DDS Security (no
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import ctypes.util
 import os
+import secrets
 import subprocess
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -36,7 +38,8 @@ from pathlib import Path
 
 import stack.topics as topic
 from stack.cells import ConfigError
-from stack.config import write_text
+from stack.files import PrivateOutput, make_dir, write_text
+from vigil.run_folder import check_own_folder
 
 ENCLAVE_ROOT = "/vigil"
 BASE_TOPIC = topic.CMD_VEL
@@ -71,6 +74,7 @@ def enclaves(base_topic: str = BASE_TOPIC) -> dict[str, Grant]:
     out["velocity_gate"] = Grant(publish=(base_topic, topic.GATE_HEARTBEAT), subscribe=(topic.ARM,))
     out["operator"] = Grant(publish=(topic.ARM,), set_gate_params=True)
     out["base_driver"] = Grant(subscribe=(base_topic,))
+    out["observations"] = Grant(publish=(topic.OBSERVATIONS,))  # what the planner believes
     return out
 
 
@@ -90,6 +94,16 @@ def _openssl(*args: str, cwd: Path | None = None) -> None:
         raise KeystoreError("the openssl command is not installed") from None
     if proc.returncode != 0:
         raise KeystoreError(f"openssl {args[0]} failed: {proc.stderr.strip()[:300]}")
+
+
+def _openssl_to(dst: Path, *args: str, mode: int = 0o644) -> None:
+    """``openssl ARGS -out FILE``, where openssl would open ``dst`` by name and follow a
+    link there: it writes into a folder of its own (mode 0700) and the file, given
+    ``mode`` there (a private key 0600: never readable by others, even for a moment),
+    is moved to ``dst`` (a link at ``dst`` is refused)."""
+    with PrivateOutput(dst) as out:
+        _openssl(*args, "-out", str(out.path))
+        os.chmod(out.path, mode)
 
 
 def governance_xml(domain_id: int) -> str:
@@ -132,7 +146,8 @@ def permissions_xml(enclave: str, grant: Grant, domain_id: int, base_topic: str)
     now = datetime.now(UTC)
     start = now.strftime("%Y-%m-%dT%H:%M:%S")
     end = (now + timedelta(days=3650)).strftime("%Y-%m-%dT%H:%M:%S")
-    guarded = (base_topic, topic.ARM, topic.GATE_HEARTBEAT)  # a forged heartbeat hides a dead gate
+    # a forged heartbeat hides a dead gate; forged observations steer the planner
+    guarded = (base_topic, topic.ARM, topic.GATE_HEARTBEAT, topic.OBSERVATIONS)
     guarded_pub = {f"rt{t}" for t in guarded} - {f"rt{t}" for t in grant.publish}
     guarded_sub = {f"rt{base_topic}"} - {f"rt{t}" for t in grant.subscribe}
     params = {
@@ -178,18 +193,23 @@ def create_keystore(
         KeystoreError: openssl failed.
     """
     root = Path(path)
+    if os.path.islink(root) and not root.exists():
+        raise ConfigError("keystore", str(root), "is a symbolic link to nothing")
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise ConfigError("keystore", str(root), "must be a new or empty folder")
     if not 0 <= domain_id <= 232:
         raise ConfigError("domain_id", domain_id, "must be in [0, 232]")
+    root.mkdir(mode=0o755, parents=True, exist_ok=True)
+    check_own_folder(root, "keystore")  # no one else may swap what lies in it
     public, private, encl = root / "public", root / "private", root / "enclaves"
-    for d in (public, private, encl):
-        d.mkdir(parents=True, exist_ok=True)
+    make_dir(public)
+    make_dir(private, 0o700)
+    make_dir(encl)
     os.chmod(private, 0o700)
     ca_key, ca_cert = private / "ca.key.pem", public / "ca.cert.pem"
-    _openssl("ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", str(ca_key))
-    _openssl(
-        "req", "-new", "-x509", "-key", str(ca_key), "-out", str(ca_cert),
+    _openssl_to(ca_key, "ecparam", "-name", "prime256v1", "-genkey", "-noout", mode=0o600)
+    _openssl_to(
+        ca_cert, "req", "-new", "-x509", "-key", str(ca_key),
         "-days", str(days), "-subj", "/CN=vigil_ca", "-sha256",
     )  # fmt: skip
     for name in ("identity_ca", "permissions_ca"):
@@ -197,8 +217,8 @@ def create_keystore(
         (private / f"{name}.key.pem").symlink_to("ca.key.pem")
 
     def sign(src: Path, dst: Path) -> None:
-        _openssl(
-            "smime", "-sign", "-text", "-in", str(src), "-out", str(dst),
+        _openssl_to(
+            dst, "smime", "-sign", "-text", "-in", str(src),
             "-signer", str(ca_cert), "-inkey", str(ca_key),
         )  # fmt: skip
 
@@ -207,15 +227,16 @@ def create_keystore(
     names = []
     for enclave, grant in enclaves(base_topic).items():
         d = encl / ENCLAVE_ROOT.strip("/") / enclave
-        d.mkdir(parents=True)
+        make_dir(d.parent)
+        make_dir(d)
         key, csr, cert = d / "key.pem", d / "req.csr", d / "cert.pem"
-        _openssl("ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", str(key))
-        os.chmod(key, 0o600)
+        _openssl_to(key, "ecparam", "-name", "prime256v1", "-genkey", "-noout", mode=0o600)
         subj = "/CN=" + f"{ENCLAVE_ROOT}/{enclave}".replace("/", "\\/")  # CN=/vigil/<name>
-        _openssl("req", "-new", "-key", str(key), "-out", str(csr), "-subj", subj, "-sha256")
-        _openssl(
-            "x509", "-req", "-in", str(csr), "-CA", str(ca_cert), "-CAkey", str(ca_key),
-            "-CAcreateserial", "-out", str(cert), "-days", str(days), "-sha256",
+        _openssl_to(csr, "req", "-new", "-key", str(key), "-subj", subj, "-sha256")
+        # a random serial: -CAcreateserial would write ca.cert.srl by name beside the CA
+        _openssl_to(
+            cert, "x509", "-req", "-in", str(csr), "-CA", str(ca_cert), "-CAkey", str(ca_key),
+            "-set_serial", str(secrets.randbits(63) | 1), "-days", str(days), "-sha256",
         )  # fmt: skip
         csr.unlink()
         perms = d / "permissions.xml"
@@ -228,9 +249,6 @@ def create_keystore(
         ):
             (d / link).symlink_to(os.path.relpath(target, d))
         names.append(f"{ENCLAVE_ROOT}/{enclave}")
-    serial = public / "ca.cert.srl"
-    if serial.exists():
-        serial.unlink()
     return names
 
 

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from stack.files import save_figure
+
 Z95 = 1.959963984540054
 BOOTSTRAP = 2000
 
@@ -230,7 +232,7 @@ def plot_study(path: Path, episodes: Sequence[dict[str, Any]], s: dict[str, Any]
         fontsize=10,
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
+    save_figure(fig, path, dpi=110, metadata={"Software": None})
     plt.close(fig)
     return path
 

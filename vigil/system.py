@@ -22,6 +22,7 @@ from typing import Any
 import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.config import dump_yaml, read_yaml, write_text
+from stack.files import make_dir
 from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment, gate_topics
 from vigil.processes import ProcessSpec
@@ -90,7 +91,7 @@ def prepare(
 
     run_dir = Path(run_dir).resolve()
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "speech").mkdir(exist_ok=True)
+    make_dir(run_dir / "speech")  # a link planted under the name is refused
     task = scenario.task if scenario is not None else dep.task
     task_data = read_yaml(task)
     grid_section = task_data.get("grid")

@@ -80,10 +80,11 @@ class VelocityGateNode(Node):
         p = self.declare_parameter
         v = declare(self, config_file="", rate_hz=20.0)
         section = read_section(v.config_file, "velocity_gate", parent="hardware")
-        read_only = ParameterDescriptor(read_only=True)
         start = GateConfig.from_dict(section, "velocity_gate")  # the file, checked
+        # a descriptor each: rclpy records the parameter's type in the descriptor it is
+        # given (one shared by all gave every cap the type of the last field, a bool)
         values = {
-            f.name: p(f.name, getattr(start, f.name), read_only).value
+            f.name: p(f.name, getattr(start, f.name), ParameterDescriptor(read_only=True)).value
             for f in dataclasses.fields(GateConfig)
         }
         self.config = GateConfig.from_dict(values, "velocity_gate")  # parameters, checked

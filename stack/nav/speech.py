@@ -25,7 +25,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from stack.config import open_write, write_text
+from stack.files import PrivateOutput, open_write, write_text
 from stack.nav.config import SpeechConfig
 
 
@@ -178,27 +178,30 @@ def synthesize(
     check_voice(voice, config.espeak_path)
     wav_path = Path(wav_path)
     t0 = time.perf_counter()
-    try:
-        proc = subprocess.run(
-            [*_espeak_args(exe, config, voice), "-w", str(wav_path), "--", text],
-            capture_output=True,
-            text=True,
-            timeout=config.timeout_s,
-        )
-    except subprocess.TimeoutExpired as exc:
-        raise SpeechError(f"espeak-ng took longer than {config.timeout_s:g} s") from exc
-    except OSError as exc:
-        raise SpeechError(f"cannot run {exe}: {exc}") from exc
-    synth_s = time.perf_counter() - t0
-    if proc.returncode != 0:
-        err = proc.stderr.strip()
-        if "voice does not exist" in err:
-            raise UnknownVoiceError(f"espeak-ng has no voice {voice!r}: {err}")
-        raise SpeechError(f"espeak-ng exited with {proc.returncode}: {err}")
-    try:
-        duration = wav_duration_s(wav_path)
-    except (OSError, wave.Error, EOFError) as exc:
-        raise SpeechError(f"espeak-ng wrote no readable WAV at {wav_path}: {exc}") from exc
+    # espeak-ng -w opens the name and follows a link there: it writes into a folder of
+    # its own, and the finished WAV is moved to wav_path (a link there is refused)
+    with PrivateOutput(wav_path) as out:
+        try:
+            proc = subprocess.run(
+                [*_espeak_args(exe, config, voice), "-w", str(out.path), "--", text],
+                capture_output=True,
+                text=True,
+                timeout=config.timeout_s,
+            )
+        except subprocess.TimeoutExpired as exc:
+            raise SpeechError(f"espeak-ng took longer than {config.timeout_s:g} s") from exc
+        except OSError as exc:
+            raise SpeechError(f"cannot run {exe}: {exc}") from exc
+        synth_s = time.perf_counter() - t0
+        if proc.returncode != 0:
+            err = proc.stderr.strip()
+            if "voice does not exist" in err:
+                raise UnknownVoiceError(f"espeak-ng has no voice {voice!r}: {err}")
+            raise SpeechError(f"espeak-ng exited with {proc.returncode}: {err}")
+        try:
+            duration = wav_duration_s(out.path)
+        except (OSError, wave.Error, EOFError) as exc:
+            raise SpeechError(f"espeak-ng wrote no readable WAV at {wav_path}: {exc}") from exc
     return Utterance(text, voice, wav_path, duration, synth_s)
 
 

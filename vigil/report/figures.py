@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from stack.cells import CellGrid  # noqa: E402
+from stack.files import save_figure  # noqa: E402
 from stack.planning.model import FactoredModel  # noqa: E402
 from stack.vocabulary import ACTIONS, DIRECTIONS, NO_PERSON, OUT_OF_MAP  # noqa: E402
 from vigil.report.records import UNKNOWN, cell_of_label  # noqa: E402
@@ -93,7 +94,7 @@ def plot_replay(model: FactoredModel, result, path: str | Path) -> Path:
     fig.colorbar(im, ax=axes[2], fraction=0.03)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
     return path
 
@@ -171,7 +172,7 @@ def plot_positions(
             rax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=90, metadata=_PNG_METADATA)
+    save_figure(fig, path, dpi=90, metadata=_PNG_METADATA)
     plt.close(fig)
     return path
 
@@ -253,7 +254,7 @@ def plot_belief_grids(
     if im is not None:
         fig.colorbar(im, ax=axes, shrink=0.8, aspect=30, label="P(person in cell)")
     path = Path(path)
-    fig.savefig(path, dpi=100, metadata=_PNG_METADATA)
+    save_figure(fig, path, dpi=100, metadata=_PNG_METADATA)
     plt.close(fig)
     return path
 
@@ -387,7 +388,7 @@ def plot_timeline(
     )
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=90, metadata=_PNG_METADATA)
+    save_figure(fig, path, dpi=90, metadata=_PNG_METADATA)
     plt.close(fig)
     return path
 
@@ -434,6 +435,6 @@ def plot_set(
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=90, metadata=_PNG_METADATA)
+    save_figure(fig, path, dpi=90, metadata=_PNG_METADATA)
     plt.close(fig)
     return path

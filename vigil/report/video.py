@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from stack.cells import CellGrid
+from stack.files import PrivateOutput
 from stack.vocabulary import NO_PERSON
 from vigil.frames import FRAMES_FILE, decode, read_frames
 
@@ -77,10 +78,16 @@ class VideoComposer:
     and the leg tracks (orange crosses). Colours in RGB; frames are RGB uint8.
 
     The file is H.264 (libx264 through the ffmpeg that ``imageio-ffmpeg`` ships,
-    yuv420p, ``+faststart``): browsers play it.
+    yuv420p, ``+faststart``): browsers play it. ffmpeg writes it by name, and would
+    follow a link there: it writes into a fresh folder of its own beside ``path``
+    (:class:`stack.config.PrivateOutput`), and :meth:`close` moves the finished file
+    to ``path``, never through a link (a link at ``path`` is refused, naming it). Left
+    by an exception (``with``), nothing reaches ``path``.
 
     Raises:
         RuntimeError: the MP4 writer cannot be opened (at the first :meth:`add`).
+        OSError: ``path`` is a symbolic link (at the first :meth:`add` and at
+            :meth:`close`).
     """
 
     def __init__(
@@ -111,6 +118,7 @@ class VideoComposer:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.fps = float(fps)
         self._writer = None  # opened by the first add(): no empty, invalid file
+        self._out: PrivateOutput | None = None  # where ffmpeg writes until close()
         self._closed = False
         self._setup_map(room_bounds_m, rest_cell)
         self._no_frame = np.full((self.height, self.cam_w, 3), 90, np.uint8)
@@ -332,23 +340,38 @@ class VideoComposer:
         if self._closed:
             raise RuntimeError(f"{self.path} is closed")
         if self._writer is None:
-            self._writer = _h264_writer(self.path, (self.width, self.height), self.fps)
+            self._out = PrivateOutput(self.path)
+            self._writer = _h264_writer(self._out.path, (self.width, self.height), self.fps)
         img = self.render(t_s, frame_rgb, camera, legs, robot_xy_yaw, person_xy, belief_person)
         self._writer.send(np.ascontiguousarray(img))
         self.frames += 1
 
     def close(self) -> None:
-        """Finish the file (safe to call twice)."""
+        """Finish the file and move it to ``path`` (safe to call twice)."""
+        self._end(keep=True)
+
+    def _end(self, keep: bool) -> None:
         self._closed = True
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+        writer, self._writer = self._writer, None
+        out, self._out = self._out, None
+        try:
+            if writer is not None:
+                writer.close()
+        except BaseException:
+            if out is not None:
+                out.discard()
+            raise
+        if out is not None:
+            if keep:
+                out.commit()
+            else:
+                out.discard()
 
     def __enter__(self) -> VideoComposer:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self._end(keep=exc_type is None)
 
 
 def write_video(
@@ -379,9 +402,8 @@ def write_video(
     stamps = [float(s["stamp_s"]) for s in steps]
     beliefs = [((s.get("belief") or {}).get("person")) for s in steps]
     out = run_dir / VIDEO_FILE
-    tmp = run_dir / "camera.part.mp4"  # ffmpeg picks the format from the suffix
     last = time.monotonic()
-    with VideoComposer(tmp, grid, tuple(restricted), room_m, fps, rest_cell=rest_cell) as video:
+    with VideoComposer(out, grid, tuple(restricted), room_m, fps, rest_cell=rest_cell) as video:
         for k, rec in enumerate(trace):
             t = float(rec["t"])
             i = bisect.bisect_right(stamps, t + 1e-9) - 1
@@ -401,5 +423,4 @@ def write_video(
                 say(f"[report] video: frame {k + 1}/{len(trace)} (t = {t:.1f} s)")
     if video.frames == 0:
         return None
-    tmp.replace(out)
     return out
