@@ -180,3 +180,40 @@ def test_two_people_and_a_fault_run_in_process_with_the_online_planner(tmp_path)
     summary = runs[0]
     assert [p["person"] for p in summary["people"]["per_person"]] == [1, 2]
     assert summary["people"]["n_visits"] >= 1  # the first walker's stay in cell 1
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_two_people_and_a_fault_make_the_same_steps_through_ros_and_in_process(tmp_path):
+    """The two-person task with a camera outage through both transports: the same
+    planner (online, on person slots), observations and trace records. What holds is
+    what the one-person comparison asserts: the first steps identical (stamps,
+    observations with their slot labels, beliefs, actions), the same course of moves,
+    the same visits guarded per walker."""
+    from vigil.run import run_scenario
+
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO.format(task=REPO / "config" / "task-r2-n2.yaml"))
+    ros = run_scenario(scenario, out=tmp_path / "ros", say=lambda _s: None)
+    mine = run_inprocess(scenario, tmp_path / "inprocess", say=lambda _s: None)
+    a = _records(tmp_path / "ros" / "steps.jsonl")
+    b = _records(tmp_path / "inprocess" / "steps.jsonl")
+    assert len(a) == len(b) == 8
+    for x, y in zip(a[:2], b[:2], strict=True):
+        assert (x["step"], x["action"], x["stamp_s"]) == (y["step"], y["action"], y["stamp_s"])
+        assert x["observation"] == y["observation"] and x["belief"] == y["belief"]
+    assert _moves(a) == _moves(b)
+
+    def visits(summary):
+        return [
+            (p["person"], v["cell"], v["guarded"])
+            for p in summary["people"]["per_person"]
+            for v in p["visits"]
+        ]
+
+    assert visits(ros) == visits(mine) and visits(mine)
+    # the outage is in both traces as records without the camera (the recorder's rule)
+    for run in ("ros", "inprocess"):
+        trace = _records(tmp_path / run / "trace.jsonl")
+        silent = [r["t"] for r in trace if r["camera"] is None]
+        assert silent and 6.0 <= min(silent) and max(silent) <= 9.5, run

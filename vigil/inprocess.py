@@ -429,7 +429,7 @@ class InProcessSystem:
                     "detections": [[round(x, 4), round(y, 4)] for x, y in state.people_m],
                 }  # fmt: skip
                 self.detections.write(json.dumps(record) + "\n")
-        self.publish(topic.PERSON, json.dumps(state.to_dict()))
+        self.publish(topic.PERSON, json.dumps(self.camera.message(state)))
 
     def camera_watchdog(self) -> None:
         silent_s = self.now_s - self._last_frame_s

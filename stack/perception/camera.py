@@ -384,6 +384,14 @@ class CameraPeopleTracker:
         people = _suppress(candidates, cfg.nms_iou, cfg.nested_box_frac)
         return self._track(candidates, people, stamp_s, boxes)
 
+    def message(self, state: CameraPersonState) -> dict[str, Any]:
+        """The camera people node's message of ``state`` (:meth:`CameraPersonState.to_dict`,
+        with every person's floor point, ``people_m``, when it tracks several)."""
+        out = state.to_dict()
+        if self.config.max_people > 1:  # several people (issue 16): all of them
+            out["people_m"] = [list(q) for q in state.people_m]
+        return out
+
     def update_points(
         self, points_m: tuple[tuple[float, float], ...], stamp_s: float
     ) -> CameraPersonState:

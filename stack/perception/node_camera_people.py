@@ -137,10 +137,7 @@ class CameraPeopleNode(Node):
             self.pub_direction.publish(String(data=direction))
 
     def publish(self, state, stamp_msg) -> None:
-        out = state.to_dict()
-        if self.tracker.config.max_people > 1:  # several people (issue 16): all of them
-            out["people_m"] = [list(q) for q in state.people_m]
-        self.pub_state.publish(camera_to_msg(out, self.map_frame))
+        self.pub_state.publish(camera_to_msg(self.tracker.message(state), self.map_frame))
         seen = state.status is PersonStatus.PERSON and state.position_m is not None
         self.publish_labels(
             str(state.cell) if seen and state.cell else NO_PERSON, state.direction.label
