@@ -12,11 +12,12 @@ ROS node                      core here
 twin_bridge                   :func:`twin.env.make_environment` (dm_control)
 camera_people                 :class:`stack.perception.camera.CameraPeopleTracker`
 legs                          :func:`stack.perception.legs.detect_legs` + ``LegTracker``
-observations                  :class:`stack.perception.observation.ObservationCombiner`
+observations                  :class:`stack.perception.observer.Observer`
 navigation                    :class:`stack.nav.executor.ActionExecutor`
 speech                        :class:`stack.nav.warning.WarningReactor` + ``Speaker``
-planner                       :class:`stack.planning.stepper.DecisionSteps`
-recorder                      ``trace.jsonl`` lines as :mod:`vigil.node_recorder`
+planner                       :func:`stack.planning.runtime.make_planner` +
+                              :class:`stack.planning.stepper.DecisionSteps`
+recorder                      :class:`vigil.trace_records.TraceRecords`
 ============================  =================================================
 
 Time runs as in the lock-step ROS run (:mod:`stack.lockstep`): at each sensor instant

@@ -23,6 +23,10 @@ Speeds: each walk is a *runner* with probability ``runner_share`` (speeds from
 walk's range. A point in a cell keeps off its borders; a border point lies
 ``border_gap_m`` outside the restricted cell, on the side of the cell it is reached from.
 
+Each person of the task walks (``people`` in the file: another number of walkers, 1 to
+4), each drawing a behaviour and a speed class of their own; the second and later
+wait outside and set off ``start_gap_s`` after the first.
+
 With probability ``p_fault`` an episode also has one camera or lidar outage.
 Every draw comes from the episode's own generator: the same seed gives the same walks.
 """
