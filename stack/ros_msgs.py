@@ -50,6 +50,8 @@ from vigil_interfaces.msg import (
     Warning,
 )
 
+from stack.lockstep import stamp_parts
+
 NONE_CELL = -1
 _INT32_MAX = 2**31 - 1
 
@@ -60,7 +62,7 @@ def stamp(t_s: float) -> Time:
     2.9999999999 s is 3 s, not 2 s with the nanoseconds wrapped to 0)."""
     if not math.isfinite(t_s) or t_s < 0:
         t_s = 0.0
-    sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+    sec, nanosec = stamp_parts(t_s)
     return Time(sec=sec, nanosec=nanosec)
 
 

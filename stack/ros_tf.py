@@ -25,6 +25,7 @@ from tf2_msgs.msg import TFMessage
 
 from stack import topics as topic
 from stack.geometry import Pose2D
+from stack.lockstep import stamp_parts
 from stack.tf import (
     BASE_LINK,
     MAP,
@@ -54,7 +55,7 @@ TF_STATIC_LISTENER_QOS = QoSProfile(
 
 
 def _stamp(t_s: float) -> Time:
-    sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+    sec, nanosec = stamp_parts(t_s)
     return Time(sec=sec, nanosec=nanosec)
 
 

@@ -357,8 +357,10 @@ def test_a_several_people_episode_counts_every_walkers_visits():
         ],
         "n_visits": 2, "guarded": 1, "reachable": 2, "guarded_reachable": 1,
         "robot_first": 0, "n_false_trips": 0, "n_needless_trips": 1,
+        "timely_warnings": 2, "late_warnings": 0, "approach_warnings": 1,
     }  # fmt: skip
     m = metric_fields(summary)
     assert (m["n_visits"], m["guarded"], m["reachable"], m["abandoned"]) == (2, 1, 2, 1)
     assert [(v["person"], v["cell"]) for v in m["visits"]] == [(1, 1), (2, 12)]
     assert m["delays_s"] == [1.0] and m["n_needless_trips"] == 1
+    assert (m["timely_warnings"], m["approach_warnings"]) == (2, 1)  # every walker's

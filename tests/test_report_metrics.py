@@ -279,6 +279,11 @@ def test_people_metrics_count_needless_trips_over_every_walker():
     assert m["n_needless_trips"] == 0 and m["robot_first"] == 1
     assert m["per_person"][1]["visits"][0]["warning_lead_s"] == 1.0
     assert people_metrics([a], [1])["n_needless_trips"] == 1
+    # the warning at 14 s came before the second walker's visit: timely (for walker
+    # 2), though walker 1 never went in; one at 35 s is late for both
+    m = people_metrics([a, b], [1], warning_starts=[14.0, 35.0])
+    assert (m["timely_warnings"], m["late_warnings"]) == (1, 1)
+    assert people_metrics([a], [1], warning_starts=[14.0])["late_warnings"] == 1
 
 
 def test_set_totals_add_the_new_metrics_and_read_old_records():

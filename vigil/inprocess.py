@@ -469,16 +469,26 @@ class InProcessSystem:
 
     # -- observations ---------------------------------------------------------------------
     def obs_on_person(self, text: str) -> None:
-        self.observer.on_camera(camera_state_from_json(text, self.now_s))
+        try:  # as the node: a message that cannot be used is skipped
+            self.observer.on_camera(camera_state_from_json(text, self.now_s))
+        except ValueError as err:
+            self.say(f"[inprocess] person message ignored: {err}")
 
     def obs_on_legs(self, data: dict) -> None:
-        self.observer.on_tracks(tracks_from_dict(data, self.now_s))
+        try:
+            self.observer.on_tracks(tracks_from_dict(data, self.now_s))
+        except (ValueError, TypeError) as err:
+            self.say(f"[inprocess] legs message ignored: {err}")
 
     def obs_on_odom(self, msg: tuple[float, Pose2D]) -> None:
         self.observer.on_pose(msg[1])
 
     def obs_publish(self) -> None:
-        _, record = self.observer.observe(self.now_s)
+        try:
+            _, record = self.observer.observe(self.now_s)
+        except (ValueError, ArithmeticError) as err:  # as the node: that step is skipped
+            self.say(f"[inprocess] observation skipped: {err}")
+            return
         self.publish(topic.OBSERVATIONS, json.dumps(record))
 
     # -- navigation -----------------------------------------------------------------------

@@ -151,6 +151,7 @@ def metric_fields(summary: dict[str, Any]) -> dict[str, Any]:
             visits=visits,
             n_false_trips=people["n_false_trips"],
             n_needless_trips=people["n_needless_trips"],
+            **{k: people[k] for k in ("timely_warnings", "late_warnings", "approach_warnings")},
             warning_leads_s=[
                 v["warning_lead_s"] for v in visits if v["warning_lead_s"] is not None
             ],

@@ -50,7 +50,7 @@ from vigil_interfaces.msg import LockstepAck
 
 import stack.topics as topic
 from stack.cells import ConfigError
-from stack.lockstep import Ack
+from stack.lockstep import Ack, stamp_parts
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
 from stack.ros_msgs import ack_from_msg
@@ -148,9 +148,9 @@ class BagNode(Node):
 
     def on_tick(self, t_s: float) -> None:
         """A lock-step tick: its record goes before the tick's messages."""
-        sec, nsec = divmod(round(t_s * 1e9), 1_000_000_000)
+        sec, nsec = stamp_parts(t_s)
         msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = int(sec), int(nsec)
+        msg.clock.sec, msg.clock.nanosec = sec, nsec
         self.bag.write(topic.LOCKSTEP_TICK, self.now_ns(), serialize_message(msg))
 
     def discover(self) -> None:

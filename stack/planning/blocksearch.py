@@ -38,7 +38,13 @@ import numpy as np
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
 from stack.planning.pomdpx import observed_blocks
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig, SearchStats, _Kids, _Node
+from stack.planning.sarsop import (
+    BeliefNode,
+    BeliefTreeSearch,
+    NodeChildren,
+    SearchConfig,
+    SearchStats,
+)
 
 
 def search_blocks(pomdp: POMDP, b0: np.ndarray | None = None) -> np.ndarray | None:
@@ -183,7 +189,7 @@ class BlockTreeSearch(BeliefTreeSearch):
             values[c] = G[np.arange(c.size), j]
         return best, values
 
-    def _best_nodes(self, nodes: list[_Node]) -> tuple[np.ndarray, np.ndarray]:
+    def _best_nodes(self, nodes: list[BeliefNode]) -> tuple[np.ndarray, np.ndarray]:
         best = np.empty(len(nodes), dtype=int)
         values = np.empty(len(nodes))
         by_block: dict[int, list[int]] = {}
@@ -199,7 +205,7 @@ class BlockTreeSearch(BeliefTreeSearch):
             values[members] = V[np.arange(len(members)), j]
         return best, values
 
-    def _store(self, alpha: np.ndarray, action: int, node: _Node) -> None:
+    def _store(self, alpha: np.ndarray, action: int, node: BeliefNode) -> None:
         x = int(self._where[node.idx[0]])
         if self.K == self._act.size:
             grow = np.zeros(self.K, dtype=int)
@@ -255,7 +261,7 @@ class BlockTreeSearch(BeliefTreeSearch):
 
     # -- the backup ---------------------------------------------------------------------
     def _alpha(
-        self, kids: _Kids, a: int, best: np.ndarray, node: _Node
+        self, kids: NodeChildren, a: int, best: np.ndarray, node: BeliefNode
     ) -> tuple[np.ndarray, np.ndarray]:
         """The backed-up vector on the node's block x only:
         alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s'),

@@ -166,17 +166,17 @@ class BlockVectors:
             return float((sub @ weighted).max(axis=0).sum())
         touches = np.stack([(weighted[bi == u] != 0).any(axis=0) for u in present])
         single = touches.sum(axis=0) == 1
-        total = 0.0
+        best = np.empty(weighted.shape[1])  # each observation's maximum, summed in order
         for j, u in enumerate(present.tolist()):
             z = single & touches[j]
             if z.any():
                 r = bi == u
                 sub = self.alphas[np.ix_(self.rows((u,)), idx[r])]
-                total += float((sub @ weighted[np.ix_(r, z)]).max(axis=0).sum())
+                best[z] = (sub @ weighted[np.ix_(r, z)]).max(axis=0)
         if not single.all():  # observations that several blocks lead to
             sub = self.alphas[np.ix_(self.rows(tuple(present.tolist())), idx)]
-            total += float((sub @ weighted[:, ~single]).max(axis=0).sum())
-        return total
+            best[~single] = (sub @ weighted[:, ~single]).max(axis=0)
+        return float(best.sum())
 
 
 def sample_beliefs(

@@ -69,7 +69,12 @@ _CACHE: dict[tuple, Any] = {}
 
 
 def _file_key(*files: str) -> tuple:
-    return tuple((str(f), os.stat(f).st_mtime_ns, os.stat(f).st_size) for f in files)
+    """What changes when a file is rewritten or replaced (an atomic replace: the inode)."""
+    keys = []
+    for f in files:
+        st = os.stat(f)
+        keys.append((str(f), st.st_ino, st.st_mtime_ns, st.st_ctime_ns, st.st_size))
+    return tuple(keys)
 
 
 def _cached(key: tuple, make):

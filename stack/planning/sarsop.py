@@ -162,7 +162,7 @@ def format_search_progress(s: SearchStats) -> str:
     )
 
 
-class _Kids:
+class NodeChildren:
     """The successors of one node under one action."""
 
     __slots__ = ("reward", "zs", "pz", "nodes", "_M", "_nz", "_src")
@@ -202,7 +202,7 @@ class _Kids:
         return self._nz
 
 
-class _Node:
+class BeliefNode:
     __slots__ = ("idx", "val", "ub", "lb", "kids", "point", "cat", "flat")
 
     def __init__(self, idx: np.ndarray, val: np.ndarray, ub: float, lb: float):
@@ -210,7 +210,7 @@ class _Node:
         self.val = val
         self.ub = ub
         self.lb = lb
-        self.kids: list[_Kids] | None = None
+        self.kids: list[NodeChildren] | None = None
         self.point = -1  # index of this belief's upper-bound point, -1 if none
         # every action's successors side by side (see BeliefTreeSearch._concatenate)
         self.cat: tuple | None = None
@@ -562,8 +562,8 @@ class BeliefTreeSearch(StoppingRules):
         self.n_initial_alphas = self.K
         self._pruned_at = self.K
 
-        self.nodes: dict[bytes, _Node] = {}
-        self._corners: dict[int, _Node] = {}  # the certain beliefs' nodes, by state
+        self.nodes: dict[bytes, BeliefNode] = {}
+        self._corners: dict[int, BeliefNode] = {}  # the certain beliefs' nodes, by state
         b0 = pomdp.b0 if b0 is None else np.asarray(b0, dtype=float)
         idx = np.flatnonzero(b0 > 0)
         self.root = self._node(idx, b0[idx] / b0[idx].sum())
@@ -611,7 +611,7 @@ class BeliefTreeSearch(StoppingRules):
         best = G.argmax(axis=1)
         return best, G[np.arange(best.size), best]
 
-    def _best_nodes(self, nodes: list[_Node]) -> tuple[np.ndarray, np.ndarray]:
+    def _best_nodes(self, nodes: list[BeliefNode]) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_best_cols` at the beliefs of ``nodes``, as one sparse product."""
         indptr = np.concatenate([[0], np.cumsum([n.idx.size for n in nodes])])
         B = sp.csr_matrix(
@@ -626,7 +626,7 @@ class BeliefTreeSearch(StoppingRules):
         best = V.argmax(axis=1)
         return best, V[np.arange(len(nodes)), best]
 
-    def _store(self, alpha: np.ndarray, action: int, node: _Node) -> None:
+    def _store(self, alpha: np.ndarray, action: int, node: BeliefNode) -> None:
         """Put a new vector (made at ``node``) at active position K."""
         if self.K == self._AT.shape[1]:
             grown = np.empty((self.S, 2 * self.K))
@@ -662,7 +662,7 @@ class BeliefTreeSearch(StoppingRules):
     def _upper_vectors(self, nz: np.ndarray, M: np.ndarray) -> np.ndarray:
         return (self.Q_upper[nz].T @ M).max(axis=0)
 
-    def _node(self, idx: np.ndarray, val: np.ndarray, ub: float | None = None) -> _Node:
+    def _node(self, idx: np.ndarray, val: np.ndarray, ub: float | None = None) -> BeliefNode:
         key = _belief_key(idx.tobytes(), np.round(val, 10).tobytes())
         node = self.nodes.get(key)
         if node is None:
@@ -670,11 +670,11 @@ class BeliefTreeSearch(StoppingRules):
             if ub is None:
                 ub = float(min(self._upper_vectors(idx, M)[0], self.points.values(idx, M)[0]))
             lb = self._best_at(idx, val)[1]
-            node = _Node(idx, val, ub, min(lb, ub))
+            node = BeliefNode(idx, val, ub, min(lb, ub))
             self.nodes[key] = node
         return node
 
-    def _expand(self, node: _Node) -> list[_Kids]:
+    def _expand(self, node: BeliefNode) -> list[NodeChildren]:
         """Successor beliefs of ``node`` under every action (computed once)."""
         if node.kids is not None:
             return node.kids
@@ -726,7 +726,7 @@ class BeliefTreeSearch(StoppingRules):
             # the fast informed bound only: the sawtooth is interpolated when an action's
             # successors matter (see _q_upper)
             ub = self._upper_vectors(nz, M)
-            kids.append(_Kids(reward, zs, pz[zs], self._children(nz, M, ub), M, nz))
+            kids.append(NodeChildren(reward, zs, pz[zs], self._children(nz, M, ub), M, nz))
         node.kids = kids
         node.flat = (
             [c for k in kids for c in k.nodes],
@@ -736,7 +736,7 @@ class BeliefTreeSearch(StoppingRules):
         )
         return kids
 
-    def _children(self, nz: np.ndarray, M: np.ndarray, ub: np.ndarray) -> list[_Node]:
+    def _children(self, nz: np.ndarray, M: np.ndarray, ub: np.ndarray) -> list[BeliefNode]:
         """The nodes of the beliefs M[:, j] (over states nz), made where new with the
         upper bound ``ub[j]``: one pass over all columns (a column's support, key and,
         for new nodes, lower bound come from arrays made once)."""
@@ -762,13 +762,13 @@ class BeliefTreeSearch(StoppingRules):
                     idx, val = nz, M[:, j]
                 else:
                     idx, val = idxs[lo:hi].copy(), vals[lo:hi].copy()
-                child = _Node(idx, val, u, min(float(lbs[j]), u))
+                child = BeliefNode(idx, val, u, min(float(lbs[j]), u))
                 self.nodes[key] = child
             nodes.append(child)
             lo = hi
         return nodes
 
-    def _expand_dense(self, node: _Node) -> list[_Kids]:
+    def _expand_dense(self, node: BeliefNode) -> list[NodeChildren]:
         """:meth:`_expand` for a model whose tables are small enough to be dense: every
         action at once, the successors over the union of the states they cover."""
         A, S = self.A, self.S
@@ -792,7 +792,9 @@ class BeliefTreeSearch(StoppingRules):
         for a, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
             src = (M, nz, own[a], lo, hi)
             kids.append(
-                _Kids(float(reward[a]), zs[lo:hi], pz_flat[lo:hi], nodes[lo:hi], None, None, src)
+                NodeChildren(
+                    float(reward[a]), zs[lo:hi], pz_flat[lo:hi], nodes[lo:hi], None, None, src
+                )
             )
         node.flat = (nodes, acts, pz_flat, reward)
         # the concatenation _q_lower values every successor with is M itself
@@ -804,7 +806,7 @@ class BeliefTreeSearch(StoppingRules):
             self._cat_values += M.size
         return kids
 
-    def _refresh_upper(self, kids: _Kids) -> np.ndarray:
+    def _refresh_upper(self, kids: NodeChildren) -> np.ndarray:
         """Upper bounds of the successors, re-interpolated with the latest points."""
         fresh = self.points.values(kids.nz, kids.M)
         ub = np.array([c.ub for c in kids.nodes])
@@ -813,13 +815,13 @@ class BeliefTreeSearch(StoppingRules):
             c.ub = u
         return ub
 
-    def _q_bound(self, node: _Node, upper: bool) -> np.ndarray:
+    def _q_bound(self, node: BeliefNode, upper: bool) -> np.ndarray:
         """Q(b, a) of every action from the successors' cached upper (lower) bounds."""
         children, acts, pz, reward = node.flat  # type: ignore[misc]
         v = np.array([c.ub for c in children] if upper else [c.lb for c in children])
         return reward + self.gamma * np.bincount(acts, weights=pz * v, minlength=self.A)
 
-    def _q_upper(self, node: _Node, kids: list[_Kids]) -> np.ndarray:
+    def _q_upper(self, node: BeliefNode, kids: list[NodeChildren]) -> np.ndarray:
         """Q_U(b, a) for every action, the best one with freshly interpolated successors.
 
         The successors' cached bounds are valid, if loose (the bound only decreases):
@@ -835,7 +837,7 @@ class BeliefTreeSearch(StoppingRules):
             q_upper[a] = kids[a].reward + g * (kids[a].pz @ self._refresh_upper(kids[a]))
             fresh[a] = True
 
-    def _concatenate(self, node: _Node, kids: list[_Kids]) -> tuple | None:
+    def _concatenate(self, node: BeliefNode, kids: list[NodeChildren]) -> tuple | None:
         """Every action's successor beliefs as the columns of one matrix over the union
         of their states, so one product values every successor of every action (the
         loop over actions cost more than the products on RockSample). Kept while the
@@ -863,7 +865,9 @@ class BeliefTreeSearch(StoppingRules):
         self._cat_values += M.size
         return node.cat
 
-    def _q_lower(self, node: _Node, kids: list[_Kids]) -> tuple[np.ndarray, np.ndarray, list]:
+    def _q_lower(
+        self, node: BeliefNode, kids: list[NodeChildren]
+    ) -> tuple[np.ndarray, np.ndarray, list]:
         """Q_L(b, a) for every action, the best vector at each successor (every action's
         in turn) and where each action's successors start there (A + 1)."""
         g = self.gamma
@@ -892,7 +896,7 @@ class BeliefTreeSearch(StoppingRules):
             choice.append(best)
         return q_lower, np.concatenate(choice), np.cumsum([0] + [c.size for c in choice]).tolist()
 
-    def _backup(self, node: _Node) -> None:
+    def _backup(self, node: BeliefNode) -> None:
         """Back up both bounds at ``node``: one alpha vector and one upper point."""
         kids = self._expand(node)
         q_lower, best, starts = self._q_lower(node, kids)
@@ -915,7 +919,7 @@ class BeliefTreeSearch(StoppingRules):
         node.lb = min(node.lb, node.ub)
 
     def _alpha(
-        self, kids: _Kids, a: int, best: np.ndarray, node: _Node
+        self, kids: NodeChildren, a: int, best: np.ndarray, node: BeliefNode
     ) -> tuple[np.ndarray, np.ndarray]:
         """alpha(s) = R(s,a) + gamma sum_s' T(s,a,s') sum_z O(s',a,z) alpha_k(z)(s'),
         and its successors k (Z,)."""
@@ -930,7 +934,9 @@ class BeliefTreeSearch(StoppingRules):
         Tv = np.bincount(self.T_rows[a], weights=T.data * v[T.indices], minlength=self.S)
         return self.R[:, a] + self.gamma * Tv, self._gid[kstar]
 
-    def _add_alpha(self, alpha: np.ndarray, succ: np.ndarray, action: int, node: _Node) -> None:
+    def _add_alpha(
+        self, alpha: np.ndarray, succ: np.ndarray, action: int, node: BeliefNode
+    ) -> None:
         self._store(alpha, action, node)
         self._all_alpha.append(alpha)
         self._all_act.append(action)

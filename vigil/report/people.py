@@ -18,6 +18,7 @@ from vigil.report.metrics import (
     NEEDLESS_S,
     QUIET_S,
     Timeline,
+    classify_warnings,
     false_trips,
     find_visits,
     needless_trips,
@@ -65,6 +66,14 @@ def people_metrics(
         )
         needless = needless_trips(first, restricted, others=timelines[1:])
     delays = [p["max_delay_s"] for p in per if p["max_delay_s"] is not None]
+    # a warning is timely when it is timely for some walker (it warned that one), an
+    # approach warning when it is timely only as one
+    each = [classify_warnings(tl, restricted, warning_starts or (), grid=grid) for tl in timelines]
+    timely = [any(w[k]["timely"] for w in each) for k in range(len(warning_starts or ()))]
+    direct = [
+        any(w[k]["timely"] and not w[k]["approach"] for w in each)
+        for k in range(len(warning_starts or ()))
+    ]
     return {
         "per_person": per,
         "n_visits": sum(p["n_visits"] for p in per),
@@ -77,6 +86,9 @@ def people_metrics(
         "robot_first": sum(p["robot_first"] for p in per),
         "needless_trips": needless,
         "n_needless_trips": len(needless),
+        "timely_warnings": sum(timely),
+        "late_warnings": sum(not t for t in timely),
+        "approach_warnings": sum(t and not d for t, d in zip(timely, direct, strict=True)),
     }
 
 
