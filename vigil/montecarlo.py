@@ -347,7 +347,8 @@ def run_study(
     from vigil.system import policy_for
 
     for task in sorted({str(Path(sc.task).resolve()) for sc in scenarios}):
-        policy_for(Path(task), say)  # solved once here, not by every worker at the same time
+        if load_task(task).people == 1:  # several people: the online planner, no policy
+            policy_for(Path(task), say)  # solved once here, not by every worker at once
     cfg = None if config_path is None else str(Path(config_path).resolve())
     jobs = [
         (k, (sc, str(out / "episodes" / name), cfg, study, perception, model_file, max_steps))
