@@ -364,3 +364,19 @@ def test_a_several_people_episode_counts_every_walkers_visits():
     assert [(v["person"], v["cell"]) for v in m["visits"]] == [(1, 1), (2, 12)]
     assert m["delays_s"] == [1.0] and m["n_needless_trips"] == 1
     assert (m["timely_warnings"], m["approach_warnings"]) == (2, 1)  # every walker's
+
+
+@pytest.mark.slow
+def test_a_study_of_the_two_person_task_runs_and_counts_each_walkers_visits(tmp_path):
+    """Two walkers an episode, the online planner (no policy to solve first), the
+    visits of both in the study's records."""
+    from vigil.walks import DEFAULT_WALKS, load_walks
+
+    study = load_walks(DEFAULT_WALKS, max_sim_s=40.0)
+    task2 = REPO / "config" / "task-r2-n2.yaml"
+    r = run_study(task2, 3, tmp_path / "n2", seed=4, study=study, say=lambda _s: None)
+    assert r["summary"]["failed_episodes"] == 0
+    visits = [v for ep in r["episodes"] for v in ep["visits"]]
+    assert visits and all(v["person"] in (1, 2) for v in visits)
+    steps = (tmp_path / "n2" / "episodes" / "000" / "steps.jsonl").read_text().splitlines()
+    assert all(len(json.loads(x)["observation"]["people"]) == 2 for x in steps)
