@@ -64,7 +64,7 @@ from stack.nav.speech import Speaker, SpeechError
 from stack.nav.warning import WarningReactor
 from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker
-from stack.perception.errors import BadScanError
+from stack.perception.errors import BadScanError, PerceptionError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs
 from stack.perception.messages import camera_state_from_json, legs_to_dict, tracks_from_dict
@@ -471,7 +471,7 @@ class InProcessSystem:
     def obs_on_person(self, text: str) -> None:
         try:  # as the node: a message that cannot be used is skipped
             self.observer.on_camera(camera_state_from_json(text, self.now_s))
-        except ValueError as err:
+        except (ValueError, PerceptionError) as err:
             self.say(f"[inprocess] person message ignored: {err}")
 
     def obs_on_legs(self, data: dict) -> None:

@@ -41,6 +41,7 @@ from vigil_interfaces.msg import CameraPerson, LegTracks, PersonObservation
 
 import stack.topics as topic
 from stack.cells import ConfigError
+from stack.perception.errors import PerceptionError
 from stack.perception.legs import Pose2D
 from stack.perception.messages import camera_state_from_dict, pose_from_msg, tracks_from_dict
 from stack.perception.observation import NOT_MOVING
@@ -110,7 +111,7 @@ class ObservationsNode(Node):
     def on_person(self, msg: CameraPerson) -> None:
         try:
             self.core.on_camera(camera_state_from_dict(camera_from_msg(msg), self._now_s()))
-        except ValueError as err:
+        except (ValueError, PerceptionError) as err:
             self.get_logger().warning(f"person message ignored: {err}", throttle_duration_sec=5.0)
 
     def on_legs(self, msg: LegTracks) -> None:

@@ -8,6 +8,7 @@ person or several (person slots, :class:`stack.perception.multi.PeoplePerception
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -56,6 +57,7 @@ class Observer:
             else None
         )
         self.slot_people: tuple[SlotPerson, ...] = tuple(SlotPerson(k) for k in range(people))
+        self._slots_stamp_s = -math.inf  # the slots' last update
         self.visibility: CameraVisibility | None = None
         if calibration_file:
             try:
@@ -81,7 +83,10 @@ class Observer:
     def on_camera(self, camera: CameraPersonState) -> None:
         """The camera people node's latest state (and the person slots moved on)."""
         self.camera = camera
-        if self.slots is not None:
+        # two camera messages in one instant (the frame watchdog's "silent" and the first
+        # frame after an outage): the slots' tracker moves on once, with the first
+        if self.slots is not None and camera.stamp_s > self._slots_stamp_s:
+            self._slots_stamp_s = camera.stamp_s
             self.slot_people = self.slots.update(camera.stamp_s, camera.people_m, self.tracks)
 
     def on_tracks(self, tracks: tuple) -> None:
