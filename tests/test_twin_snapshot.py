@@ -32,3 +32,17 @@ def test_snapshot_writes_camera_and_top_view(tmp_path, capsys):
     assert main(["--out", str(out), "--seed", "2"]) == 0
     printed = capsys.readouterr().out.split()
     assert printed == [str(out / "camera.png"), str(out / "top.png")]
+
+
+def test_a_link_planted_where_the_snapshot_writes_is_refused_and_its_target_kept(tmp_path):
+    import pytest
+
+    precious = tmp_path / "precious.txt"
+    precious.write_text("mine")
+    for name in ("camera.png", "top.png"):
+        out = tmp_path / name.split(".")[0]
+        out.mkdir()
+        (out / name).symlink_to(precious)
+        with pytest.raises(OSError):
+            snapshot(out, seed=1)
+        assert precious.read_text() == "mine" and (out / name).is_symlink()

@@ -29,6 +29,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from stack.files import save_figure, write_bytes  # noqa: E402
 from stack.nav.occupancy import FREE, OCCUPIED, OccupancyMap  # noqa: E402
 from twin.config import TwinConfig, load_twin_config  # noqa: E402
 from twin.scene import LIDAR_SITE  # noqa: E402
@@ -114,7 +115,7 @@ def _draw_top(tw: Twin, path: Path) -> None:
         ax.set_title(f"twin at t = {tw.time_s:.2f} s")
         ax.legend(loc="upper left", fontsize=8)
         fig.tight_layout()
-        fig.savefig(path)
+        save_figure(fig, path)  # never through a link planted there (issue 23)
     finally:
         plt.close(fig)
 
@@ -149,8 +150,10 @@ def snapshot(
     with Twin(cfg, seed=seed) as tw:
         tw.run(settle_s, VelocityCommand())
         rgb = tw.render_camera()
-        if not cv2.imwrite(str(camera_path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-            raise OSError(f"cannot write {camera_path}")
+        ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise OSError(f"cannot encode {camera_path}")
+        write_bytes(camera_path, png.tobytes())  # never through a link planted there
         _draw_top(tw, top_path)
     return [camera_path, top_path]
 
