@@ -93,6 +93,29 @@ def _moves(steps):
     return out
 
 
+def _both_transports(tmp_path, text: str, task: str):
+    """The scenario ``text`` (8 steps) run through ROS and in process: both summaries
+    and both step tables."""
+    from vigil.run import run_scenario
+
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(text.format(task=REPO / "config" / task))
+    ros = run_scenario(scenario, out=tmp_path / "ros", say=lambda _s: None)
+    mine = run_inprocess(scenario, tmp_path / "inprocess", say=lambda _s: None)
+    a = _records(tmp_path / "ros" / "steps.jsonl")
+    b = _records(tmp_path / "inprocess" / "steps.jsonl")
+    assert len(a) == len(b) == 8
+    return ros, mine, a, b
+
+
+def _first_steps_agree(a, b):
+    """The first two steps: the same action from the same belief, the same observation
+    at the same instant."""
+    for x, y in zip(a[:2], b[:2], strict=True):
+        assert (x["step"], x["action"], x["stamp_s"]) == (y["step"], y["action"], y["stamp_s"])
+        assert x["observation"] == y["observation"] and x["belief"] == y["belief"]
+
+
 @pytest.mark.slow
 @pytest.mark.ros
 def test_ros_run_and_inprocess_loop_make_the_same_decisions(tmp_path):
@@ -107,21 +130,11 @@ def test_ros_run_and_inprocess_loop_make_the_same_decisions(tmp_path):
     steps identical, the same course of moves, the same visits guarded with delays
     within a second, and no false trip.
     """
-    from vigil.run import run_scenario
-
-    scenario = tmp_path / "short.yaml"
-    scenario.write_text(SHORT.format(task=REPO / "config" / "task-r1.yaml"))
-    ros = run_scenario(scenario, out=tmp_path / "ros", say=lambda _s: None)
-    mine = run_inprocess(scenario, tmp_path / "inprocess", say=lambda _s: None)
-    a = _records(tmp_path / "ros" / "steps.jsonl")
-    b = _records(tmp_path / "inprocess" / "steps.jsonl")
-    assert len(a) == len(b) == 8
+    ros, mine, a, b = _both_transports(tmp_path, SHORT, "task-r1.yaml")
     same = sum(x["stamp_s"] == y["stamp_s"] and x["belief"] == y["belief"]
                for x, y in zip(a, b, strict=True))  # fmt: skip
+    _first_steps_agree(a, b)
     for x, y in zip(a[:2], b[:2], strict=True):
-        # same action from the same belief, the same observation at the same instant
-        assert (x["step"], x["action"], x["stamp_s"]) == (y["step"], y["action"], y["stamp_s"])
-        assert x["observation"] == y["observation"] and x["belief"] == y["belief"]
         assert x["nav"] == y["nav"] and x["trigger"] == y["trigger"]
     assert _moves(a) == _moves(b), f"{same}/8 steps identical"
     va, vb = ros["metrics"]["visits"], mine["metrics"]["visits"]
@@ -190,18 +203,8 @@ def test_two_people_and_a_fault_make_the_same_steps_through_ros_and_in_process(t
     what the one-person comparison asserts: the first steps identical (stamps,
     observations with their slot labels, beliefs, actions), the same course of moves,
     the same visits guarded per walker."""
-    from vigil.run import run_scenario
-
-    scenario = tmp_path / "two.yaml"
-    scenario.write_text(TWO.format(task=REPO / "config" / "task-r2-n2.yaml"))
-    ros = run_scenario(scenario, out=tmp_path / "ros", say=lambda _s: None)
-    mine = run_inprocess(scenario, tmp_path / "inprocess", say=lambda _s: None)
-    a = _records(tmp_path / "ros" / "steps.jsonl")
-    b = _records(tmp_path / "inprocess" / "steps.jsonl")
-    assert len(a) == len(b) == 8
-    for x, y in zip(a[:2], b[:2], strict=True):
-        assert (x["step"], x["action"], x["stamp_s"]) == (y["step"], y["action"], y["stamp_s"])
-        assert x["observation"] == y["observation"] and x["belief"] == y["belief"]
+    ros, mine, a, b = _both_transports(tmp_path, TWO, "task-r2-n2.yaml")
+    _first_steps_agree(a, b)
     assert _moves(a) == _moves(b)
 
     def visits(summary):

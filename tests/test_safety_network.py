@@ -82,16 +82,22 @@ def listen_while(listener_env, intruder_cmd, seconds=6.0, intruder_env=None) -> 
     return out.strip().splitlines()[-1]
 
 
+def _intruder(ns: str, domain_id: int, host_ip: str) -> list[str]:
+    """A publisher of ``/arm`` and the base topic in network namespace ``ns`` (another
+    host) that knows the domain id and this host's address."""
+    return [
+        "ip", "netns", "exec", ns, "env", f"ROS_DOMAIN_ID={domain_id}",
+        f"ROS_STATIC_PEERS={host_ip}", "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET",
+        f"PYTHONPATH={REPO}", sys.executable, str(HERE / "publish_arm.py"), "6",
+    ]  # fmt: skip
+
+
 def test_a_peer_on_another_host_can_neither_arm_nor_drive(other_host, tmp_path):
     ns, host_ip = other_host
     claim = claim_domain()
     try:
         env = base_env(claim.domain_id)
-        intruder = [
-            "ip", "netns", "exec", ns, "env", f"ROS_DOMAIN_ID={claim.domain_id}",
-            f"ROS_STATIC_PEERS={host_ip}", "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET",
-            f"PYTHONPATH={REPO}", sys.executable, str(HERE / "publish_arm.py"), "6",
-        ]  # fmt: skip
+        intruder = _intruder(ns, claim.domain_id, host_ip)
         # the old setting: discovery range LOCALHOST only: the intruder gets through
         old = {**env, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
         assert listen_while(old, intruder) != "RECEIVED arm=0 cmd_vel=0"
@@ -115,11 +121,7 @@ def test_a_host_on_the_robot_network_is_heard_without_sros2(other_host, tmp_path
     claim = claim_domain()
     try:
         env = base_env(claim.domain_id)
-        intruder = [
-            "ip", "netns", "exec", ns, "env", f"ROS_DOMAIN_ID={claim.domain_id}",
-            f"ROS_STATIC_PEERS={host_ip}", "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET",
-            f"PYTHONPATH={REPO}", sys.executable, str(HERE / "publish_arm.py"), "6",
-        ]  # fmt: skip
+        intruder = _intruder(ns, claim.domain_id, host_ip)
         robot = {**env, **dds_env(write_profile(tmp_path, [host_ip]), localhost_only=False)}
         line = listen_while(robot, intruder)
         arm, cmd = (int(part.split("=")[1]) for part in line.split()[1:])

@@ -194,6 +194,7 @@ class Twin:
         self._qadr = (jx.qposadr[0], jy.qposadr[0], jyaw.qposadr[0])
         self._dadr = (jx.dofadr[0], jy.dofadr[0], jyaw.dofadr[0])
         self._act = tuple(m.actuator(ROBOT_PREFIX + n).id for n in ("vx", "vy", "wz"))
+        self._act_idx = np.array(self._act)  # for zeroing all three at once
         rc = self.config.robot
         for a, kv in zip(
             self._act,
@@ -302,7 +303,7 @@ class Twin:
         if not diff and not self._cmd.any():
             # at rest (most of an episode): the world-frame command is zero at every yaw,
             # so the substeps run in one call (the same steps, without Python between)
-            self._data.ctrl[list(self._act)] = 0.0
+            self._data.ctrl[self._act_idx] = 0.0
             mujoco.mj_step(self.model, self._data, self._n_substeps)
         else:
             self._substeps(diff)
