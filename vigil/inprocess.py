@@ -71,6 +71,7 @@ from stack.perception.messages import camera_state_from_json, legs_to_dict, trac
 from stack.perception.model import DETECTIONS_FILE, ModelCamera, PerceptionModel, PersonFrame
 from stack.perception.observation import CombinerConfig
 from stack.perception.observer import Observer
+from stack.perception.scan_pose import ScanPosePairing
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.planning.agent import ObservationError, Observed
 from stack.planning.runtime import PlannerStart, make_planner, online_config, task_model
@@ -88,7 +89,6 @@ DEFAULT_CONFIG = REPO / "config" / "twin.yaml"
 DEFAULT_PERCEPTION_MODEL = REPO / "config" / "perception-model.yaml"
 CMD_TIMEOUT_S = 0.5  # the bridge's cmd_timeout_s, when the parameters do not say
 FRAME_TIMEOUT_S = 2.0  # the camera node's frame_timeout_s
-MAX_POSE_AGE_S = 0.5  # the legs node's max_pose_age_s
 PROGRESS_HZ = 2.0  # navigation's progress_rate_hz
 SPEECH_POLL_S = 0.1  # the speech node's poll_rate_hz 10
 PERCEPTION_MODES = ("rendered", "model")
@@ -241,9 +241,7 @@ class InProcessSystem:
         self.leg_tracker = LegTracker(TrackerConfig.from_dict(lsec.get("tracker")))
         self.laser_mount = Pose2D(float(lp["laser_x_m"]), 0.0, 0.0)
         self.static_map = StaticMap.from_occupancy(np.asarray(data, np.int16), w, h, res, origin)
-        self.legs_pose: Pose2D | None = None
-        self.legs_pose_stamp_s = 0.0
-        self._waiting_scan: tuple[float, Scan] | None = None
+        self.legs_pairing: ScanPosePairing[Scan] = ScanPosePairing()
 
         # -- observations -----------------------------------------------------------------
         op = p["observations"]
@@ -440,26 +438,16 @@ class InProcessSystem:
 
     # -- legs -----------------------------------------------------------------------------
     def legs_on_odom(self, msg: tuple[float, Pose2D]) -> None:
-        self.legs_pose_stamp_s, self.legs_pose = msg
-        if self._waiting_scan is not None and self.legs_pose_stamp_s >= self._waiting_scan[0]:
-            self.legs_process(self._waiting_scan[1])
+        for scan in self.legs_pairing.on_pose(*msg):
+            self.legs_process(scan)
 
     def legs_on_scan(self, scan: Scan) -> None:
-        if self.legs_pose is None or self.legs_pose_stamp_s + 1e-6 < scan.stamp_s:
-            if self._waiting_scan is not None:
-                self.legs_process(self._waiting_scan[1])
-            self._waiting_scan = (scan.stamp_s - 1e-6, scan)
-            return
-        self.legs_process(scan)
+        for waiting in self.legs_pairing.on_scan(scan.stamp_s, scan):
+            self.legs_process(waiting)
 
     def legs_process(self, scan: Scan) -> None:
-        self._waiting_scan = None
-        if self.legs_pose is None:
-            return
         try:
-            if abs(scan.stamp_s - self.legs_pose_stamp_s) > MAX_POSE_AGE_S:
-                raise BadScanError("pose too old")
-            laser_pose = self.legs_pose.compose(self.laser_mount)
+            laser_pose = self.legs_pairing.laser_pose(scan.stamp_s, self.laser_mount)
             det = detect_legs(scan, self.leg_config, laser_pose, self.static_map)
             tracks = self.leg_tracker.update(scan.stamp_s, det.people)
         except BadScanError:

@@ -53,6 +53,7 @@ from stack.perception.messages import (
     static_map_from_msg,
 )
 from stack.perception.observation import CombinerConfig
+from stack.perception.scan_pose import MAX_POSE_AGE_S, ScanPosePairing
 from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.ros_lockstep import Participant
 from stack.ros_main import spin_node
@@ -77,7 +78,7 @@ class LegsNode(Node):
             laser_x_m=0.0,
             laser_y_m=0.0,
             laser_yaw_rad=0.0,
-            max_pose_age_s=0.5,
+            max_pose_age_s=MAX_POSE_AGE_S,
             max_future_stamp_s=1.0,
             max_past_stamp_s=0.0,
             lockstep=False,
@@ -95,9 +96,7 @@ class LegsNode(Node):
         ).speed_thresholds_mps
         self.tracker = LegTracker(TrackerConfig.from_dict(sections.get("tracker")))
         self.static_map = None
-        self.pose: Pose2D | None = None
-        self.pose_stamp_s = 0.0
-        self._waiting_scan: tuple[float, LaserScan] | None = None
+        self.pairing: ScanPosePairing[LaserScan] = ScanPosePairing(v.max_pose_age_s)
         self.stamps = StampGuard(v.max_future_stamp_s, v.max_past_stamp_s)
         ls = self.lockstep = Participant(self, v.lockstep)
         self.pub_legs = ls.publisher(LegTracks, topic.LEGS, 10)
@@ -118,6 +117,11 @@ class LegsNode(Node):
             ls.subscription(Odometry, topics["odom"], self.on_odom, 20)
         ls.subscription(LaserScan, topics["scan"], self.on_scan, qos_profile_sensor_data)
 
+    @property
+    def pose(self) -> Pose2D | None:
+        """The robot's latest pose (the one scans are read with)."""
+        return self.pairing.pose
+
     def on_map(self, msg: OccupancyGrid) -> None:
         try:
             self.static_map = static_map_from_msg(msg)
@@ -137,49 +141,33 @@ class LegsNode(Node):
         if not self._stamp_ok("odometry", stamp_to_s(msg.header.stamp)):
             return
         try:
-            self.pose = pose_from_msg(msg.pose.pose)
-            self.pose_stamp_s = stamp_to_s(msg.header.stamp)
+            pose = pose_from_msg(msg.pose.pose)
         except ValueError as err:
             self.get_logger().warning(f"pose ignored: {err}", throttle_duration_sec=5.0)
             return
-        if self._waiting_scan is not None and self.pose_stamp_s >= self._waiting_scan[0]:
-            self.process_scan(self._waiting_scan[1])
+        for scan in self.pairing.on_pose(stamp_to_s(msg.header.stamp), pose):
+            self.process_scan(scan)
 
     def on_map_pose(self, stamp_s: float, pose: Pose2D) -> None:
         """The map pose through TF (``pose_source: tf``), used as :meth:`on_odom`'s."""
         if not self._stamp_ok("map pose", stamp_s):
             return
-        self.pose, self.pose_stamp_s = pose, stamp_s
-        if self._waiting_scan is not None and self.pose_stamp_s >= self._waiting_scan[0]:
-            self.process_scan(self._waiting_scan[1])
+        for scan in self.pairing.on_pose(stamp_s, pose):
+            self.process_scan(scan)
 
     def on_scan(self, msg: LaserScan) -> None:
-        """Transform with the pose of the scan's instant: a scan that arrives before
-        that pose waits for it (at most one scan waits; a newer one replaces it). The
-        first scan waits for the first pose too (through TF the pose comes a hop later)."""
+        """Read with the pose of the scan's instant (:class:`ScanPosePairing`)."""
         stamp = stamp_to_s(msg.header.stamp)
         if not self._stamp_ok("scan", stamp):
             return
-        if self.pose is None or self.pose_stamp_s + 1e-6 < stamp:
-            if self._waiting_scan is not None:
-                self.process_scan(self._waiting_scan[1])  # its pose never came: use the last
-            self._waiting_scan = (stamp - 1e-6, msg)
-            return
-        self.process_scan(msg)
+        for scan in self.pairing.on_scan(stamp, msg):
+            self.process_scan(scan)
 
     def process_scan(self, msg: LaserScan) -> None:
-        self._waiting_scan = None
         log = self.get_logger()
-        if self.pose is None:
-            log.warning("scan ignored: no robot pose yet", throttle_duration_sec=5.0)
-            return
         try:
             scan = scan_from_msg(msg)
-            if abs(scan.stamp_s - self.pose_stamp_s) > self.max_pose_age_s:
-                raise BadScanError(
-                    f"pose is {abs(scan.stamp_s - self.pose_stamp_s):.2f} s away from the scan"
-                )
-            laser_pose = self.pose.compose(self.laser_mount)
+            laser_pose = self.pairing.laser_pose(scan.stamp_s, self.laser_mount)
             det = detect_legs(scan, self.leg_config, laser_pose, self.static_map)
             tracks = self.tracker.update(scan.stamp_s, det.people)
         except BadScanError as err:
