@@ -48,7 +48,12 @@ ACK_TOPIC = topics.LOCKSTEP_ACK
 TICK_TOPIC = topics.LOCKSTEP_TICK  # after /clock has reached everyone: run the timers
 RUN_ID_ENV = "VIGIL_RUN_ID"  # every node of a run has the run's id in this variable
 MAX_FOREIGN = 64  # names of other runs' participants remembered (a hostile peer is bounded)
-CATCH_UP_S = 5.0
+CATCH_UP_S = 5.0  # after a rebase, a receiver ahead of the sends may be catching up
+# ... but only once every participant that publishes the topic has acknowledged again
+# this long after the excess was first seen: before that, the receiver may simply be
+# ahead of a sender's acknowledgement (a send that is not in the sums yet), and taking
+# it for catch-up would leave the receiver one message short for good (a stall).
+SETTLE_S = 1.0  # two of a participant's heartbeats (stack.ros_lockstep.HEARTBEAT_S)
 
 
 @dataclass
@@ -121,6 +126,7 @@ class _Member:
     last_heard_s: float = 0.0
     excused: bool = False
     rebased_s: float = -1e9  # when its counts were last rebased (wall clock)
+    ahead_since: dict[str, float] = field(default_factory=dict)  # topic -> excess first seen
 
 
 class Ledger:
@@ -144,6 +150,7 @@ class Ledger:
         self.retired_sent: dict[str, int] = defaultdict(int)
         self.events: list[str] = []  # restarts, excuses: for the log
         self.version = 0  # changes with every count: unchanged counts need no new check
+        self.heard_s = 0.0  # the wall clock of the latest acknowledgement
 
     # -- the coordinator's own traffic ----------------------------------------------
     def sent(self, topic: str, n: int = 1) -> None:
@@ -171,6 +178,7 @@ class Ledger:
                 self.foreign[key] += 1
             return False
         self.version += 1
+        self.heard_s = max(self.heard_s, now_s)
         member = self.members.get(ack.node)
         if member is None:
             self.members[ack.node] = _Member(ack, last_heard_s=now_s)
@@ -203,6 +211,7 @@ class Ledger:
     def _rebase(self, member: _Member) -> None:
         """Forgive what ``member`` missed: count it as balanced as of now."""
         member.rebased_s = member.last_heard_s
+        member.ahead_since = {}
         for topic in member.ack.recv:
             member.offset[topic] = self.total_sent(topic) - member.ack.recv[topic]
 
@@ -235,7 +244,9 @@ class Ledger:
 
         A participant that received more than the known sends is ahead of a sender's
         acknowledgement (pending too), unless it was rebased in the last
-        ``CATCH_UP_S``: then it is still receiving what was in flight at the rebase.
+        ``CATCH_UP_S`` and the excess outlived the senders' next acknowledgements
+        (:meth:`_caught_up`): then it is still receiving what was in flight at the
+        rebase.
         """
         out = []
         for name, m in sorted(self.members.items()):
@@ -243,8 +254,11 @@ class Ledger:
                 continue
             for topic, got in sorted(m.ack.recv.items()):
                 want = self._expected_recv(m, topic)
-                if got > want and m.last_heard_s - m.rebased_s < CATCH_UP_S:
+                if got <= want:
+                    m.ahead_since.pop(topic, None)
+                if got > want and self._caught_up(name, m, topic):
                     m.offset[topic] = self.total_sent(topic) - got
+                    m.ahead_since.pop(topic, None)
                 elif got != want:
                     out.append(f"{name} {topic} {got}/{want}")
         for topic in sorted(self.own_subscribes):
@@ -252,6 +266,24 @@ class Ledger:
             if got < want:
                 out.append(f"coordinator {topic} {got}/{want}")
         return out
+
+    def _caught_up(self, name: str, m: _Member, topic: str) -> bool:
+        """``m``, ahead of the sends of ``topic``, is catching up on what was in flight
+        at its rebase (not ahead of a sender's acknowledgement): the excess was first
+        seen within ``CATCH_UP_S`` of the rebase, and every participant publishing the
+        topic has acknowledged ``SETTLE_S`` after that (the coordinator's own sends
+        are counted when made: nothing to wait for)."""
+        since = m.ahead_since.get(topic)
+        if since is None:
+            if m.last_heard_s - m.rebased_s >= CATCH_UP_S:
+                return False  # long after the rebase: a sender's ack is late
+            since = m.ahead_since[topic] = self.heard_s
+        senders = [
+            s
+            for n, s in self.members.items()
+            if n != name and not s.excused and (topic in s.ack.sent or topic in s.ack.matched)
+        ]
+        return all(s.last_heard_s >= since + SETTLE_S for s in senders)
 
     def quiescent(self) -> bool:
         return not self.pending()

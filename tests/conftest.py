@@ -72,3 +72,26 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.ros)
         if item.path.name in SLOW_FILES:
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A failed test that ran the stack shows its nodes' warnings and errors (the
+    twin bridge's lock-step lines among them): CI keeps no run folder to look into."""
+    outcome = yield
+    report = outcome.get_result()
+    tmp = getattr(item, "funcargs", {}).get("tmp_path")
+    if report.when != "call" or not report.failed or tmp is None:
+        return
+    lines = []
+    for log in sorted(tmp.rglob("logs/*.log"))[:40]:
+        try:
+            text = log.read_text(errors="replace").splitlines()
+        except OSError:
+            continue
+        worth = [x for x in text if "[WARN]" in x or "[ERROR]" in x or "Traceback" in x]
+        if worth:
+            lines.append(f"--- {log.relative_to(tmp)} ({len(worth)} of {len(text)} lines)")
+            lines.extend(worth if len(worth) <= 30 else worth[:15] + ["..."] + worth[-15:])
+    if lines:
+        report.sections.append(("run logs: warnings and errors", "\n".join(lines)))

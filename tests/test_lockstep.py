@@ -67,6 +67,52 @@ def test_restart_is_rebased_and_keeps_the_dead_incarnations_sends():
     assert led.pending() == ["planner /obs 0/1"]
 
 
+def test_a_restarted_receiver_ahead_of_a_senders_ack_waits_for_it():
+    # after a restart the planner receives an observation before the observations
+    # node's ack of sending it reaches us: not catch-up; taking it for catch-up would
+    # leave the planner one message short for good (a 30 s stall, again and again)
+    led = Ledger()
+    led.update(ack("obs", recv={"/req": 4}, sent={"/observations": 4}), 0.0)
+    led.update(ack("planner", "one", recv={"/observations": 4}, sent={"/req": 4}), 0.0)
+    led.update(ack("planner", "two", recv={"/observations": 0}, sent={"/req": 1}), 1.0)
+    led.update(ack("obs", recv={"/req": 5}, sent={"/observations": 4}), 1.1)
+    led.update(ack("planner", "two", recv={"/observations": 1}, sent={"/req": 1}), 1.2)
+    assert led.pending() == ["planner /observations 1/0"]
+    led.update(ack("obs", recv={"/req": 5}, sent={"/observations": 5}), 1.3)  # the late ack
+    assert led.quiescent()
+    led.sent("/clock")  # and the counts stay balanced: the next send is waited for
+    led.update(ack("obs", recv={"/req": 6}, sent={"/observations": 6}), 1.5)
+    assert led.pending() == ["obs /req 6/5", "planner /observations 1/2"]
+    led.update(ack("planner", "two", recv={"/observations": 2}, sent={"/req": 2}), 1.6)
+    assert led.quiescent()
+
+
+def test_a_restarted_receiver_catches_up_once_the_senders_acked_again():
+    led = Ledger()
+    led.update(ack("obs", recv={}, sent={"/observations": 4}), 0.0)
+    led.update(ack("planner", "one", recv={"/observations": 3}), 0.0)  # one in flight
+    led.update(ack("planner", "two", recv={"/observations": 0}), 1.0)  # rebased: 0 of 0
+    led.update(ack("planner", "two", recv={"/observations": 1}), 1.1)  # the one in flight
+    assert led.pending() == ["planner /observations 1/0"]  # perhaps a late ack: wait
+    led.update(ack("obs", recv={}, sent={"/observations": 4}), 1.6)  # a heartbeat
+    assert led.pending() == ["planner /observations 1/0"]
+    led.update(ack("obs", recv={}, sent={"/observations": 4}), 2.2)  # SETTLE_S later
+    assert led.quiescent()  # nothing more was sent: it was catch-up
+    led.update(ack("obs", recv={}, sent={"/observations": 5}), 2.3)
+    assert led.pending() == ["planner /observations 1/2"]
+
+
+def test_a_restarted_receiver_catches_up_on_the_coordinators_sends_at_once():
+    led = Ledger()
+    led.update(ack("cam", "one", recv={"/image": 2}), 0.0)
+    led.sent("/image", 3)
+    led.update(ack("cam", "two", recv={"/image": 0}), 1.0)
+    led.update(ack("cam", "two", recv={"/image": 1}), 1.1)  # in flight at the restart
+    assert led.quiescent()
+    led.update(ack("cam", "two", recv={"/image": 2}), 7.0)  # long after: not catch-up
+    assert led.pending() == ["cam /image 2/1"]
+
+
 def test_forgive_rebases_a_lossy_member_and_excuses_a_silent_one():
     led = Ledger()
     led.update(ack("cam", recv={"/image": 0}), 0.0)
