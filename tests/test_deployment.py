@@ -269,8 +269,11 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
     assert params["planner"]["ros__parameters"]["task_file"].endswith("task-r2.yaml")
 
 
-def test_twin_system_is_lockstep_on_localhost(tmp_path):
+def test_twin_system_is_lockstep_on_localhost(tmp_path, monkeypatch):
     from vigil.system import prepare
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the user's choice is kept
 
     (tmp_path / "policy.npz").write_bytes(b"")
     data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
@@ -298,6 +301,8 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path):
     assert len(twin["person"]["waypoints"]) == len(scenario.walk) + 1
     assert (tmp_path / "run" / "calibration.yaml").exists()  # from the twin's floor points
     assert p["planner"]["max_steps"] == scenario.steps
+    # one BLAS thread a node: a dozen processes share the cores
+    assert system.env["OPENBLAS_NUM_THREADS"] == "1" and "OMP_NUM_THREADS" not in system.env
     # the twin's TF: the localisation stand-in publishes map -> odom and the camera frames
     assert p["localisation"]["publish_map_odom"] is True
     assert p["localisation"]["calibration_file"].endswith("calibration.yaml")

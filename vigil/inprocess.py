@@ -76,6 +76,7 @@ from stack.perception.tracker import LegTracker, TrackerConfig
 from stack.planning.agent import ObservationError, Observed
 from stack.planning.runtime import PlannerStart, make_planner, online_config, task_model
 from stack.planning.stepper import DecisionSteps, StepTiming
+from stack.planning.threads import blas_threads
 from twin.config import load_twin_config
 from twin.env import GuardEnvironment, Outage, make_environment
 from twin.twin import truth_record
@@ -659,7 +660,8 @@ def run_inprocess(
         perception=perception,
         perception_model=perception_model if perception == "model" else None,
     )
-    result = loop.run()
+    with blas_threads(1):  # as a study's workers and the nodes: small products only lose by more
+        result = loop.run()
     info = {
         "scenario": scenario.name,
         "seed": scenario.seed,

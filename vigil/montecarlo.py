@@ -44,6 +44,7 @@ import numpy as np
 from stack.cells import ConfigError
 from stack.config import read_text_capped, write_text
 from stack.planning.task import load_task
+from stack.planning.threads import ENV_VARS
 from vigil.scenario import Scenario
 from vigil.study_stats import (  # noqa: F401 - the study's statistics, re-exported
     bootstrap_mean,
@@ -174,12 +175,12 @@ VISIT_KEYS = (
 # -- the study ----------------------------------------------------------------------------------
 
 
-BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+BLAS_THREADS = ENV_VARS
 
 
 def _local_map(jobs, workers: int):
     """(index, result) as episodes finish, on ``workers`` local processes."""
-    if workers <= 1:
+    if workers <= 1:  # here (run_inprocess keeps to one BLAS thread, as the workers do)
         for k, args in jobs:
             yield k, _guarded(args)
         return

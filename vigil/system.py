@@ -15,6 +15,7 @@ operator arms the gate.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.config import dump_yaml, read_yaml, write_text
 from stack.files import make_dir
+from stack.planning.threads import ENV_VARS as BLAS_THREAD_VARS
 from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment, gate_topics
 from vigil.processes import ProcessSpec
@@ -332,6 +334,9 @@ def _write(
         env["ROS_DOMAIN_ID"] = str(dep.ros.domain_id)
     if dep.mode == "twin":
         env.setdefault("MUJOCO_GL", "egl")
+    # one BLAS thread a node (unless the user set one): a dozen processes share the
+    # cores, and the planner's small products only lose by more (stack.planning.threads)
+    env.update({k: "1" for k in BLAS_THREAD_VARS if k not in os.environ})
     return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
 
 

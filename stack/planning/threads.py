@@ -15,6 +15,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import cache
 
+# what a process started with one of these set to "1" uses: one BLAS thread from the
+# start (a study's workers, the nodes of a run: vigil.montecarlo, vigil.system)
+ENV_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
 _SETTERS = ("scipy_openblas_set_num_threads64_", "openblas_set_num_threads")
 _GETTERS = ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads")
 
