@@ -1,8 +1,10 @@
 """Solved task policies kept on disk, keyed by what determines them.
 
-The key is the SHA-256 of the task file's bytes and the solver settings, so an
-edited task or other settings never reuse a stale policy; the policy itself also
-records its model's hash (:meth:`POMDP.fingerprint`), which a loader checks.
+The key is the SHA-256 of the task's POMDP (:meth:`POMDP.fingerprint`: T, O, R, the
+discount and b0), its name and the solver settings: an edit that changes the model or
+the settings never reuses a stale policy, and one that does not (a task file's
+run-time ``anticipation`` block, comments, another file with the same task) solves
+nothing again. The policy also records its model's hash, which a loader checks.
 """
 
 from __future__ import annotations
@@ -13,13 +15,16 @@ from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
-from stack.config import read_bytes_capped
 from stack.planning.solve import TASK_CONFIG, SolverConfig, format_progress, solve_task
 from stack.planning.task import load_task
 
 
-def cache_key(task_path: str | Path, config: SolverConfig) -> str:
-    h = hashlib.sha256(read_bytes_capped(task_path))
+def cache_key(task, config: SolverConfig) -> str:
+    """The cache key of a :class:`~stack.planning.task.Task`'s policy."""
+    from stack.planning.model import build_model
+
+    h = hashlib.sha256(build_model(task).flat().fingerprint().encode())
+    h.update(task.name.encode())  # the policy's meta names it
     h.update(json.dumps(asdict(config), sort_keys=True).encode())
     return h.hexdigest()[:16]
 
@@ -36,12 +41,16 @@ def cached_task_policy(
     that reads the cache never sees half a policy.
     """
     task_path = Path(task_path)
-    path = Path(cache_dir) / f"{task_path.stem}-{cache_key(task_path, config)}.npz"
+    task = load_task(task_path)
+    path = Path(cache_dir) / f"{_safe(task.name)}-{cache_key(task, config)}.npz"
     if path.exists():
         return path
     say(f"[policy] solving {task_path.name} ({config.algorithm}), once")
-    policy = solve_task(
-        load_task(task_path), config, lambda s: say("[policy] " + format_progress(s))
-    )
+    policy = solve_task(task, config, lambda s: say("[policy] " + format_progress(s)))
     path.parent.mkdir(parents=True, exist_ok=True)
     return policy.save(path)
+
+
+def _safe(name: str) -> str:
+    """A task name as part of a file name."""
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)[:60] or "task"

@@ -1,0 +1,41 @@
+"""The policy cache's key: what determines a task's policy, nothing else."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import yaml
+
+from stack.planning.policy_cache import cache_key
+from stack.planning.solve import TASK_CONFIG
+from stack.planning.task import load_task
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+
+
+def _task(tmp_path: Path, name: str, edit) -> object:
+    data = yaml.safe_load((CONFIG / "task-r1-goal.yaml").read_text())
+    edit(data)
+    path = tmp_path / name
+    path.write_text("# another file, another comment\n" + yaml.safe_dump(data))
+    return load_task(path)
+
+
+def test_the_key_follows_the_model_not_the_file(tmp_path):
+    base = load_task(CONFIG / "task-r1-goal.yaml")
+    key = cache_key(base, TASK_CONFIG)
+
+    def lead(d):  # a run-time setting the policy never sees
+        d["anticipation"]["go_probability"] = 0.8
+
+    assert cache_key(_task(tmp_path, "lead.yaml", lead), TASK_CONFIG) == key
+
+    def reward(d):
+        d["rewards"]["restricted_guarded"] = 25.0
+
+    assert cache_key(_task(tmp_path, "reward.yaml", reward), TASK_CONFIG) != key
+
+    def rest(d):  # the initial belief (b0) changes with the rest cell
+        d["rest_cell"] = 5
+
+    assert cache_key(_task(tmp_path, "rest.yaml", rest), TASK_CONFIG) != key
+    assert cache_key(base, replace(TASK_CONFIG, iterations=7)) != key
