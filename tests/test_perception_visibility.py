@@ -78,3 +78,48 @@ def test_config_is_validated():
         VisibilityConfig(robot_boxes=((0.3, -0.3, 0, 1, 0, 1),))
     with pytest.raises(ValueError, match="image size"):
         CameraVisibility(FloorHomography(np.eye(3)), GRID)
+
+
+def _point_on_the_whole_raster(vis, x, y, robot):
+    """point()'s fractions as rasterised on the whole image (no window)."""
+    import cv2
+
+    whole, legs = vis._person_quads(x, y)
+
+    def fill(px):
+        mask = np.zeros(vis.shape, np.uint8)
+        hull = cv2.convexHull(np.round(px * 16).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
+        return mask
+
+    m, lm = fill(whole), fill(legs)
+    inside, n_legs = int(m.sum()), int(lm.sum())
+    area = abs(cv2.contourArea(whole.astype(np.float32)))
+    covered = float((m & robot).sum()) / inside if inside else 0.0
+    legs_covered = float((lm & robot).sum()) / n_legs if n_legs and inside else 0.0
+    return covered, legs_covered, (min(1.0, inside / area) if area > 1e-9 else 0.0)
+
+
+def test_a_silhouettes_window_counts_the_same_pixels_as_the_whole_image(vis):
+    # the robot's own silhouette and people all over the floor, in and off the image
+    rng = np.random.default_rng(3)
+    for _ in range(60):
+        pose = Pose2D(rng.uniform(0, 6), rng.uniform(0, 3), rng.uniform(-3, 3))
+        robot = vis.robot_mask(pose)
+        for _ in range(10):
+            x, y = rng.uniform(-1, 7.5), rng.uniform(-1.5, 4.5)
+            p = vis.point(x, y, robot)
+            assert (p.covered_frac, p.legs_covered_frac, p.in_image_frac) == (
+                _point_on_the_whole_raster(vis, x, y, robot)
+            ), (pose, x, y)
+
+
+def test_instances_of_one_camera_share_their_tables_and_agree():
+    a = CameraVisibility(camera_homography(), GRID)
+    b = CameraVisibility(camera_homography(), GRID)
+    other = CameraVisibility(camera_homography(tilt_deg=30.0), GRID)
+    pose = Pose2D(*GRID.center(3), 0.0)
+    assert a.hidden_fractions(pose) == b.hidden_fractions(pose)
+    assert a._sample_table() is b._sample_table()  # made once
+    assert other._sample_table() is not a._sample_table()
+    assert other.hidden_fractions(pose) != a.hidden_fractions(pose)

@@ -361,15 +361,27 @@ def _scene_people(
     }
 
 
+_CALIBRATIONS: dict[str, Any] = {}  # twin config without walkers -> its calibration
+
+
 def _calibrate_twin(twin_cfg, path: Path, say) -> None:
     """The camera's floor homography from points the twin reports (as on the robot,
     from measured floor points)."""
     from stack.perception.homography import save_calibration
     from twin.calibration import calibrate_twin
+    from twin.config import PersonConfig
     from twin.twin import Twin
 
-    with Twin(twin_cfg, seed=0) as tw:
-        cal = calibrate_twin(tw)
+    # the walkers are all that changes between a study's episodes, and they never move
+    # the camera: one calibration a process per room, camera and cells
+    key = repr(replace(twin_cfg, person=PersonConfig(), people=()))
+    cal = _CALIBRATIONS.get(key)
+    if cal is None:
+        with Twin(twin_cfg, seed=0) as tw:
+            cal = calibrate_twin(tw)
+        if len(_CALIBRATIONS) >= 8:
+            _CALIBRATIONS.clear()
+        _CALIBRATIONS[key] = cal
     save_calibration(path, cal)
     err_cm = cal.mean_error_m * 100
     say(f"[calibration] twin floor points: mean error {err_cm:.1f} cm -> {path.name}")

@@ -120,6 +120,18 @@ class _SampleTable:
     static_hidden: np.ndarray  # (P,) hidden whatever the robot (image edge)
 
 
+@dataclass
+class _Shared:
+    """What every :class:`CameraVisibility` of one camera, cells and settings shares."""
+
+    static: dict[int, float]  # each cell's hidden share without the robot
+    table: _SampleTable | None = None  # made on first use
+
+
+_SHARED: dict[tuple, _Shared] = {}
+_MAX_SHARED = 8  # cameras remembered by a process
+
+
 class CameraVisibility:
     """Which floor the camera sees, given where the robot stands.
 
@@ -155,8 +167,21 @@ class CameraVisibility:
         self._scale = s
         self._mask_pose: Pose2D | None = None
         self._mask = np.zeros(self.shape, np.uint8)
-        self._static = self._static_fractions()
-        self._table: _SampleTable | None = None
+        # what does not depend on the robot is the same for every instance of the same
+        # camera, cells and settings (a study makes one an episode): made once a process
+        key = (
+            self.P.tobytes(),
+            self.shape,
+            self.config,
+            tuple((c, grid.bounds(c)) for c in grid.cells),
+        )
+        shared = _SHARED.get(key)
+        if shared is None:
+            if len(_SHARED) >= _MAX_SHARED:
+                _SHARED.clear()
+            shared = _SHARED[key] = _Shared(self._static_fractions())
+        self._shared = shared
+        self._static = shared.static
 
     # -- projection --------------------------------------------------------------
     def _project(self, pts: np.ndarray) -> np.ndarray | None:
@@ -166,9 +191,24 @@ class CameraVisibility:
             return None
         return q[:, :2] / q[:, 2:3] * self._scale
 
-    def _fill(self, mask: np.ndarray, px: np.ndarray) -> None:
+    def _fill(self, mask: np.ndarray, px: np.ndarray, origin: tuple[int, int] = (0, 0)) -> None:
+        """Fill the convex hull of raster points ``px`` into ``mask``, whose pixel (0, 0)
+        is the raster's ``origin`` (row, column): a window shows the same pixels as the
+        whole raster (whole pixels move the fixed-point polygon exactly)."""
         hull = cv2.convexHull(np.round(px * 16).astype(np.int32))
+        if origin != (0, 0):
+            hull = hull - np.array([origin[1] * 16, origin[0] * 16], np.int32)
         cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
+
+    def _window(self, *pxs: np.ndarray) -> tuple[int, int, int, int] | None:
+        """Rows r0:r1 and columns c0:c1 of the raster that can hold the fill of the
+        points ``pxs`` (a pixel of margin), clipped to it; None if it is empty."""
+        lo = np.floor(np.min([p.min(axis=0) for p in pxs], axis=0)) - 1
+        hi = np.ceil(np.max([p.max(axis=0) for p in pxs], axis=0)) + 2
+        h, w = self.shape
+        c0, r0 = max(0, int(lo[0])), max(0, int(lo[1]))
+        c1, r1 = min(w, int(hi[0])), min(h, int(hi[1]))
+        return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
 
     def robot_mask(self, pose: Pose2D) -> np.ndarray:
         """The robot's silhouette in the raster image (uint8 0/1; read-only: the last
@@ -225,20 +265,26 @@ class CameraVisibility:
             return PointVisibility(1.0, 1.0, 0.0, True)
         whole, legs = quads
         area = abs(cv2.contourArea(whole.astype(np.float32)))
-        mask = np.zeros(self.shape, np.uint8)
-        self._fill(mask, whole)
-        inside = int(mask.sum())
+        # the silhouette's window of the raster only: the same pixels, a fraction of the work
+        window = self._window(whole, legs)
+        inside = 0
+        if window is not None:
+            r0, r1, c0, c1 = window
+            mask = np.zeros((r1 - r0, c1 - c0), np.uint8)
+            self._fill(mask, whole, (r0, c0))
+            inside = int(mask.sum())
         in_image = min(1.0, inside / area) if area > 1e-9 else 0.0
         covered = legs_covered = 0.0
         nearer = robot_xy is None or (
             math.dist(robot_xy, self.centre_m[:2]) < math.dist((x, y), self.centre_m[:2])
         )
         if robot is not None and inside > 0 and nearer:
-            covered = float((mask & robot).sum()) / inside
-            lmask = np.zeros(self.shape, np.uint8)
-            self._fill(lmask, legs)
+            under = robot[r0:r1, c0:c1]
+            covered = float((mask & under).sum()) / inside
+            lmask = np.zeros(mask.shape, np.uint8)
+            self._fill(lmask, legs, (r0, c0))
             n_legs = int(lmask.sum())
-            legs_covered = float((lmask & robot).sum()) / n_legs if n_legs else 0.0
+            legs_covered = float((lmask & under).sum()) / n_legs if n_legs else 0.0
         hidden = (
             in_image < cfg.min_in_image_frac
             or covered > cfg.max_covered_frac
@@ -287,8 +333,8 @@ class CameraVisibility:
         return {cell: float(hidden[i0:i1].sum()) / (i1 - i0) for cell, (i0, i1) in t.spans.items()}
 
     def _sample_table(self) -> _SampleTable:
-        """Every cell's sample silhouettes as stacked raster masks (made once)."""
-        if self._table is None:
+        """Every cell's sample silhouettes as stacked raster masks (made once a process)."""
+        if self._shared.table is None:
             cfg = self.config
             spans: dict[int, tuple[int, int]] = {}
             whole: list[np.ndarray] = []
@@ -314,7 +360,7 @@ class CameraVisibility:
                     p = self.point(x, y, None)
                     static.append(quads is None or p.in_image_frac < cfg.min_in_image_frac)
                 spans[cell] = (i0, len(whole))
-            self._table = _SampleTable(
+            self._shared.table = _SampleTable(
                 spans=spans,
                 whole=np.array(whole, np.float32),
                 legs=np.array(legs, np.float32),
@@ -323,7 +369,7 @@ class CameraVisibility:
                 dist=np.array(dist, float),
                 static_hidden=np.array(static, bool),
             )
-        return self._table
+        return self._shared.table
 
     def point_hidden(self, x: float, y: float, robot_pose: Pose2D | None) -> bool:
         """Whether a person at floor point (x, y) is hidden from the camera."""

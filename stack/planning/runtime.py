@@ -95,17 +95,18 @@ def _one_person(task_file: str, policy_file: str) -> tuple[FactoredModel, POMDP,
     return _cached(("one", *_file_key(task_file, policy_file)), make)
 
 
-def _task(task_file: str) -> Task:
+def task_of(task_file: str) -> Task:
+    """The task file's task, read once (again when the file changes)."""
     return _cached(("task", *_file_key(task_file)), lambda: load_task(task_file))
 
 
 def task_model(task_file: str) -> FactoredModel:
     """The task's factored model (its grid, restricted cells and rewards), read once."""
-    return _cached(("model", *_file_key(task_file)), lambda: build_model(_task(task_file)))
+    return _cached(("model", *_file_key(task_file)), lambda: build_model(task_of(task_file)))
 
 
 def _people_model(task_file: str) -> PeopleModel:
-    return _cached(("people", *_file_key(task_file)), lambda: PeopleModel.of(_task(task_file)))
+    return _cached(("people", *_file_key(task_file)), lambda: PeopleModel.of(task_of(task_file)))
 
 
 def make_planner(
@@ -121,7 +122,7 @@ def make_planner(
     """
     if not task_file:
         raise ConfigError("task_file", task_file, "is needed")
-    task = _task(task_file)
+    task = task_of(task_file)
     if task.people >= 2:  # issue 16: the online planner on the factored belief
         pm = _people_model(task_file)
         ini = task.initial

@@ -269,12 +269,11 @@ def write_report(
         RunRecordError: a malformed record (file and line named), or neither
             steps.jsonl nor trace.jsonl exists.
     """
-    from stack.planning.model import build_model
-    from stack.planning.task import load_task
+    from stack.planning.runtime import task_model, task_of  # read once a process
 
     run_dir = Path(run_dir)
-    task = load_task(task_path)
-    model = build_model(task)
+    task = task_of(str(task_path))
+    model = task_model(str(task_path))
     grid: CellGrid = task.grid
     records = load_run(run_dir, model.n_cells)
     steps, trace = records.steps, records.trace
