@@ -39,3 +39,21 @@ def test_the_key_follows_the_model_not_the_file(tmp_path):
 
     assert cache_key(_task(tmp_path, "rest.yaml", rest), TASK_CONFIG) != key
     assert cache_key(base, replace(TASK_CONFIG, iterations=7)) != key
+
+
+def test_a_cached_policy_is_found_with_one_model_build_per_file_version(tmp_path, monkeypatch):
+    import stack.planning.policy_cache as pc
+
+    task_file = tmp_path / "task.yaml"
+    task_file.write_text((CONFIG / "task-r1-goal.yaml").read_text())
+    name = f"{load_task(task_file).name}-{cache_key(load_task(task_file), TASK_CONFIG)}.npz"
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / name).write_bytes(b"a policy")  # found: nothing is solved
+    calls = []
+    monkeypatch.setattr(pc, "cache_key", lambda *a: calls.append(1) or cache_key(*a))
+    for _ in range(3):
+        assert pc.cached_task_policy(task_file, tmp_path / "cache") == tmp_path / "cache" / name
+    assert len(calls) == 1
+    task_file.write_text(task_file.read_text() + "# edited\n")  # a new version: keyed again
+    assert pc.cached_task_policy(task_file, tmp_path / "cache") == tmp_path / "cache" / name
+    assert len(calls) == 2

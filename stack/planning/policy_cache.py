@@ -41,14 +41,24 @@ def cached_task_policy(
     that reads the cache never sees half a policy.
     """
     task_path = Path(task_path)
-    task = load_task(task_path)
-    path = Path(cache_dir) / f"{_safe(task.name)}-{cache_key(task, config)}.npz"
+    st = task_path.stat()  # the key costs a model build: once per version of the file
+    memo = (str(task_path.resolve()), st.st_ino, st.st_mtime_ns, st.st_size, repr(config))
+    if memo not in _NAMES:
+        task = load_task(task_path)
+        if len(_NAMES) > 16:
+            _NAMES.clear()
+        _NAMES[memo] = f"{_safe(task.name)}-{cache_key(task, config)}.npz"
+    path = Path(cache_dir) / _NAMES[memo]
     if path.exists():
         return path
+    task = load_task(task_path)
     say(f"[policy] solving {task_path.name} ({config.algorithm}), once")
     policy = solve_task(task, config, lambda s: say("[policy] " + format_progress(s)))
     path.parent.mkdir(parents=True, exist_ok=True)
     return policy.save(path)
+
+
+_NAMES: dict[tuple, str] = {}  # (task file, its version, settings) -> the policy's file name
 
 
 def _safe(name: str) -> str:
