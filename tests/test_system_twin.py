@@ -93,7 +93,8 @@ def test_faults_do_not_break_the_run(tmp_path):
     )
     path = tmp_path / "faults.yaml"
     path.write_text(yaml.safe_dump(scenario))
-    run_scenario(path, out=tmp_path / "run", say=lambda s: None)
+    # a stall fails in 15 min, not the default half hour (usually 2-4 min)
+    run_scenario(path, out=tmp_path / "run", say=lambda s: None, timeout_s=900)
     steps = steps_of(tmp_path / "run")
     assert [s["step"] for s in steps] == list(range(1, 15))  # resumed, not restarted
     assert any(s["resumed"] for s in steps[3:])
