@@ -175,9 +175,6 @@ VISIT_KEYS = (
 # -- the study ----------------------------------------------------------------------------------
 
 
-BLAS_THREADS = ENV_VARS
-
-
 def _local_map(jobs, workers: int):
     """(index, result) as episodes finish, on ``workers`` local processes."""
     if workers <= 1:  # here (run_inprocess keeps to one BLAS thread, as the workers do)
@@ -191,8 +188,8 @@ def _local_map(jobs, workers: int):
     # one BLAS thread per worker: the workers are the parallelism (two workers of two
     # OpenBLAS threads each on two cores wait on each other: a decision took 2x longer)
     # (the pool starts its processes as jobs are submitted: the variables hold till then)
-    saved = {k: os.environ.get(k) for k in BLAS_THREADS}
-    os.environ.update(dict.fromkeys(BLAS_THREADS, "1"))
+    saved = {k: os.environ.get(k) for k in ENV_VARS}
+    os.environ.update(dict.fromkeys(ENV_VARS, "1"))
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
         try:
             futures = {pool.submit(_guarded, args): k for k, args in jobs}
@@ -214,7 +211,7 @@ def _local_map(jobs, workers: int):
 
 
 # Ray's workers render with EGL like the local ones (the twin's calibration renders)
-RAY_ENV = {"MUJOCO_GL": "egl", "PYOPENGL_PLATFORM": "egl", **dict.fromkeys(BLAS_THREADS, "1")}
+RAY_ENV = {"MUJOCO_GL": "egl", "PYOPENGL_PLATFORM": "egl", **dict.fromkeys(ENV_VARS, "1")}
 RAY_OBJECT_STORE = 100 * 2**20  # a local instance: episodes pass small records, not arrays
 
 

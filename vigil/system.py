@@ -24,6 +24,7 @@ import stack.topics as topic
 from stack.cells import CellGrid, ConfigError
 from stack.config import dump_yaml, read_yaml, write_text
 from stack.files import make_dir
+from stack.memo import Memo
 from stack.planning.threads import ENV_VARS as BLAS_THREAD_VARS
 from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment, gate_topics
@@ -361,7 +362,7 @@ def _scene_people(
     }
 
 
-_CALIBRATIONS: dict[str, Any] = {}  # twin config without walkers -> its calibration
+_CALIBRATIONS = Memo(8)  # twin config without walkers -> its calibration
 
 
 def _calibrate_twin(twin_cfg, path: Path, say) -> None:
@@ -375,13 +376,12 @@ def _calibrate_twin(twin_cfg, path: Path, say) -> None:
     # the walkers are all that changes between a study's episodes, and they never move
     # the camera: one calibration a process per room, camera and cells
     key = repr(replace(twin_cfg, person=PersonConfig(), people=()))
-    cal = _CALIBRATIONS.get(key)
-    if cal is None:
+
+    def make():
         with Twin(twin_cfg, seed=0) as tw:
-            cal = calibrate_twin(tw)
-        if len(_CALIBRATIONS) >= 8:
-            _CALIBRATIONS.clear()
-        _CALIBRATIONS[key] = cal
+            return calibrate_twin(tw)
+
+    cal = _CALIBRATIONS.get(key, make)
     save_calibration(path, cal)
     err_cm = cal.mean_error_m * 100
     say(f"[calibration] twin floor points: mean error {err_cm:.1f} cm -> {path.name}")

@@ -36,6 +36,7 @@ import numpy as np
 
 from stack.cells import CellGrid
 from stack.config import Config
+from stack.memo import Memo
 from stack.perception._config import require
 from stack.perception.homography import FloorHomography
 from stack.perception.legs import Pose2D
@@ -128,8 +129,7 @@ class _Shared:
     table: _SampleTable | None = None  # made on first use
 
 
-_SHARED: dict[tuple, _Shared] = {}
-_MAX_SHARED = 8  # cameras remembered by a process
+_SHARED = Memo(8)  # cameras remembered by a process
 
 
 class CameraVisibility:
@@ -175,11 +175,7 @@ class CameraVisibility:
             self.config,
             tuple((c, grid.bounds(c)) for c in grid.cells),
         )
-        shared = _SHARED.get(key)
-        if shared is None:
-            if len(_SHARED) >= _MAX_SHARED:
-                _SHARED.clear()
-            shared = _SHARED[key] = _Shared(self._static_fractions())
+        shared = _SHARED.get(key, lambda: _Shared(self._static_fractions()))
         self._shared = shared
         self._static = shared.static
 

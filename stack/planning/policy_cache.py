@@ -15,8 +15,9 @@ from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
+from stack.memo import Memo, file_version
+from stack.planning.runtime import task_of
 from stack.planning.solve import TASK_CONFIG, SolverConfig, format_progress, solve_task
-from stack.planning.task import load_task
 
 
 def cache_key(task, config: SolverConfig) -> str:
@@ -41,24 +42,22 @@ def cached_task_policy(
     that reads the cache never sees half a policy.
     """
     task_path = Path(task_path)
-    st = task_path.stat()  # the key costs a model build: once per version of the file
-    memo = (str(task_path.resolve()), st.st_ino, st.st_mtime_ns, st.st_size, repr(config))
-    if memo not in _NAMES:
-        task = load_task(task_path)
-        if len(_NAMES) > 16:
-            _NAMES.clear()
-        _NAMES[memo] = f"{_safe(task.name)}-{cache_key(task, config)}.npz"
-    path = Path(cache_dir) / _NAMES[memo]
+    task = task_of(str(task_path))  # read once per version of the file
+    # the key costs a model build: once per version of the file and settings too
+    name = _NAMES.get(
+        (file_version(str(task_path.resolve())), repr(config)),
+        lambda: f"{_safe(task.name)}-{cache_key(task, config)}.npz",
+    )
+    path = Path(cache_dir) / name
     if path.exists():
         return path
-    task = load_task(task_path)
     say(f"[policy] solving {task_path.name} ({config.algorithm}), once")
     policy = solve_task(task, config, lambda s: say("[policy] " + format_progress(s)))
     path.parent.mkdir(parents=True, exist_ok=True)
     return policy.save(path)
 
 
-_NAMES: dict[tuple, str] = {}  # (task file, its version, settings) -> the policy's file name
+_NAMES = Memo(16)  # (task file's version, settings) -> the policy's file name
 
 
 def _safe(name: str) -> str:

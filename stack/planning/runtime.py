@@ -10,12 +10,12 @@ Monte-Carlo worker runs hundreds of episodes of one task; none of them changes).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from stack.cells import ConfigError
+from stack.memo import Memo, file_version
 from stack.planning.agent import PlannerAgent
 from stack.planning.anticipate import Anticipator
 from stack.planning.factored import PeopleModel
@@ -65,24 +65,11 @@ def online_config(params: Mapping[str, Any]) -> OnlineConfig:
     )
 
 
-_CACHE: dict[tuple, Any] = {}
-
-
-def _file_key(*files: str) -> tuple:
-    """What changes when a file is rewritten or replaced (an atomic replace: the inode)."""
-    keys = []
-    for f in files:
-        st = os.stat(f)
-        keys.append((str(f), st.st_ino, st.st_mtime_ns, st.st_ctime_ns, st.st_size))
-    return tuple(keys)
+_CACHE = Memo(9)  # a process plans for one or two tasks
 
 
 def _cached(key: tuple, make):
-    if key not in _CACHE:
-        if len(_CACHE) > 8:  # a process plans for one or two tasks
-            _CACHE.clear()
-        _CACHE[key] = make()
-    return _CACHE[key]
+    return _CACHE.get(key, make)
 
 
 def _one_person(task_file: str, policy_file: str) -> tuple[FactoredModel, POMDP, AlphaPolicy]:
@@ -92,21 +79,21 @@ def _one_person(task_file: str, policy_file: str) -> tuple[FactoredModel, POMDP,
         policy = AlphaPolicy.load(policy_file, pomdp.n_states, model_hash=pomdp.fingerprint())
         return model, pomdp, policy
 
-    return _cached(("one", *_file_key(task_file, policy_file)), make)
+    return _cached(("one", *file_version(task_file, policy_file)), make)
 
 
 def task_of(task_file: str) -> Task:
     """The task file's task, read once (again when the file changes)."""
-    return _cached(("task", *_file_key(task_file)), lambda: load_task(task_file))
+    return _cached(("task", *file_version(task_file)), lambda: load_task(task_file))
 
 
 def task_model(task_file: str) -> FactoredModel:
     """The task's factored model (its grid, restricted cells and rewards), read once."""
-    return _cached(("model", *_file_key(task_file)), lambda: build_model(task_of(task_file)))
+    return _cached(("model", *file_version(task_file)), lambda: build_model(task_of(task_file)))
 
 
 def _people_model(task_file: str) -> PeopleModel:
-    return _cached(("people", *_file_key(task_file)), lambda: PeopleModel.of(task_of(task_file)))
+    return _cached(("people", *file_version(task_file)), lambda: PeopleModel.of(task_of(task_file)))
 
 
 def make_planner(
