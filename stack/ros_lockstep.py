@@ -20,6 +20,7 @@ once every participant has processed the ``/clock``::
 from __future__ import annotations
 
 import os
+import time
 import uuid
 from collections import defaultdict
 from collections.abc import Callable
@@ -36,6 +37,17 @@ from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC
 from stack.ros_msgs import ack_to_msg
 
 HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
+# A participant's first acknowledgement waits until each of its subscriptions has matched
+# the publishers the ROS graph knows of (a topic nobody publishes counts once READY_MIN_S
+# have passed, time for discovery), then READY_SETTLE_S more for the publishers' side of
+# the match; at most READY_MAX_S. The coordinator takes the first acknowledgement of a
+# restarted node as "it hears from now on": a message sent before its subscription
+# matched is lost (the QoS is volatile), so an early acknowledgement left the coordinator
+# waiting for it until the stall timeout (30 s; seen in CI after the fault test's planner
+# restart).
+READY_MIN_S = 1.0
+READY_SETTLE_S = 0.2
+READY_MAX_S = 5.0
 
 
 def _reliable(qos: QoSProfile | int) -> QoSProfile | int:
@@ -89,6 +101,10 @@ class Participant:
         self.in_callback = False
         self._ticked_s: float | None = None  # the clock time whose tick was processed
         self._deferred: list[tuple[Callable[[Any], None], Any]] = []
+        self._subscriptions: list[Any] = []
+        self._made_s = time.monotonic()
+        self._matched_s: float | None = None  # when every subscription first had a publisher
+        self.ready = False  # acknowledging (see READY_MAX_S)
         if not self.enabled:
             return
         self._ack_pub = node.create_publisher(LockstepAck, ACK_TOPIC, 50)
@@ -190,12 +206,44 @@ class Participant:
 
         sub = self.node.create_subscription(msg_type, topic, counted, _reliable(qos), raw=raw)
         holder["topic"] = sub.topic_name
+        self._subscriptions.append(sub)
         self.recv[sub.topic_name] += 0  # declare the subscription in every ack
         return sub
+
+    def _check_ready(self) -> bool:
+        """Every subscription has matched a publisher where the graph knows one
+        (READY_SETTLE_S ago), or READY_MAX_S have passed since the participant was made
+        (then the topics still unmatched are logged: a QoS mismatch, say)."""
+        now = time.monotonic()
+        young = now - self._made_s < READY_MIN_S
+        unmatched = [
+            s.topic_name
+            for s in self._subscriptions
+            if s.get_publisher_count() == 0
+            and (young or self.node.count_publishers(s.topic_name) > 0)
+        ]
+        if unmatched:
+            self._matched_s = None
+            if now - self._made_s < READY_MAX_S:
+                return False
+            self.node.get_logger().warning(
+                f"lock-step: acknowledging after {READY_MAX_S:g} s without a match on "
+                + ", ".join(unmatched)
+                + " (the graph has publishers: is the QoS compatible?)"
+            )
+        elif self._matched_s is None:
+            self._matched_s = now
+            return False
+        elif now - self._matched_s < READY_SETTLE_S:
+            return False
+        self.ready = True
+        return True
 
     def ack(self) -> None:
         if not self.enabled:
             return
+        if not self.ready and not self._check_ready():
+            return  # counted all the same: the first acknowledgement carries them
         try:
             ack = ack_to_msg(
                 self.node.get_name(),

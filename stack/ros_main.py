@@ -16,11 +16,22 @@ clean stop exits 0; a node that cannot start (bad configuration or file) prints 
 EDQUOT, in a callback or in its last words) says so in one ``[FATAL]`` line if its log
 has room, cleans up what it can and exits :data:`stack.exits.EXIT_DISK_FULL` (the code
 alone tells the launcher, issue 23).
+
+Teardown: once the last words are out, destroying the node and the context is the
+middleware's business, and Fast DDS can deadlock there (eProsima/Fast-DDS#6502: entity
+teardown against a dead peer's lease expiry, which a node killed and restarted leaves
+behind; seen in CI as an observations node SIGKILLed 17 s after SIGINT). So the teardown
+has an alarm: after :data:`stack.exits.TEARDOWN_S` the node's Python stacks go to its log
+(``faulthandler``, which needs no interpreter lock) and SIGALRM's default action ends the
+process; the launcher reads that code as "teardown hung", a warning, since nothing of the
+node's work is left undone by then. SIGTERM also writes the stacks to the log (a node stuck
+before its teardown shows where before the launcher's SIGKILL).
 """
 
 from __future__ import annotations
 
 import errno
+import faulthandler
 import signal
 import sys
 import threading
@@ -32,7 +43,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from stack.exits import EXIT_BAD_CONFIG, EXIT_DISK_FULL
+from stack.exits import EXIT_BAD_CONFIG, EXIT_DISK_FULL, TEARDOWN_S, TEARDOWN_SIGNAL
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 # Python runs a signal handler only between bytecodes: a node without timers would
@@ -45,9 +56,11 @@ class _StopFlag:
 
     def __init__(self) -> None:
         self.signal: str | None = None
+        self.cleaning = False  # a second signal must not cut the last words short
 
     def __call__(self, signum, frame) -> None:
-        self.signal = signal.Signals(signum).name
+        if not self.cleaning:
+            self.signal = signal.Signals(signum).name
 
 
 __all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "spin_node"]
@@ -75,6 +88,8 @@ def spin_node(
     if main_thread:
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
+        # the stacks on SIGTERM, then the flag (chained): the launcher's second signal
+        faulthandler.register(signal.SIGTERM, file=sys.stderr, all_threads=True, chain=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
@@ -96,14 +111,14 @@ def spin_node(
             _fatal(make_node, str(err))
             code = EXIT_BAD_CONFIG
     finally:
-        # a second signal during the cleanup must not cut the last words short
-        if main_thread:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        stop.cleaning = True
         try:
             if node is not None:
                 if on_exit is not None and rclpy.ok():
                     on_exit(node)
+            if main_thread:
+                _teardown_alarm()
+            if node is not None:
                 node.destroy_node()
         except OSError as err:  # closing files on a full disk
             if err.errno not in DISK_FULL:
@@ -112,8 +127,27 @@ def spin_node(
             code = EXIT_DISK_FULL
         finally:
             rclpy.try_shutdown()
+            if main_thread:
+                _teardown_alarm(cancel=True)
     if code:
         sys.exit(code)
+
+
+def _teardown_alarm(cancel: bool = False) -> None:
+    """From now on (the node's last words are out) at most TEARDOWN_S: the stacks to
+    the log just before, then SIGALRM's default action ends the process; ``cancel``:
+    the teardown is over."""
+    if cancel:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        faulthandler.cancel_dump_traceback_later()
+        return
+    try:
+        sys.stderr.flush()
+    except OSError:
+        pass
+    faulthandler.dump_traceback_later(TEARDOWN_S - 0.5, file=sys.stderr)
+    signal.signal(TEARDOWN_SIGNAL, signal.SIG_DFL)
+    signal.setitimer(signal.ITIMER_REAL, TEARDOWN_S)
 
 
 def _fatal(make_node, text: str) -> None:

@@ -48,6 +48,15 @@ def test_starts_after_the_delay_and_acts(parts):
     assert kinds(cmds) == ["act"] and m.waiting == "nav"
 
 
+def test_on_a_real_clock_the_delay_counts_from_the_origin(parts):
+    """Off lock-step the node's clock is an epoch time: the delay counts from when the
+    machine was made (before, any epoch time was past the delay: no wait at all)."""
+    m = machine(parts)
+    m.origin_s = 1.8e9
+    assert m.tick(1.8e9 + 0.5) == []
+    assert kinds(m.tick(1.8e9 + 1.0)) == ["act"]
+
+
 def test_do_nothing_holds_min_step_s_then_asks(parts):
     m = machine(parts)
     m.tick(1.0)

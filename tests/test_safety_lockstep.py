@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from stack.exits import TEARDOWN_S
 from stack.lockstep import Ack, Ledger
 from vigil.launch import Launcher, ProcessSpec
 from vigil.ros_domain import claim_domain, domain_range
@@ -126,9 +127,16 @@ def test_launcher_reports_a_node_that_fails_at_shutdown(tmp_path):
         "import time\ntry:\n    print('ready', flush=True)\n    time.sleep(60)\n"
         "except KeyboardInterrupt:\n    pass\n"
     )
+    # its last words said, its teardown hangs until its own alarm (stack.ros_main)
+    hung = (
+        "import signal, time\nfrom stack.ros_main import _teardown_alarm\n"
+        "signal.signal(signal.SIGINT, lambda *a: (_teardown_alarm(), time.sleep(60)))\n"
+        "print('ready', flush=True)\ntime.sleep(60)\n"
+    )
     specs = [
         ProcessSpec("bad", "", command=[sys.executable, "-u", "-c", code]),
         ProcessSpec("good", "", command=[sys.executable, "-u", "-c", clean]),
+        ProcessSpec("hung", "", command=[sys.executable, "-u", "-c", hung]),
     ]
     la = Launcher(specs, tmp_path / "logs", say=lambda s: None)
     # started from a process that ignores SIGINT (a background job, a test runner): the
@@ -140,15 +148,17 @@ def test_launcher_reports_a_node_that_fails_at_shutdown(tmp_path):
         signal.signal(signal.SIGINT, previous)
     # both children have set up their SIGINT handling (a loaded machine starts them slowly)
     deadline = time.monotonic() + 60.0
-    logs = [tmp_path / "logs" / f"{n}.log" for n in ("bad", "good")]
+    logs = [tmp_path / "logs" / f"{n}.log" for n in ("bad", "good", "hung")]
     while time.monotonic() < deadline and not all(
         p.exists() and "ready" in p.read_text() for p in logs
     ):
         time.sleep(0.1)
     assert la.poll()
-    codes = la.stop(5.0)
-    assert codes == {"bad": 1, "good": 0}
+    codes = la.stop(TEARDOWN_S + 5.0)
+    assert codes == {"bad": 1, "good": 0, "hung": -signal.SIGALRM}
     assert la.failures == ["bad exited (code 1): [ERROR] boom at exit at shutdown"]
+    assert la.warnings and la.warnings[0].startswith("hung: its ROS teardown hung")
+    assert "Thread 0x" in (tmp_path / "logs" / "hung.log").read_text()  # its stacks
 
 
 def test_run_sets_a_private_domain_and_run_id_for_every_node(tmp_path, monkeypatch):
@@ -191,3 +201,41 @@ def test_run_sets_a_private_domain_and_run_id_for_every_node(tmp_path, monkeypat
     assert int(seen["ROS_DOMAIN_ID"]) in domain_range()
     assert len(seen["VIGIL_RUN_ID"]) == 12
     assert os.environ["ROS_DOMAIN_ID"] == "0"  # the caller's own environment untouched
+
+
+@pytest.mark.ros
+@pytest.mark.usefixtures("private_ros_domain")
+def test_a_participant_acknowledges_once_its_subscriptions_have_matched(ros):
+    """A restarted node's first acknowledgement tells the coordinator "I hear from now
+    on": it waits until its subscriptions have matched the publishers the graph knows
+    (a reliable subscription never matches a best-effort publisher: it waits the most,
+    then says which topic), while a topic nobody publishes holds it only briefly."""
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rostest import spin_until
+    from std_msgs.msg import Empty
+    from vigil_interfaces.msg import LockstepAck
+
+    from stack.lockstep import ACK_TOPIC
+    from stack.ros_lockstep import READY_MAX_S, READY_MIN_S, Participant
+
+    heard: list[str] = []
+    watcher = Node("watcher")
+    watcher.create_subscription(LockstepAck, ACK_TOPIC, lambda m: heard.append(m.node), 50)
+    talker = Node("talker")
+    talker.create_publisher(Empty, "/ready_a", QoSProfile(depth=10))
+    best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    talker.create_publisher(Empty, "/ready_b", best_effort)
+    quick, slow = Node("quick"), Node("slow")
+    pq, ps = Participant(quick, True), Participant(slow, True)
+    pq.subscription(Empty, "/ready_a", lambda m: None, 10)
+    pq.subscription(Empty, "/nobody_publishes", lambda m: None, 10)
+    ps.subscription(Empty, "/ready_b", lambda m: None, 10)  # made reliable: no match
+    for n in (watcher, talker, quick, slow):
+        ros.add_node(n)
+    t0 = time.monotonic()
+    assert spin_until(ros, lambda: "quick" in heard, READY_MAX_S - 1.0)
+    assert time.monotonic() - t0 >= READY_MIN_S - 0.1  # not before discovery had its time
+    assert not ps.ready and "slow" not in heard
+    assert spin_until(ros, lambda: "slow" in heard, READY_MAX_S + 3.0)
+    assert time.monotonic() - t0 >= READY_MAX_S - 0.1

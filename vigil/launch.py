@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from stack.exits import EXIT_DISK_FULL
+from stack.exits import EXIT_DISK_FULL, TEARDOWN_S, TEARDOWN_SIGNAL
 from stack.files import make_dir, open_write
 from stack.lockstep import RUN_ID_ENV
 from vigil.processes import ProcessSpec
@@ -95,6 +95,8 @@ class Launcher:
         self.stopped_because: str | None = None
         self.exit_codes: dict[str, int | None] = {}
         self.failures: list[str] = []  # "<name> exited (code N): <last log line>"
+        # what went wrong without failing the system (a teardown ended by its alarm)
+        self.warnings: list[str] = []
         # the first of them: (name, exit code, line); vigil.ending classifies it
         self.first_failure: tuple[str, int | None, str] | None = None
 
@@ -216,7 +218,12 @@ class Launcher:
             rc = r.proc.poll()
             self.exit_codes[name] = rc
             r.log.close()
-            if rc != 0 and not r.killed:  # a node that did not leave cleanly on SIGINT
+            if rc == -TEARDOWN_SIGNAL and not r.killed:  # its work done, DDS hung
+                line = (f"{name}: its ROS teardown hung after its last words; ended by its "
+                        f"own {TEARDOWN_S:g} s alarm (stacks in {name}.log)")  # fmt: skip
+                self.warnings.append(line)
+                self.say(f"[launch] warning: {line}")
+            elif rc != 0 and not r.killed:  # a node that did not leave cleanly on SIGINT
                 self._failed(name, rc, self._why(name, rc) + " at shutdown")
         self.running.clear()
         if self.stopped_because is None:

@@ -127,6 +127,7 @@ def _run(scenario, dep, run_dir: Path, run_id: str, observations: str, timeout_s
         "run_id": run_id,
         "exit_codes": {},
         "failures": [],
+        "warnings": [],
     }
     reserve(run_dir)  # room for run.json and the report if the disk fills up
     say(f"[run] folder {run_dir}")
@@ -176,7 +177,7 @@ def _run(scenario, dep, run_dir: Path, run_id: str, observations: str, timeout_s
     if ending is None or ending.kind == "finished":  # a node that failed along the way
         ending = from_launcher(launcher) or ending
     assert ending is not None
-    record.update(exit_codes=codes, failures=launcher.failures)
+    record.update(exit_codes=codes, failures=launcher.failures, warnings=launcher.warnings)
     wall_s = time.monotonic() - t0
     say(f"[run] stopped after {wall_s:.0f} s: " + ", ".join(f"{k} {v}" for k, v in codes.items()))
     summary = _finish(

@@ -110,9 +110,11 @@ class PlannerNode(Node):
                 bad = self.state_file + ".bad"
                 os.replace(self.state_file, bad)
                 self.get_logger().error(f"{err}; kept as {bad}, starting from the initial belief")
-        self.steps = DecisionSteps(self.agent, timing, first_person, resumed)
-
         ls = self.lockstep = Participant(self, v.lockstep)
+        # the start delay counts from now: a simulated clock starts at 0 with the run, a
+        # real one is an epoch time
+        origin = 0.0 if ls.enabled else self.now_s()
+        self.steps = DecisionSteps(self.agent, timing, first_person, resumed, origin_s=origin)
         self.pub_action = ls.publisher(NavGoal, topic.NAV_ACTION, 10)
         self.pub_request = ls.publisher(Empty, topic.OBSERVATIONS_REQUEST, 10)
         self.pub_belief = ls.publisher(Belief, topic.PLANNER_BELIEF, 10)

@@ -91,12 +91,16 @@ class DecisionSteps:
         first_person: the person's cell in the initial belief (None: nobody), the
             reference for the first step's person event.
         resumed: the agent was restored from a state file (recorded on the next step).
+        origin_s: the clock's reading when the machine was made, from which
+            ``start_delay_s`` counts: 0 on a simulated clock that starts with the run,
+            the node's clock at start on a real one (an epoch time).
     """
 
     agent: Agent
     timing: StepTiming = field(default_factory=StepTiming)
     first_person: int | None = None
     resumed: bool = False
+    origin_s: float = 0.0
     waiting: str = ""  # "" | "nav" | "hold" (min_step_s) | "obs"
     started: bool = False
     since_s: float = 0.0
@@ -117,7 +121,7 @@ class DecisionSteps:
         """Time passes: start, end a hold, or give up waiting."""
         t = self.timing
         if not self.started:
-            if now_s < t.start_delay_s:
+            if now_s - self.origin_s < t.start_delay_s:
                 return []
             self.started = True
             return self._start(now_s)
