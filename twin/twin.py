@@ -165,6 +165,10 @@ def _segment_quat(u: np.ndarray) -> np.ndarray:
 
 # a walker beyond the first without waypoints takes the default tour this much later
 DEFAULT_TOUR_STAGGER_S = 4.0
+# a base slower than this (m/s, rad/s) with no command and no contact is at rest: its
+# velocity servo would take it to zero over another second, moving it by less than a
+# rounding step of its pose (1e-15 x 0.03 s), so the physics steps are skipped
+REST_SPEED_MPS = 1e-15
 
 
 class Twin:
@@ -300,11 +304,21 @@ class Twin:
         self._cmd = self._cmd + delta
 
         before = self._robot_pose_array()
-        if not diff and not self._cmd.any():
-            # at rest (most of an episode): the world-frame command is zero at every yaw,
-            # so the substeps run in one call (the same steps, without Python between)
-            self._data.ctrl[self._act_idx] = 0.0
-            mujoco.mj_step(self.model, self._data, self._n_substeps)
+        data = self._data
+        if not self._cmd.any() and data.ncon == 0 and np.abs(data.qvel).max() < REST_SPEED_MPS:
+            # at rest (most of an episode): nothing pushes the base and it touches nothing,
+            # so the physics steps would change only the time (the base's last crawl,
+            # below REST_SPEED_MPS, moves it less than a rounding step of its pose)
+            data.ctrl[self._act_idx] = 0.0
+            data.qvel[:] = 0.0
+            ts = self.model.opt.timestep
+            for _ in range(self._n_substeps):
+                data.time += ts  # as mj_step adds it
+        elif not diff and not self._cmd.any():
+            # coming to rest: the world-frame command is zero at every yaw, so the
+            # substeps run in one call (the same steps, without Python between)
+            data.ctrl[self._act_idx] = 0.0
+            mujoco.mj_step(self.model, data, self._n_substeps)
         else:
             self._substeps(diff)
         # the walkers are kinematic and touch nothing, so the physics never needs them:
