@@ -25,6 +25,8 @@ from pathlib import Path
 from typing import IO, Any, BinaryIO
 
 MAX_FILE_BYTES = 16 * 2**20  # no configuration, task, map or state file is near this
+# a run's own records (trace, steps, speech log, detections): hours of a run at 25 Hz
+MAX_RECORD_BYTES = 1024 * 2**20
 
 
 def open_regular(

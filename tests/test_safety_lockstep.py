@@ -114,6 +114,12 @@ def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path)
     assert la.exit_codes["twin_bridge"] == EXIT_STALLED
     assert "lock-step stalled" in la.stopped_because
     assert "ghost_planner" in la.stopped_because
+    # what vigil run makes of it: the "stalled" ending, its own exit code, the bridge's line
+    from vigil.ending import KINDS, from_launcher
+
+    ending = from_launcher(la)
+    assert ending is not None and ending.kind == "stalled"
+    assert ending.code == KINDS["stalled"] and "ghost_planner" in ending.cause
 
 
 def test_launcher_reports_a_node_that_fails_at_shutdown(tmp_path):

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
-from stack.config import read_bytes_capped, write_bytes, write_text
+from stack.config import read_bytes_capped, read_text_capped, write_bytes, write_text
 from vigil.report import write_report
 from vigil.report.metrics import set_totals
 from vigil.report.tables import set_markdown
@@ -139,7 +139,7 @@ def run_set(
             error = f"{type(exc).__name__}: {exc}"
             say(f"[experiments] {path.stem} failed: {error}")
             if (run_dir / "summary.json").exists():
-                summary = json.loads((run_dir / "summary.json").read_text())
+                summary = json.loads(read_text_capped(run_dir / "summary.json"))
         entry["wall_s"] = round(time.monotonic() - t0, 1)
         entry["load_after"] = _load()
         if report_only:  # the run's own figures, not the report's
@@ -155,7 +155,7 @@ def run_set(
 
 def _run_wall_s(run_dir: Path) -> float | None:
     try:
-        return float(json.loads((run_dir / "run.json").read_text())["wall_s"])
+        return float(json.loads(read_text_capped(run_dir / "run.json"))["wall_s"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -239,10 +239,10 @@ def write_docs(doc: str | Path, out: str | Path, label: str, heading: str = "") 
         raise ConfigError("--docs", str(doc), "no such file")
     if not (out / "experiments.json").exists():
         raise ConfigError("--out", str(out), "holds no experiments.json")
-    entries = json.loads((out / "experiments.json").read_text())["scenarios"]
+    entries = json.loads(read_text_capped(out / "experiments.json"))["scenarios"]
     figure = doc.parent / "experiments" / f"{label}.png"
     figure.parent.mkdir(parents=True, exist_ok=True)
     write_bytes(figure, read_bytes_capped(out / "experiments.png"))  # never through a link
     body = set_section(entries, figure.relative_to(doc.parent).as_posix())
-    write_text(doc, update_marked_section(doc.read_text(), label, body, heading))
+    write_text(doc, update_marked_section(read_text_capped(doc), label, body, heading))
     return doc

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import ConfigError
+from stack.files import MAX_RECORD_BYTES, read_text_capped
 from stack.perception.model import (
     DETECTIONS_FILE,
     FrameRecord,
@@ -33,7 +34,7 @@ def read_frames(folders: Sequence[Path]) -> tuple[list[FrameRecord], list[Path]]
     files = sorted(f for d in folders for f in Path(d).rglob(DETECTIONS_FILE))
     for f in files:
         episode = str(f.parent)
-        for n, line in enumerate(f.read_text().splitlines(), start=1):
+        for n, line in enumerate(read_text_capped(f, MAX_RECORD_BYTES).splitlines(), start=1):
             if not line.strip():
                 continue
             try:

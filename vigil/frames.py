@@ -22,6 +22,7 @@ from typing import BinaryIO
 import numpy as np
 
 from stack.config import open_write
+from stack.files import open_regular
 
 FRAMES_FILE = "camera_frames.bin"
 MAGIC = b"VGLFRM1\n"
@@ -87,7 +88,7 @@ def read_frames(path: str | Path) -> Iterator[tuple[float, bytes]]:
         FrameFileError: the file does not start with the magic.
     """
     path = Path(path)
-    with open(path, "rb") as f:
+    with open_regular(path, max_bytes=2**50) as f:  # a device or a pipe never: streamed
         if f.read(len(MAGIC)) != MAGIC:
             raise FrameFileError(f"{path}: not a frames file (no {MAGIC!r} at offset 0)")
         while True:

@@ -19,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from stack.cells import ConfigError
+from stack.files import MAX_RECORD_BYTES, read_text_capped
 from stack.lockstep import RUN_ID_ENV  # read by stack.ros_lockstep (acks) and the twin bridge
 from vigil.deployment import load_deployment
 from vigil.ending import (
@@ -61,7 +62,7 @@ def _records(path: Path) -> list[dict]:
     if not path.exists():
         return []
     out = []
-    for line in path.read_text().splitlines():
+    for line in read_text_capped(path, MAX_RECORD_BYTES).splitlines():
         try:
             out.append(json.loads(line))
         except ValueError:

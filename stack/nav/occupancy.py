@@ -37,7 +37,6 @@ from scipy import ndimage
 from stack.config import (
     dump_yaml,
     load_yaml,
-    open_regular,
     read_bytes_capped,
     read_text_capped,
     write_bytes,
@@ -342,11 +341,11 @@ def read_image(path: FsPath) -> np.ndarray:
         return _read_pgm(path)
     import cv2  # noqa: PLC0415 - only non-PGM maps need OpenCV
 
-    try:  # a regular file within the cap before OpenCV decodes it
-        open_regular(path).close()
+    try:  # a regular file within the cap, read once: OpenCV decodes those bytes
+        data = read_bytes_capped(path)
     except ValueError as exc:
         raise MapError(str(exc)) from None
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise MapError(f"{path}: not a readable image")
     if img.ndim == 3:

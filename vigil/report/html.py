@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from stack.config import write_text
+from stack.files import MAX_RECORD_BYTES, read_text_capped
 
 INDEX_FILE = "index.html"
 
@@ -140,6 +141,6 @@ def write_index(run_dir: str | Path, title: str, summary: Mapping[str, Any]) -> 
     files = sorted(p.name for p in run_dir.iterdir() if p.is_file())
     path = run_dir / INDEX_FILE
     steps = run_dir / "steps.csv"
-    text = steps.read_text(encoding="utf-8") if steps.exists() else ""
+    text = read_text_capped(steps, MAX_RECORD_BYTES) if steps.exists() else ""
     write_text(path, index_html(title, summary, files, text), encoding="utf-8")
     return path

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stack.files import MAX_RECORD_BYTES, read_text_capped
 from stack.vocabulary import ACTIONS, NO_PERSON, OUT_OF_MAP, VELOCITIES
 
 NOT_MOVING = "Not moving"
@@ -77,7 +78,7 @@ def read_jsonl(
             instead, with a message appended to ``warnings`` (raised when None).
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    text = read_text_capped(path, MAX_RECORD_BYTES)  # a regular file, bounded
     lines = text.split("\n")
     truncated_tail = not text.endswith("\n")
     out: list[dict] = []
@@ -228,7 +229,7 @@ def read_speech_log(path: str | Path, warnings: list[str] | None = None) -> list
             ``warnings`` is given).
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    text = read_text_capped(path, MAX_RECORD_BYTES)
     lines = text.split("\n")
     out: list[Utterance] = []
     for i, line in enumerate(lines, start=1):
