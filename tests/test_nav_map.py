@@ -64,6 +64,21 @@ def test_loader_reads_values_placement_and_flips_rows(tmp_path, magic):
     assert m.world_to_cell(-0.95, -1.75) == (2, 0)
 
 
+def test_a_png_map_reads_as_its_pgm(tmp_path):
+    """A non-PGM image is decoded by OpenCV from the bytes read once (capped)."""
+    import cv2
+
+    pgm = load_map_yaml(write_map(tmp_path, IMAGE))
+    ok, png = cv2.imencode(".png", np.asarray(IMAGE, np.uint8))
+    assert ok
+    (tmp_path / "map.png").write_bytes(png.tobytes())
+    meta = yaml.safe_load((tmp_path / "room.yaml").read_text())
+    meta["image"] = "map.png"
+    (tmp_path / "png.yaml").write_text(yaml.safe_dump(meta))
+    m = load_map_yaml(tmp_path / "png.yaml")
+    assert np.array_equal(m.data, pgm.data) and m.origin_m == pgm.origin_m
+
+
 def test_negate_and_thresholds(tmp_path):
     m = load_map_yaml(write_map(tmp_path, [[0, 255, 128]], {"negate": 1}))
     # negate: white is occupied, black free; 128/255 = 0.50 lies between the thresholds
