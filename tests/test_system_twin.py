@@ -25,13 +25,20 @@ def steps_of(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "steps.jsonl").read_text().splitlines()]
 
 
+AGAIN_STEPS = 10  # the repeat runs the first steps only: the same seed, the same steps
+
+
 @pytest.fixture(scope="module")
 def twin_runs(tmp_path_factory):
-    """Scenario 5.1.2 run twice with the same seed."""
+    """Scenario 5.1.2 run with its seed, then its first AGAIN_STEPS steps again."""
     out = tmp_path_factory.mktemp("runs")
+    again = yaml.safe_load(SCENARIO.read_text())
+    again.update(steps=AGAIN_STEPS, task=str((SCENARIO.parent / again["task"]).resolve()))
+    cut = out / "again.yaml"
+    cut.write_text(yaml.safe_dump(again))
     runs = []
-    for name in ("first", "second"):
-        summary = run_scenario(SCENARIO, out=out / name, say=lambda s: None)
+    for name, scenario in (("first", SCENARIO), ("second", cut)):
+        summary = run_scenario(scenario, out=out / name, say=lambda s: None)
         runs.append((out / name, summary))
     return runs
 
@@ -63,12 +70,14 @@ def test_scenario_outcome(twin_runs):
 
 def test_same_scenario_same_seed_same_steps(twin_runs):
     (a, _), (b, _) = twin_runs
-    assert steps_of(a) == steps_of(b)
-    assert (a / "steps.csv").read_text() == (b / "steps.csv").read_text()
-    # what the stack saw at every camera frame, too, up to a second before the last
-    # decision: the launcher's stop comes at a wall-clock moment after it, and messages
-    # of the last instants may be in flight to the recorder when it does
-    end_s = steps_of(a)[-1]["stamp_s"] - 1.0
+    assert len(steps_of(b)) == AGAIN_STEPS
+    assert steps_of(a)[:AGAIN_STEPS] == steps_of(b)
+    rows = (b / "steps.csv").read_text().splitlines()
+    assert (a / "steps.csv").read_text().splitlines()[: len(rows)] == rows
+    # what the stack saw at every camera frame, too, up to a second before the repeat's
+    # last decision: the launcher's stop comes at a wall-clock moment after it, and
+    # messages of the last instants may be in flight to the recorder when it does
+    end_s = steps_of(b)[-1]["stamp_s"] - 1.0
 
     def trace(run_dir):
         lines = (run_dir / "trace.jsonl").read_text().splitlines()
@@ -231,9 +240,15 @@ def test_two_people_split_run_end_to_end(tmp_path):
     """Issue 16: two walkers split toward cells 1 and 12; the planner decides online on
     the factored belief from the per-slot observations, and the report counts the
     visits per person."""
-    scenario = REPO / "scenarios" / "people" / "split.yaml"
+    source = REPO / "scenarios" / "people" / "split.yaml"
+    # cut to 14 steps (about 26 s): both visits begin by step 7 and end by step 12; the
+    # rest of the file's 24 is the walk out of the room
+    data = yaml.safe_load(source.read_text())
+    data.update(steps=14, task=str((source.parent / data["task"]).resolve()))
+    scenario = tmp_path / "split.yaml"
+    scenario.write_text(yaml.safe_dump(data))
     summary = run_scenario(scenario, out=tmp_path / "split", say=lambda s: None)
-    assert summary["steps"] == yaml.safe_load(scenario.read_text())["steps"]
+    assert summary["steps"] == 14
     assert summary["left_map"] is False
     steps = steps_of(tmp_path / "split")
     assert all(len(s["observation"]["people"]) == 2 for s in steps)
