@@ -71,3 +71,44 @@ def test_per_block_vectors_give_the_lookahead_of_all_vectors(task_model):
 def test_blocks_must_match_the_states():
     with pytest.raises(ValueError, match="one per state"):
         BlockVectors(np.zeros((3, 5)), np.zeros(4, int))
+
+
+def _reference_lookahead(backup, alphas, b):
+    """The lookahead as it was before its kept blocks: the full sparse products."""
+    q = np.empty(backup.A)
+    for a in range(backup.A):
+        pred = backup.TT[a] @ b
+        idx = np.flatnonzero(pred)
+        Osub = backup.O[a][idx]
+        zs = np.flatnonzero(Osub.T @ pred[idx] > 0)
+        weighted = Osub[:, zs].toarray() * pred[idx][:, None]
+        q[a] = backup.R[:, a] @ b + backup.gamma * (alphas[:, idx] @ weighted).max(axis=0).sum()
+    return q
+
+
+def test_the_kept_observation_blocks_give_the_same_values_to_the_last_bit(task_model):
+    """The lookahead keeps each successor set's observation block (a run reuses a
+    handful): the same values, bit for bit, as the full products, whether the block
+    was kept or not; and the kept blocks are bounded."""
+    from stack.planning import pbvi
+
+    model, pomdp = task_model
+    rng = np.random.default_rng(7)
+    S = pomdp.n_states
+    alphas = rng.normal(size=(50, S))
+    backup = Backup(pomdp)
+    beliefs = []
+    for _ in range(6):
+        b = np.zeros(S)
+        b[rng.choice(S, 15, replace=False)] = rng.random(15)
+        beliefs.append(b / b.sum())
+    for b in beliefs + beliefs:  # the second round finds its blocks kept
+        assert np.array_equal(
+            backup.lookahead_values(alphas, b), _reference_lookahead(backup, alphas, b)
+        )
+    assert 0 < len(backup.kept_blocks) <= 6 * backup.A
+    for _ in range(pbvi.MAX_OBSERVATION_BLOCKS):  # many distinct successor sets
+        b = np.zeros(S)
+        b[rng.choice(S, 3, replace=False)] = 1 / 3
+        backup.lookahead_values(alphas, b)
+    assert len(backup.kept_blocks) <= pbvi.MAX_OBSERVATION_BLOCKS
