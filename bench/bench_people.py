@@ -110,7 +110,7 @@ def scenario_twin(path: Path):
     from twin.scene import layout_of
     from twin.twin import Twin
     from vigil.scenario import load_scenario
-    from vigil.system import _scene_people
+    from vigil.system import scene_people
 
     sc = load_scenario(path)
     section = read_yaml(sc.task).get("grid")
@@ -118,7 +118,7 @@ def scenario_twin(path: Path):
     scene: dict = {"grid": section} if section else {}
     scene["robot"] = {"start_cell": sc.robot_cell}
     door = layout_of(TwinConfig.from_dict(scene)).door_center_m
-    scene.update(_scene_people(scene, sc, grid, door))
+    scene.update(scene_people(scene, sc, grid, door))
     return Twin(TwinConfig.from_dict(scene), seed=sc.seed), grid
 
 

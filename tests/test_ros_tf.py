@@ -119,7 +119,7 @@ def test_consumers_take_the_map_pose_through_tf_not_odom(ros):
     from vigil_interfaces.msg import PersonObservation
 
     from stack.nav.node_navigation import NavigationNode
-    from stack.perception._config import load_config_file
+    from stack.perception.config import load_config_file
     from stack.perception.node_legs import LegsNode
     from stack.perception.node_observations import ObservationsNode
     from stack.ros_tf import TF_QOS, tf_message

@@ -15,7 +15,7 @@ from twin.config import PersonConfig, TwinConfig, Waypoint, walker_config
 from twin.scene import person_prefix
 from twin.twin import Twin
 from vigil.scenario import load_scenario, parse_scenario
-from vigil.system import _scene_people
+from vigil.system import scene_people
 
 REPO = Path(__file__).resolve().parents[1]
 PEOPLE = sorted((REPO / "scenarios" / "people").glob("*.yaml"))
@@ -137,7 +137,7 @@ def test_the_people_scenarios_validate_and_give_two_walks():
         assert len(sc.walkers) == 2, path
         walks = sc.people_waypoints(CellGrid(), (7.0, 5.2))
         assert len(walks) == 2 and all(len(w) >= 4 for w in walks)
-        scene = _scene_people({}, sc, CellGrid(), (7.0, 5.2))
+        scene = scene_people({}, sc, CellGrid(), (7.0, 5.2))
         cfg = TwinConfig.from_dict(scene)
         assert len(cfg.walkers) == 2 and cfg.walkers[0].shirt_rgb != cfg.walkers[1].shirt_rgb
 
@@ -173,7 +173,7 @@ def test_person_and_people_exclude_each_other_and_person_still_works():
     assert err.value.key == "people"
     sc = parse_scenario(scenario(person={"walk": [{"to": 1}]}))
     assert len(sc.walkers) == 1 and sc.walk[0].to == 1
-    assert list(_scene_people({}, sc, CellGrid(), (7.0, 5.2))) == ["person"]
+    assert list(scene_people({}, sc, CellGrid(), (7.0, 5.2))) == ["person"]
 
 
 def test_an_unknown_cell_in_a_second_walk_names_it():
@@ -217,7 +217,7 @@ def test_twin_crossing_keeps_both_people_in_their_slots():
     grid = CellGrid()
     scene: dict = {"robot": {"start_cell": sc.robot_cell}}
     door = layout_of(TwinConfig.from_dict(scene)).door_center_m
-    scene.update(_scene_people(scene, sc, grid, door))
+    scene.update(scene_people(scene, sc, grid, door))
     with Twin(TwinConfig.from_dict(scene), seed=sc.seed) as tw:
         cal = calibrate_twin(tw)
         cam = CameraPeopleTracker(CameraConfig(max_people=2), grid, cal.homography)

@@ -46,7 +46,7 @@ def read_frames(folders: Sequence[Path]) -> tuple[list[FrameRecord], list[Path]]
 
 def visibility_of_run(run_dir: Path):
     """The camera visibility the run's observation node had (its calibration and grid)."""
-    from stack.perception._config import load_config_file
+    from stack.perception.config import load_config_file
     from stack.perception.homography import load_calibration
     from stack.perception.visibility import CameraVisibility, VisibilityConfig
 

@@ -62,8 +62,8 @@ from stack.nav.executor import ActionExecutor
 from stack.nav.occupancy import from_occupancy_grid
 from stack.nav.speech import Speaker, SpeechError
 from stack.nav.warning import WarningReactor
-from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker
+from stack.perception.config import load_config_file
 from stack.perception.errors import BadScanError, PerceptionError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import LegConfig, Scan, StaticMap, detect_legs

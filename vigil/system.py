@@ -143,7 +143,7 @@ def prepare(
             from twin.scene import layout_of
 
             door_m = layout_of(TwinConfig.from_dict(scene)).door_center_m
-            scene.update(_scene_people(scene, scenario, grid, door_m))
+            scene.update(scene_people(scene, scenario, grid, door_m))
         twin_file = run_dir / "twin.yaml"
         write_text(twin_file, dump_yaml({"twin": scene}, sort_keys=False))
         twin_cfg = TwinConfig.from_dict(scene)
@@ -341,7 +341,7 @@ def _write(
     return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
 
 
-def _scene_people(
+def scene_people(
     scene: dict[str, Any], scenario: Scenario, grid: CellGrid, door_m: tuple[float, float]
 ) -> dict[str, Any]:
     """The twin scene's ``person`` (one walker) or ``people`` (several) for a scenario.

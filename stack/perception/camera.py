@@ -38,8 +38,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import CellGrid, Direction
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadFrameError
 from stack.perception.hog import (

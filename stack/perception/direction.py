@@ -20,8 +20,7 @@ import collections
 from dataclasses import dataclass
 
 from stack.cells import Direction
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 
 
 @dataclass(frozen=True)

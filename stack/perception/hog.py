@@ -21,8 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 from stack.perception.errors import BadFrameError
 
 HOG_WINDOW_PX = (64, 128)  # (width, height) of the default people detector's window

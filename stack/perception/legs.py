@@ -22,9 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stack.config import Config
+from stack.config import Config, require
 from stack.geometry import Pose2D
-from stack.perception._config import require
 from stack.perception.errors import BadScanError
 
 

@@ -64,8 +64,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stack.cells import CellGrid, Direction
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
 from stack.perception.errors import BadScanError
 from stack.perception.observation import speed_class

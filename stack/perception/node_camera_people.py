@@ -36,8 +36,8 @@ from vigil_interfaces.msg import CameraPerson
 
 import stack.topics as topic
 from stack.cells import ConfigError
-from stack.perception._config import load_config_file
 from stack.perception.camera import CameraConfig, CameraPeopleTracker, PersonStatus
+from stack.perception.config import load_config_file
 from stack.perception.errors import BadFrameError, CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.messages import image_from_msg, stamp_to_s

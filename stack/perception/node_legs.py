@@ -42,7 +42,7 @@ from vigil_interfaces.msg import LegTracks
 import stack.topics as topic
 from stack import tf
 from stack.cells import ConfigError
-from stack.perception._config import load_config_file
+from stack.perception.config import load_config_file
 from stack.perception.errors import BadScanError
 from stack.perception.legs import LegConfig, Pose2D, detect_legs
 from stack.perception.messages import (

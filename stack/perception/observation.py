@@ -48,8 +48,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from stack.cells import CellGrid, Direction
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 from stack.perception.camera import CameraPersonState, PersonStatus
 from stack.perception.legs import Pose2D
 from stack.perception.tracker import TrackEstimate, nearest_track

@@ -13,8 +13,8 @@ from collections.abc import Callable
 from typing import Any
 
 from stack.cells import ConfigError
-from stack.perception._config import load_config_file
 from stack.perception.camera import CameraPersonState
+from stack.perception.config import load_config_file
 from stack.perception.errors import CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import Pose2D

@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 from stack.perception.errors import BadScanError
 
 

@@ -35,9 +35,8 @@ import cv2
 import numpy as np
 
 from stack.cells import CellGrid
-from stack.config import Config
+from stack.config import Config, require
 from stack.memo import Memo
-from stack.perception._config import require
 from stack.perception.homography import FloorHomography
 from stack.perception.legs import Pose2D
 

@@ -32,8 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from stack.cells import MOVING_DIRECTIONS, CellGrid
-from stack.config import Config
-from stack.perception._config import require
+from stack.config import Config, require
 from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
 
 PERSON_MODELS = ("thesis", "goal")

@@ -14,7 +14,7 @@ from typing import Any
 from stack.cells import CellGrid
 from stack.config import from_mapping, read_yaml, require
 
-__all__ = ["from_mapping", "load_config_file", "require"]
+__all__ = ["from_mapping", "load_config_file", "require"]  # from_mapping, require: stack.config
 
 
 def load_config_file(path: str | Path | None) -> tuple[CellGrid, dict[str, Any]]:
