@@ -1,0 +1,100 @@
+"""How early the goal inference could send a guard, with perfect tracking (issue 26).
+
+    .venv/bin/python bench/bench_intent_bound.py STUDY [--task config/task-r2-goal.yaml]
+        [--episodes 400] [--wait-cell 6]
+
+STUDY is a ``vigil montecarlo`` folder of the task. For each episode's first visit the
+person's true floor positions (``trace.jsonl``, from the moment they are inside the
+room) feed the task's own goal inference (:mod:`stack.planning.intent`), as if tracking
+were perfect. A guard waits in ``--wait-cell`` and sets off when P(goal) of a restricted
+cell first reaches the threshold; heading for the wrong cell, it goes there first and
+then on (pessimistic: the real layer turns on the way). Its arrival against the
+person's, per threshold and motion (cell moves at the layer's mean 0.41 m/s, or a
+straight trip at the base's top speed, 0.5 m/s), gives the share of visits it would be
+first and the mean delay: a bound for the rule, not for a better inference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from stack.planning.intent import GoalInference, TrackObservation  # noqa: E402
+from stack.planning.task import load_task  # noqa: E402
+
+THRESHOLDS = (0.4, 0.5, 0.6, 0.8)
+MOTIONS = (("cell moves at 0.41 m/s", 0.41, True), ("straight at 0.5 m/s", 0.5, False))
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("study", type=Path)
+    p.add_argument("--task", type=Path, default=REPO / "config" / "task-r2-goal.yaml")
+    p.add_argument("--episodes", type=int, default=400)
+    p.add_argument("--wait-cell", type=int, default=6)
+    p.add_argument("--door-y", type=float, default=5.2, help="inside the room below this y")
+    args = p.parse_args()
+    task = load_task(args.task)
+    cfg = task.anticipation
+    centre = {c: task.grid.center(c) for c in task.grid.cells}
+    files = sorted(glob.glob(str(args.study / "episodes" / "*" / "episode.json")))
+    visits = []  # (cell, arrival_t, {threshold: (t, cell first reaching it)})
+    for f in files[: args.episodes]:
+        episode = json.loads(Path(f).read_text())
+        if not episode["visits"]:
+            continue
+        visit = episode["visits"][0]
+        inference = GoalInference(task.grid, task.restricted_cells, cfg.intent, cfg.exits_m)
+        cross: dict[float, tuple[float, int]] = {}
+        for line in (Path(f).parent / "trace.jsonl").read_text().splitlines():
+            rec = json.loads(line)
+            if rec["t"] >= visit["person_arrival_t"]:
+                break
+            if not rec["person"] or rec["person"][1] > args.door_y:
+                continue
+            est = inference.update(TrackObservation(rec["t"], tuple(rec["person"][:2])))
+            best = max(task.restricted_cells, key=est.p)
+            for th in THRESHOLDS:
+                if th not in cross and est.p(best) >= th:
+                    cross[th] = (rec["t"], best)
+        visits.append((visit["cell"], visit["person_arrival_t"], cross))
+
+    def trip(a: tuple[float, float], b: tuple[float, float], grid_moves: bool) -> float:
+        return abs(a[0] - b[0]) + abs(a[1] - b[1]) if grid_moves else math.dist(a, b)
+
+    wait = centre[args.wait_cell]
+    print(f"{len(visits)} first visits of {args.study.name}, the guard waiting in cell "
+          f"{args.wait_cell}")  # fmt: skip
+    print("| threshold | motion | robot first | mean delay | never reached |")
+    print("|---|---|---:|---:|---:|")
+    for th in THRESHOLDS:
+        for label, speed, grid_moves in MOTIONS:
+            first, delays, never = 0, [], 0
+            for cell, arrival, cross in visits:
+                if th not in cross:
+                    never += 1
+                    continue
+                t, heading = cross[th]
+                here = wait
+                if heading != cell:  # the wrong cell first, then on from there
+                    t += trip(here, centre[heading], grid_moves) / speed
+                    here = centre[heading]
+                t += trip(here, centre[cell], grid_moves) / speed
+                first += t < arrival
+                delays.append(max(0.0, t - arrival))
+            print(f"| P >= {th} | {label} | {100 * first / len(visits):.0f} % | "
+                  f"{np.mean(delays):.1f} s | {never} |")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
