@@ -17,15 +17,17 @@ EDQUOT, in a callback or in its last words) says so in one ``[FATAL]`` line if i
 has room, cleans up what it can and exits :data:`stack.exits.EXIT_DISK_FULL` (the code
 alone tells the launcher, issue 23).
 
-Teardown: once the last words are out, destroying the node and the context is the
-middleware's business, and Fast DDS can deadlock there (eProsima/Fast-DDS#6502: entity
-teardown against a dead peer's lease expiry, which a node killed and restarted leaves
-behind; seen in CI as an observations node SIGKILLed 17 s after SIGINT). So the teardown
-has an alarm: after :data:`stack.exits.TEARDOWN_S` the node's Python stacks go to its log
-(``faulthandler``, which needs no interpreter lock) and SIGALRM's default action ends the
-process; the launcher reads that code as "teardown hung", a warning, since nothing of the
-node's work is left undone by then. SIGTERM also writes the stacks to the log (a node stuck
-before its teardown shows where before the launcher's SIGKILL).
+Teardown: once the last words are out and the node's ``release()`` (if it has one)
+has closed what it holds (a bag, a trace, a stream), destroying the node and the
+context is the middleware's business, and Fast DDS can deadlock there
+(eProsima/Fast-DDS#6502: entity teardown against a dead peer's lease expiry, which a
+node killed and restarted leaves behind; seen in CI as an observations node SIGKILLed
+17 s after SIGINT). So the teardown has an alarm: after :data:`stack.exits.TEARDOWN_S`
+the node's Python stacks go to its log (``faulthandler``, which needs no interpreter
+lock) and SIGALRM's default action ends the process; the launcher reads that code as
+"teardown hung", a warning, since nothing of the node's work is left undone by then.
+SIGTERM also writes the stacks to the log (a node stuck before its teardown shows where
+before the launcher's SIGKILL).
 """
 
 from __future__ import annotations
@@ -116,6 +118,9 @@ def spin_node(
             if node is not None:
                 if on_exit is not None and rclpy.ok():
                     on_exit(node)
+                release = getattr(node, "release", None)
+                if callable(release):  # its files closed before the alarm is set
+                    release()
             if main_thread:
                 _teardown_alarm()
             if node is not None:

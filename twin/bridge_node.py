@@ -412,9 +412,20 @@ class TwinBridge(Node):
             # -1: outside the region (or the room)
             self.pub_person_cell.publish(Int32(data=p.cell if p.cell is not None else -1))
 
+    _released = False
+
+    def release(self) -> None:
+        """What the node holds, closed once, before the middleware's teardown
+        (:func:`stack.ros_main.spin_node`)."""
+        if not self._released:
+            self._released = True
+            self.twin.close()
+
     def destroy_node(self) -> None:
-        self.twin.close()
-        super().destroy_node()
+        try:
+            self.release()
+        finally:
+            super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -213,11 +213,23 @@ class BagNode(Node):
 
         return record
 
-    def destroy_node(self) -> None:
+    _released = False
+
+    def release(self) -> None:
+        """Close the bag (once): :func:`stack.ros_main.spin_node` calls it before the
+        middleware's teardown, whose alarm must not cut a bag's index short."""
+        if self._released:
+            return
+        self._released = True
         self.bag.close()
         counts = ", ".join(f"{k} {n}" for k, n in sorted(self.bag.counts.items()))
         self.get_logger().info(f"bag closed: {counts}")
-        super().destroy_node()
+
+    def destroy_node(self) -> None:
+        try:
+            self.release()
+        finally:
+            super().destroy_node()
 
 
 def _qos(pubs) -> QoSProfile:

@@ -143,9 +143,21 @@ class RecorderNode(Node):
             self.frames.add(record["t"], frame)
             self.frames.flush()
 
+    _released = False
+
     def destroy_node(self) -> None:
-        """Close the frames and the trace, each whatever the other did (a full disk may
-        fail one); the first error is raised once both are closed."""
+        try:
+            self.release()
+        finally:
+            super().destroy_node()
+
+    def release(self) -> None:
+        """Close the frames and the trace (once), each whatever the other did (a full
+        disk may fail one); the first error is raised once both are closed.
+        :func:`stack.ros_main.spin_node` calls it before the middleware's teardown."""
+        if self._released:
+            return
+        self._released = True
         errors: list[OSError] = []
         if self.frames is not None:
             try:
@@ -162,7 +174,6 @@ class RecorderNode(Node):
                 self.trace.close()
             except OSError as err:  # the buffer's last bytes found no room either
                 errors.append(err)
-        super().destroy_node()
         if errors:
             raise errors[0]
 

@@ -159,9 +159,20 @@ class CameraStreamNode(Node):
             diagnostics_to_msg(self.get_name(), self.url, level, message, values, stamp)
         )
 
+    _released = False
+
+    def release(self) -> None:
+        """What the node holds, closed once, before the middleware's teardown
+        (:func:`stack.ros_main.spin_node`)."""
+        if not self._released:
+            self._released = True
+            self.stream.close()
+
     def destroy_node(self) -> None:
-        self.stream.close()
-        super().destroy_node()
+        try:
+            self.release()
+        finally:
+            super().destroy_node()
 
 
 def main(args=None) -> None:

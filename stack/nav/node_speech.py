@@ -178,10 +178,21 @@ class SpeechNode(Node):
         if self.speaker is not None and not self.speaker.speaking:
             self.speaking_pub.publish(Bool(data=False))
 
+    _released = False
+
+    def release(self) -> None:
+        """The speaker stopped, once, before the middleware's teardown
+        (:func:`stack.ros_main.spin_node`)."""
+        if not self._released:
+            self._released = True
+            if self.speaker is not None:
+                self.speaker.stop()
+
     def destroy_node(self) -> None:
-        if self.speaker is not None:
-            self.speaker.stop()
-        super().destroy_node()
+        try:
+            self.release()
+        finally:
+            super().destroy_node()
 
 
 def main(args=None) -> None:
