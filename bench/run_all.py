@@ -70,6 +70,11 @@ QUICK = (
 # Not run: (command, why, how long; durations as docs/BENCHMARKS.md and its log give them)
 LONG = (
     (
+        "bench/bench_intent_bound.py runs/mc-r2-goal",
+        "how early goal inference could send a guard, perfect tracking (needs an r2 study)",
+        "~1 min, after a 1,000-walk r2 study (14 min)",
+    ),
+    (
         "bench/bench_perception_walks.py",
         "scripted walks through all 12 cells, rendered",
         "263-425 s under load; `--quick` 25-70 s",
