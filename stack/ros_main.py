@@ -17,7 +17,7 @@ EDQUOT, in a callback or in its last words) says so in one ``[FATAL]`` line if i
 has room, cleans up what it can and exits :data:`stack.exits.EXIT_DISK_FULL` (the code
 alone tells the launcher, issue 23).
 
-Teardown: once the last words are out and the node's ``release()`` (if it has one)
+Teardown: once the last words are out and a :class:`Releasing` node's ``release()``
 has closed what it holds (a bag, a trace, a stream), destroying the node and the
 context is the middleware's business, and Fast DDS can deadlock there
 (eProsima/Fast-DDS#6502: entity teardown against a dead peer's lease expiry, which a
@@ -65,7 +65,31 @@ class _StopFlag:
             self.signal = signal.Signals(signum).name
 
 
-__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "spin_node"]
+__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "Releasing", "spin_node"]
+
+
+class Releasing:
+    """A node that holds files or devices (a bag, a trace, a stream): it closes them in
+    ``_release()``, which runs once, from :func:`spin_node` before the middleware's
+    teardown (and its alarm) or from ``destroy_node`` for a node destroyed otherwise.
+    Put it before ``Node`` among the bases."""
+
+    _released = False
+
+    def _release(self) -> None:
+        raise NotImplementedError
+
+    def release(self) -> None:
+        if not self._released:
+            self._released = True
+            self._release()
+
+    def destroy_node(self) -> None:
+        try:
+            self.release()
+        finally:
+            super().destroy_node()  # type: ignore[misc]
+
 
 N = TypeVar("N", bound=Node)
 
@@ -118,9 +142,8 @@ def spin_node(
             if node is not None:
                 if on_exit is not None and rclpy.ok():
                     on_exit(node)
-                release = getattr(node, "release", None)
-                if callable(release):  # its files closed before the alarm is set
-                    release()
+                if isinstance(node, Releasing):  # its files closed before the alarm is set
+                    node.release()
             if main_thread:
                 _teardown_alarm()
             if node is not None:

@@ -42,16 +42,21 @@ NODE = textwrap.dedent(
 )
 
 
+def _run(code: str, timeout_s: float) -> subprocess.CompletedProcess:
+    """A node's script in a Python process of its own."""
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+
+
 @pytest.mark.ros
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_a_signal_during_a_callback_lets_it_finish_and_the_node_exits_0(sig):
-    proc = subprocess.run(
-        [sys.executable, "-c", NODE.format(sig=sig)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
+    proc = _run(NODE.format(sig=sig), 60)
     assert proc.returncode == 0, proc.stderr
     assert "callback finished" in proc.stderr
     # the loop stops after the callback in which the signal came, before another tick
@@ -62,34 +67,28 @@ def test_a_signal_during_a_callback_lets_it_finish_and_the_node_exits_0(sig):
 @pytest.mark.ros
 def test_a_slow_release_of_the_nodes_files_is_not_cut_short_by_the_teardown_alarm():
     """The teardown alarm (stack.exits.TEARDOWN_S) covers the middleware's teardown
-    only: a node's ``release()`` (closing a bag, a trace) runs before it is set, however
-    long it takes, and the node exits 0."""
+    only: a :class:`stack.ros_main.Releasing` node's release (closing a bag, a trace)
+    runs before it is set, however long it takes, and the node exits 0."""
     from stack.exits import TEARDOWN_S
 
     code = textwrap.dedent(
         f"""
         import os, signal, sys, time
         from rclpy.node import Node
-        from stack.ros_main import spin_node
+        from stack.ros_main import Releasing, spin_node
 
-        class Slow(Node):
+        class Slow(Releasing, Node):
             def __init__(self):
                 super().__init__("slow")
                 self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
 
-            def release(self):
+            def _release(self):
                 time.sleep({TEARDOWN_S + 1.0})
                 print("released", file=sys.stderr, flush=True)
 
         spin_node(Slow)
         """
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
+    proc = _run(code, 120)
     assert proc.returncode == 0, proc.stderr
     assert "released" in proc.stderr

@@ -68,7 +68,7 @@ from stack.lockstep import (
     Ledger,
     stamp_parts,
 )
-from stack.ros_main import spin_node
+from stack.ros_main import Releasing, spin_node
 from stack.ros_msgs import ack_from_msg, truth_to_msg
 from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
@@ -182,7 +182,7 @@ def parse_outages(text: str) -> list[tuple[str, float, float]]:
     return out
 
 
-class TwinBridge(Node):
+class TwinBridge(Releasing, Node):
     """Steps a :class:`Twin` and converts between it and ROS messages.
 
     Parameters: ``config`` (twin YAML, "" for defaults), ``task`` (task YAML with the
@@ -412,20 +412,9 @@ class TwinBridge(Node):
             # -1: outside the region (or the room)
             self.pub_person_cell.publish(Int32(data=p.cell if p.cell is not None else -1))
 
-    _released = False
-
-    def release(self) -> None:
-        """What the node holds, closed once, before the middleware's teardown
-        (:func:`stack.ros_main.spin_node`)."""
-        if not self._released:
-            self._released = True
-            self.twin.close()
-
-    def destroy_node(self) -> None:
-        try:
-            self.release()
-        finally:
-            super().destroy_node()
+    def _release(self) -> None:
+        """The twin (its renderer), closed once (:class:`stack.ros_main.Releasing`)."""
+        self.twin.close()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -52,7 +52,7 @@ import stack.topics as topic
 from stack.cells import ConfigError
 from stack.lockstep import Ack, stamp_parts
 from stack.ros_lockstep import Participant
-from stack.ros_main import spin_node
+from stack.ros_main import Releasing, spin_node
 from stack.ros_msgs import ack_from_msg
 from stack.ros_params import declare
 from vigil.bag import BagError, BagWriter, RateLimit, fresh_path, message_class
@@ -92,7 +92,7 @@ UNCOUNTED = (topic.MARKERS,)  # published by a node outside the lock-step
 TICK_TYPE = "rosgraph_msgs/msg/Clock"  # the type of the /lockstep/tick records
 
 
-class BagNode(Node):
+class BagNode(Releasing, Node):
     """Every topic of :data:`TOPICS` into ``<out_dir>/bag``."""
 
     def __init__(self, **kwargs):
@@ -213,23 +213,12 @@ class BagNode(Node):
 
         return record
 
-    _released = False
-
-    def release(self) -> None:
-        """Close the bag (once): :func:`stack.ros_main.spin_node` calls it before the
-        middleware's teardown, whose alarm must not cut a bag's index short."""
-        if self._released:
-            return
-        self._released = True
+    def _release(self) -> None:
+        """Close the bag, once (:class:`stack.ros_main.Releasing`): before the middleware's
+        teardown, whose alarm must not cut a bag's index short."""
         self.bag.close()
         counts = ", ".join(f"{k} {n}" for k, n in sorted(self.bag.counts.items()))
         self.get_logger().info(f"bag closed: {counts}")
-
-    def destroy_node(self) -> None:
-        try:
-            self.release()
-        finally:
-            super().destroy_node()
 
 
 def _qos(pubs) -> QoSProfile:

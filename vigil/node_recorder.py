@@ -36,7 +36,7 @@ from stack.config import open_write
 from stack.perception.errors import BadFrameError
 from stack.perception.messages import image_from_msg, pose_from_msg, stamp_to_s
 from stack.ros_lockstep import Participant
-from stack.ros_main import spin_node
+from stack.ros_main import Releasing, spin_node
 from stack.ros_msgs import camera_from_msg, legs_from_msg, speech_done_from_msg, truth_from_msg
 from stack.ros_params import declare
 from vigil.frames import FRAMES_FILE, FrameWriter
@@ -60,7 +60,7 @@ def _skips_bad_messages(callback):
     return guarded
 
 
-class RecorderNode(Node):
+class RecorderNode(Releasing, Node):
     """Trace and camera frames of a run."""
 
     def __init__(self, **kwargs):
@@ -143,21 +143,10 @@ class RecorderNode(Node):
             self.frames.add(record["t"], frame)
             self.frames.flush()
 
-    _released = False
-
-    def destroy_node(self) -> None:
-        try:
-            self.release()
-        finally:
-            super().destroy_node()
-
-    def release(self) -> None:
-        """Close the frames and the trace (once), each whatever the other did (a full
-        disk may fail one); the first error is raised once both are closed.
-        :func:`stack.ros_main.spin_node` calls it before the middleware's teardown."""
-        if self._released:
-            return
-        self._released = True
+    def _release(self) -> None:
+        """Close the frames and the trace (once, :class:`stack.ros_main.Releasing`),
+        each whatever the other did (a full disk may fail one); the first error is
+        raised once both are closed."""
         errors: list[OSError] = []
         if self.frames is not None:
             try:

@@ -45,7 +45,7 @@ from stack.hardware.camera_stream import (
     load_calibration,
     redact_url,
 )
-from stack.ros_main import spin_node
+from stack.ros_main import Releasing, spin_node
 from stack.ros_msgs import diagnostics_to_msg
 from stack.ros_params import declare, declare_topics
 from stack.ros_qos import FRAME_QOS  # one QoS for frames, both ends
@@ -53,7 +53,7 @@ from stack.ros_qos import FRAME_QOS  # one QoS for frames, both ends
 STATUS_PERIOD_S = 1.0
 
 
-class CameraStreamNode(Node):
+class CameraStreamNode(Releasing, Node):
     """Reads the stream at ``rate_hz`` and publishes images, camera info and status."""
 
     def __init__(self, capture_factory=None, **kwargs):
@@ -159,20 +159,9 @@ class CameraStreamNode(Node):
             diagnostics_to_msg(self.get_name(), self.url, level, message, values, stamp)
         )
 
-    _released = False
-
-    def release(self) -> None:
-        """What the node holds, closed once, before the middleware's teardown
-        (:func:`stack.ros_main.spin_node`)."""
-        if not self._released:
-            self._released = True
-            self.stream.close()
-
-    def destroy_node(self) -> None:
-        try:
-            self.release()
-        finally:
-            super().destroy_node()
+    def _release(self) -> None:
+        """The camera stream, closed once (:class:`stack.ros_main.Releasing`)."""
+        self.stream.close()
 
 
 def main(args=None) -> None:

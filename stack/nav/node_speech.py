@@ -42,7 +42,7 @@ from stack.nav.config import SpeechConfig, read_node_config
 from stack.nav.speech import Speaker, SpeechError, SpeechEvent
 from stack.nav.warning import WarningReactor
 from stack.ros_lockstep import Participant
-from stack.ros_main import spin_node
+from stack.ros_main import Releasing, spin_node
 from stack.ros_msgs import observation_from_msg, speech_done_to_msg, warning_to_msg
 from stack.ros_params import declare, declare_topics
 
@@ -56,7 +56,7 @@ def load_speech_config(path: str) -> tuple[CellGrid, SpeechConfig]:
     return read_node_config(path, "speech", SpeechConfig)
 
 
-class SpeechNode(Node):
+class SpeechNode(Releasing, Node):
     """Speaks warnings through :class:`stack.nav.speech.Speaker`."""
 
     def __init__(self, **kwargs):
@@ -178,21 +178,10 @@ class SpeechNode(Node):
         if self.speaker is not None and not self.speaker.speaking:
             self.speaking_pub.publish(Bool(data=False))
 
-    _released = False
-
-    def release(self) -> None:
-        """The speaker stopped, once, before the middleware's teardown
-        (:func:`stack.ros_main.spin_node`)."""
-        if not self._released:
-            self._released = True
-            if self.speaker is not None:
-                self.speaker.stop()
-
-    def destroy_node(self) -> None:
-        try:
-            self.release()
-        finally:
-            super().destroy_node()
+    def _release(self) -> None:
+        """The speaker stopped, once (:class:`stack.ros_main.Releasing`)."""
+        if self.speaker is not None:
+            self.speaker.stop()
 
 
 def main(args=None) -> None:

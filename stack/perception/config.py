@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from stack.cells import CellGrid
-from stack.config import from_mapping, read_yaml, require
+from stack.config import read_yaml
 
-__all__ = ["from_mapping", "load_config_file", "require"]  # from_mapping, require: stack.config
+__all__ = ["load_config_file"]
 
 
 def load_config_file(path: str | Path | None) -> tuple[CellGrid, dict[str, Any]]:
