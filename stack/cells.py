@@ -174,6 +174,16 @@ class CellGrid:
         x0, y0, x1, y1 = self.bounds(cell)
         return ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
 
+    def nearest_inside(
+        self, cell: int, x: float, y: float, inset_m: float = 0.0
+    ) -> tuple[float, float]:
+        """The point of ``cell``, ``inset_m`` inside its borders, nearest map point
+        (x, y) (a cell narrower than twice the inset: its middle line) [m]."""
+        x0, y0, x1, y1 = self.bounds(cell)
+        lo_x, hi_x = (x0 + inset_m, x1 - inset_m) if x1 - x0 > 2 * inset_m else ((x0 + x1) / 2,) * 2
+        lo_y, hi_y = (y0 + inset_m, y1 - inset_m) if y1 - y0 > 2 * inset_m else ((y0 + y1) / 2,) * 2
+        return (min(max(x, lo_x), hi_x), min(max(y, lo_y), hi_y))
+
     def cell_at(self, x: float, y: float) -> int | None:
         """The cell containing map point (x, y); None outside the region."""
         w, h = self.cell_size_m

@@ -15,6 +15,10 @@ from collections.abc import Mapping
 from typing import Any
 
 ACTIONS = ("North", "South", "East", "West", "Do nothing")
+# vigil's trip command (issue 26): "To 1" asks navigation to drive straight into cell 1
+# at top speed, entering where no person stands, instead of one cell move per step.
+# The planner's model still counts it as the first move of the way (its belief update).
+TRIP_PREFIX = "To "
 DIRECTIONS = ("North", "South", "East", "West", "Not moving")  # index = cells.Direction
 SPEED_CLASSES = ("higher", "0.2-0.7", "0-0.2")  # > 0.7, 0.2-0.7, 0-0.2 m/s (section 4.2)
 NOT_MOVING = "Not moving"
@@ -22,6 +26,21 @@ NO_PERSON = "No person"
 OUT_OF_MAP = "Out of the map"
 UNSEEN = "Unseen"
 VELOCITIES = (NOT_MOVING,) + tuple(f"{d} {s}" for d in DIRECTIONS[:4] for s in SPEED_CLASSES)
+
+
+def trip_command(cell: int) -> str:
+    """The trip command to ``cell`` ("To 1")."""
+    return f"{TRIP_PREFIX}{int(cell)}"
+
+
+def parse_trip(label: str) -> int | None:
+    """The destination cell of a trip command ("To 1", "to 12"), or None for any other
+    label (an action name, a number)."""
+    words = label.strip().split()
+    if len(words) == 2 and words[0].lower() == TRIP_PREFIX.strip().lower():
+        if words[1].isdigit():
+            return int(words[1])
+    return None
 
 
 def parse_hidden(data: Any) -> tuple[tuple[int, float], ...]:

@@ -3,6 +3,8 @@ robot heads while a person walks, and how the agent and the step machine use it.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -39,15 +41,19 @@ def test_a_person_walking_to_cell_1_makes_the_robot_head_there_before_they_arriv
     for p in walk(DOOR, (5.5, 0.75)):
         if ant.observe(t, p):
             events.append((t, ant.target))
-        if advised_at is None and ant.advise(7) == "East":
+        if advised_at is None and ant.advise(7) == "To 1":  # a trip straight into cell 1
             advised_at = (t, p)
         t += 0.25
     assert advised_at is not None and GRID.cell_at(*advised_at[1]) != 1  # before entry
+    cells = Anticipator(GRID, (1,), AnticipationConfig(motion="cells"))
+    for k, p in enumerate(walk(DOOR, (5.5, 1.6))):
+        cells.observe(0.25 * k, p)
+    assert cells.target == 1 and cells.advise(7) == "East"  # the thesis's moves: the first
     assert ant.advise(1) in ("Do nothing", None)  # there first: wait for the person
     assert events[0][1] == 1
-    # inside the cell the policy guards: no advice
+    # inside the cell: the cell is the target, wherever the robot is
     ant.observe(t, (5.5, 0.75))
-    assert ant.target is None and ant.advise(7) is None
+    assert ant.target == 1 and ant.advise(7) == "To 1" and ant.advise(1) == "Do nothing"
 
 
 def test_a_decoy_who_turns_away_stops_the_robot_heading_there():
@@ -96,7 +102,8 @@ def test_the_agent_takes_the_advised_move_and_records_why():
     events = [agent.track(0.25 * k, observed(p)) for k, p in enumerate(walk(DOOR, (5.5, 1.6)))]
     assert "heading for 1" in events
     a = agent.decide()
-    assert a == 2  # East, from cell 7 toward cell 1
+    assert a == 2  # East, from cell 7 toward cell 1: the model's first move of the trip
+    assert agent.command == "To 1"  # what navigation is sent: the trip
     rec = agent.observe(observed((5.5, 1.6), robot="5"))
     assert rec["anticipation"]["target"] == 1 and rec["anticipation"]["policy"] == "Do nothing"
     # the thesis model: the same observations leave the policy's action alone
@@ -113,12 +120,15 @@ def test_a_new_target_ends_the_step_early_as_a_person_event_does():
                                             min_event_step_s=1.0, nav_timeout_s=10.0))  # fmt: skip
     cmds = steps.tick(0.0)
     assert [c.kind for c in cmds] == ["act"]
-    triggers = []
+    triggers, sent = [], []
     for k, p in enumerate(walk((7.0, 2.5), (6.2, 1.6))):  # within cell 2 all along
         for c in steps.on_observation(0.25 * (k + 1), observed(p)):
             if c.kind == "record":
                 triggers.append(c.record["trigger"])
+            elif c.kind == "act":
+                sent.append(c.action)
     assert "heading for 1" in triggers
+    assert sent[-1] == "To 1" and steps.sent_action == "To 1"  # navigation gets the trip
 
 
 def test_the_watch_cell_is_one_move_from_a_lone_restricted_cell_and_equidistant_from_two():
@@ -166,8 +176,8 @@ def test_the_layer_holds_back_an_entry_for_a_person_not_heading_there():
     assert ant.advise(3, "West") is None and ant.advise(5, "East") is None  # not into 1
     ant.observe(t + 10.0, None)  # unseen for 10 s: the policy's belief decides
     assert ant.advise(3, "East") is None
-    ant.observe(t + 10.25, (5.5, 0.75))  # inside: the policy guards
-    assert ant.advise(3, "East") is None
+    ant.observe(t + 10.25, (5.5, 0.75))  # inside: the trip there, at once
+    assert ant.advise(3, "East") == "To 1" and ant.advise(1, "West") == "Do nothing"
 
 
 def test_the_layer_lets_the_robot_in_for_a_person_walking_to_the_cell():
@@ -176,7 +186,7 @@ def test_the_layer_lets_the_robot_in_for_a_person_walking_to_the_cell():
     for p in walk((1.0, 0.75), (4.7, 0.75), speed=1.2):  # along the row, to cell 1
         ant.observe(t, p)
         t += 0.25
-    assert ant.advise(3, "East") == "East"
+    assert ant.advise(3, "East") == "To 1"  # the layer's own trip, not just allowed in
 
 
 def test_with_the_doorway_as_an_exit_a_person_walking_out_is_not_heading_for_cell_1():
@@ -215,3 +225,37 @@ def test_the_robot_heads_out_just_in_time_for_its_trip():
     (x3, _), eta3 = first_at[3]
     assert 5.0 - x3 <= 2.0 + 0.15 and eta3 <= 4.0
     assert first_at[None][0][0] == first_at[7][0][0] < x3 - 1.0
+
+
+def test_a_trip_under_way_survives_a_planner_restart(tmp_path):
+    agent = _agent("task-r1-goal.yaml")
+    agent.decide()
+    agent.observe(observed((6.5, 3.8)))
+    for k, p in enumerate(walk(DOOR, (5.5, 1.6))):
+        agent.track(0.25 * k, observed(p))
+    agent.decide()
+    assert agent.command == "To 1"
+    path = tmp_path / "planner_state.json"
+    path.write_text(json.dumps(agent.state()))
+    again = _agent("task-r1-goal.yaml")
+    assert again.restore(path) and again.command == "To 1" and again.action == agent.action
+    path.write_text(json.dumps({**agent.state(), "command": "To 99"}))  # no such cell
+    assert again.restore(path) and again.command == "East"  # the action's own name
+
+
+def test_a_new_target_sends_the_trip_at_once_and_the_step_keeps_its_length():
+    """The robot sets off the moment the goal is clear, not at the step's end; the
+    belief's step (and its goal id) goes on."""
+    agent = _agent("task-r1-goal.yaml")
+    steps = DecisionSteps(agent, StepTiming(start_delay_s=0.0, min_step_s=2.5,
+                                            min_event_step_s=10.0, nav_timeout_s=30.0))  # fmt: skip
+    assert [c.action for c in steps.tick(0.0)] == ["Do nothing"]
+    steps.on_nav_result(0.0, {"goal_id": 1, "result": "succeeded", "action": "Do nothing"})
+    out = []
+    for k, p in enumerate(walk((7.0, 2.5), (6.2, 1.6))):  # cell 2 all along: no person event
+        out += [(0.25 * (k + 1), c) for c in steps.on_observation(0.25 * (k + 1), observed(p))]
+    acts = [(t, c.action, c.goal_id) for t, c in out if c.kind == "act"]
+    assert acts and acts[0][1:] == ("To 1", 1)  # the same step's goal
+    assert acts[0][0] < 2.5 and len(acts) == 1  # before the step could end, and once
+    assert not [c for _, c in out if c.kind == "record"]
+    assert steps.waiting == "nav" and agent.anticipated["revised"] == "To 1"

@@ -111,3 +111,59 @@ def test_cancel_ends_only_the_goal_under_way():
     (result,) = [o.body for o in out if o.kind == "result"]
     assert result["result"] == "canceled" and result["goal_id"] == 5
     assert not ex.follower.active and ex.cancel(5, "again") == []
+
+
+def test_a_trip_drives_straight_into_the_cell_without_stopping_on_the_way():
+    """ "To 1" from cell 6 (x 3-4, y 1.5-3) crosses cells 4 and 3 or 5 in one drive and
+    ends just inside cell 1's nearest corner, not at its centre; sent again it keeps
+    driving; its result comes on entering cell 1."""
+    ex, base = setup(6)
+    assert ex.action("To 1", 0.0, goal_id=3) == []
+    t, _ = run(ex, base, 0.0, 1.5, stop_on_result=False)
+    assert ex.action("To 1", t, goal_id=4) == []  # the same trip: no restart
+    t, results = run(ex, base, t, 20.0)
+    ((t_in, body),) = results
+    assert body["result"] == "succeeded" and body["target_cell"] == 1
+    assert body["action"] == "To 1" and body["goal_id"] == 4
+    assert GRID.cell_at(base.pose.x_m, base.pose.y_m) == 1
+    straight = ((5.2 - 3.5) ** 2 + (2.25 - 1.3) ** 2) ** 0.5  # centre of 6 to cell 1's border
+    assert t_in < straight / 0.5 + 1.5  # top speed all the way (acceleration aside)
+    run(ex, base, t, t + 5.0, stop_on_result=False)
+    x0, y0, x1, y1 = GRID.bounds(1)
+    assert abs(base.pose.x_m - (x0 + 0.35)) < 0.1 and abs(base.pose.y_m - (y1 - 0.35)) < 0.1
+
+
+def test_a_trip_enters_where_the_person_is_not_and_bad_cells_are_refused():
+    ex, base = setup(3)
+    ex.set_people([(5.5, 0.5)])  # a person in the south of cell 1
+    ex.action("To 1", 0.0, goal_id=1)
+    gx, gy = ex.follower.goal
+    assert GRID.cell_at(gx, gy) == 1 and ((gx - 5.5) ** 2 + (gy - 0.5) ** 2) ** 0.5 >= 0.6
+    out = ex.action("To 99", 0.0, goal_id=2)
+    assert [o.body["error_name"] for o in out if o.kind == "result"] == ["INVALID_ACTION"]
+    assert "no such cell" in out[0].text and ex.goal_id == 1  # the trip under way stays
+
+
+def test_a_person_who_stepped_up_to_the_robot_does_not_freeze_its_trip():
+    """The person walked into cell 1 and stands 0.5 m from the robot at its border
+    (closer than the 0.6 m contact clearance): the robot moves round them into the cell,
+    keeping about its distance, instead of waiting to be reported blocked."""
+    occ = OccupancyMap.empty(8.0, 5.0, 0.05, (-1.0, -1.0))
+    ex = ActionExecutor(GRID, FollowerConfig(), occ)
+    base = KinematicBase(Pose2D(4.96, 0.66, 0.0))
+    ex.set_pose(base.pose, 0.0)
+    person = (5.45, 0.82)
+    ex.set_people([person])
+    ex.action("To 1", 0.0, goal_id=1)
+    t, gaps, results = 0.0, [], []
+    while t < 6.0 and not results:
+        t += DT
+        for o in ex.tick(t):
+            if o.kind == "cmd":
+                base.step(o.cmd, DT)
+            elif o.kind == "result":
+                results.append(o.body)
+        ex.set_pose(base.pose, t)
+        gaps.append(((base.pose.x_m - person[0]) ** 2 + (base.pose.y_m - person[1]) ** 2) ** 0.5)
+    assert results and results[0]["result"] == "succeeded" and results[0]["cell"] == 1
+    assert min(gaps) > 0.4  # never into the person

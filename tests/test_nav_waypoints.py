@@ -1,5 +1,7 @@
 """Cell waypoints and the meaning of each action (thesis table 3.2)."""
 
+import math
+
 import pytest
 
 from stack.cells import CellGrid, Direction
@@ -52,3 +54,21 @@ def test_cell_of_clamps_positions_outside_the_region():
     assert WP.cell_of(100.0, -5.0) == 1  # far south-east: the south-east cell
     with pytest.raises(ValueError, match="not in the grid"):
         WP.target(13, "North")
+
+
+def test_trip_commands_and_entry_points():
+    from stack.nav.waypoints import entry_point
+    from stack.vocabulary import parse_trip, trip_command
+
+    assert parse_trip("To 1") == 1 and parse_trip(" to  12 ") == 12 and trip_command(3) == "To 3"
+    assert parse_trip("East") is None and parse_trip("To") is None and parse_trip("To x") is None
+    grid = CellGrid()  # cell 1: x 5-6, y 0-1.5
+    assert entry_point(grid, 1, (3.5, 0.75)) == pytest.approx((5.35, 0.75))
+    assert entry_point(grid, 1, (9.0, 9.0)) == pytest.approx((5.65, 1.15))
+    # a person in the south of the cell: the nearest point 0.6 m from them, north-west
+    x, y = entry_point(grid, 1, (3.5, 0.75), people=[(5.5, 0.5)])
+    assert math.hypot(x - 5.5, y - 0.5) >= 0.6 and x < 5.45 and y > 1.0
+    # nowhere clear (a person in the middle of the small cell): the farthest point
+    x, y = entry_point(grid, 1, (3.5, 0.75), people=[(5.5, 0.75)], clearance_m=2.0)
+    assert math.hypot(x - 5.5, y - 0.75) == pytest.approx(math.hypot(0.15, 0.4))  # a corner
+    assert x == pytest.approx(5.35)  # of the two west ones, nearer the robot

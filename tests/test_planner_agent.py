@@ -81,10 +81,23 @@ def test_bad_labels_leave_the_belief_alone(solved):
         Observed.from_dict({"robot": "7", "person": "9"})
 
 
-def test_impossible_observation_restarts_from_what_was_seen(solved):
+def test_a_robot_seen_beyond_its_move_moves_the_belief_with_it(solved):
+    """A trip crosses several cells in one step: the robot's cell is observed exactly
+    and people move whatever the robot does, so the belief follows the robot there and
+    the person's belief is updated, not restarted."""
     agent, _ = table_agent(solved)
     agent.decide()
-    agent.action = 4  # Do nothing at 7: the robot cannot be seen at 1
+    agent.action = 4  # Do nothing at 7: under the model the robot cannot be seen at 1
+    rec = agent.observe(Observed("1", "3", "East higher"))
+    assert "beyond the action's move" in rec["note"]
+    assert rec["belief"]["robot"]["1"] == pytest.approx(1.0)
+    assert 0.5 < rec["belief"]["person"]["3"] < 1.0  # Bayes' rule on the old belief
+
+
+def test_impossible_observation_restarts_from_what_was_seen(solved, monkeypatch):
+    agent, _ = table_agent(solved)
+    agent.decide()
+    monkeypatch.setattr(agent, "likelihood", lambda *a: np.zeros(agent.pomdp.n_states))
     rec = agent.observe(Observed("1", "3", "East higher"))
     assert "impossible" in rec["note"]
     assert rec["belief"]["robot"]["1"] == pytest.approx(1.0)

@@ -70,6 +70,11 @@ class FollowerConfig(Config):
     # a move is reported done once the robot is this far inside its target cell; it goes
     # on to the waypoint meanwhile, so the next decision comes while it still drives
     arrive_margin_m: float = 0.2
+    # a trip ("To 1", issue 26) ends this far inside the cell, at the point nearest the
+    # robot at least trip_clearance_m from every person, or the farthest from them
+    # (stack.nav.waypoints.entry_point)
+    trip_inset_m: float = 0.35
+    trip_clearance_m: float = 0.6  # robot_radius_m + person_radius_m
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]
     unknown_is_occupied: bool = True
@@ -116,6 +121,8 @@ class FollowerConfig(Config):
             "max_start_escape_m",
             "arrive_margin_m",
             "region_margin_m",
+            "trip_inset_m",
+            "trip_clearance_m",
         )
 
     @property

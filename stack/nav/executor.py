@@ -10,6 +10,10 @@ it returns; an in-process loop can drive it the same way.
   waypoint meanwhile, so the next decision comes while it still moves. An action
   toward the cell of the move under way keeps it driving. "Do nothing" during a move
   settles the robot in the cell it is in (not on a border); at rest it holds.
+- A **trip** ("To 1", :func:`stack.vocabulary.parse_trip`) drives straight into a cell
+  at top speed, to the point of it nearest the robot that no person stands on
+  (:func:`~stack.nav.waypoints.entry_point`), reported like a move once the robot is
+  inside it; a trip to the cell of the trip under way keeps it driving.
 - A **goal pose** in the map frame is followed the same way, reported on arrival.
 - **Stop** cancels at once with zero velocity and refuses goals until released.
 
@@ -37,7 +41,8 @@ from stack.nav.follower import (
     cap_twist,
 )
 from stack.nav.occupancy import OccupancyMap
-from stack.nav.waypoints import ActionOutcome, CellWaypoints, parse_action
+from stack.nav.waypoints import ActionOutcome, CellWaypoints, entry_point, parse_action
+from stack.vocabulary import parse_trip, trip_command
 
 
 @dataclass(frozen=True)
@@ -119,6 +124,8 @@ class ActionExecutor:
         previous_target = self.task.get("target_cell") if self.follower.active else None
         gid = int(goal_id)
         task: dict[str, Any]
+        if isinstance(raw, str) and (dest := parse_trip(raw)) is not None:
+            return self._trip(dest, now_s, gid, previous_target)
         # a refused goal is answered under its own id and leaves the goal under way (its
         # id, task and motion) as it was: it never takes over another goal's id
         try:
@@ -162,6 +169,37 @@ class ActionExecutor:
                 )
         elif waypoint is not None:
             out += self._begin(waypoint, now_s, target.cell)
+        return out
+
+    def _trip(self, dest: int, now_s: float, gid: int, previous_target: int | None) -> list[Output]:
+        """A trip into cell ``dest`` (see the module)."""
+        task: dict[str, Any] = {"action": trip_command(dest)}
+        if dest not in self.grid.cells:
+            text = f"trip to cell {dest}: no such cell (cells {min(self.grid.cells)}.."
+            text += f"{max(self.grid.cells)})"
+            return [
+                Output("log", text=text),
+                self._result(NavResult.REFUSED, NavErrorCode.INVALID_ACTION, text, gid, task),
+            ]
+        if self.pose is None:
+            no_pose = NavErrorCode.NO_POSE
+            return [self._result(NavResult.REFUSED, no_pose, "no pose yet", gid, task)]
+        cell = self.waypoints.cell_of(self.pose.x_m, self.pose.y_m)
+        task.update(from_cell=cell, target_cell=dest)
+        self.goal_id, self.task = gid, task
+        if dest == previous_target:  # the trip under way: keep driving
+            if self.arrived:
+                return [self._result(NavResult.SUCCEEDED, NavErrorCode.NONE, "in the target cell")]
+            return []
+        c = self.config
+        point = entry_point(
+            self.grid, dest, (self.pose.x_m, self.pose.y_m), self.people,
+            c.trip_inset_m, c.trip_clearance_m,
+        )  # fmt: skip
+        out = self._begin(point, now_s, dest)
+        if not self.stopped and self.in_target_cell():
+            self.arrived = True  # already inside: done, settling on the entry point
+            out.append(self._result(NavResult.SUCCEEDED, NavErrorCode.NONE, "in the target cell"))
         return out
 
     def goal(self, x: float, y: float, now_s: float, goal_id: int = 0) -> list[Output]:

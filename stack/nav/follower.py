@@ -161,6 +161,9 @@ def limit_accel(cmd: Twist2D, prev: Twist2D, dt_s: float, config: FollowerConfig
     )
 
 
+CLOSEST_EXTRA_M = 0.15  # beside a person who stepped up to the robot: the least gap kept
+
+
 def _wrap(a: float) -> float:
     return math.remainder(a, 2.0 * math.pi)
 
@@ -410,7 +413,7 @@ class PathFollower:
         try:
             grid_path = astar_grid(self.static_blocked | person_mask, start, goal_cell)
         except NoPathError:
-            grid_path = self._plan_into_region(start)
+            grid_path = self._plan_into_region(start, (pose.x_m, pose.y_m))
         if grid_path is None:
             if self._waiting_since is None:
                 self._waiting_since = now_s
@@ -429,11 +432,15 @@ class PathFollower:
         self._path, self._path_cells, self._index = pts, cells, 0
         return None
 
-    def _plan_into_region(self, start: tuple[int, int]):
+    def _plan_into_region(self, start: tuple[int, int], pos_xy: tuple[float, float]):
         """A path to the free point of the target region nearest the goal, or None.
 
         Beside a person the robot keeps contact clearance (person + robot radius, no
-        inflation margin): close, as a robot asking someone to leave would stand."""
+        inflation margin): close, as a robot asking someone to leave would stand. A
+        robot already closer than that to someone (they stepped up to it) keeps its
+        distance instead of freezing: it may move round them, its centre never nearer
+        than ``robot_radius_m`` + ``CLOSEST_EXTRA_M`` to theirs (nor much nearer than it
+        was: the path keeps the distance, the carrot cuts its corners by a few cm)."""
         if self._region is None:
             return None
         m = self.config.region_margin_m
@@ -447,7 +454,13 @@ class PathFollower:
         if r1 < r0 or c1 < c0:
             return None
         cfg = self.config
-        near = disc_mask(self.map, self._people, cfg.person_radius_m + cfg.robot_radius_m)
+        contact = cfg.person_radius_m + cfg.robot_radius_m
+        closest = cfg.robot_radius_m + CLOSEST_EXTRA_M  # however close they came
+        near = np.zeros(self.map.shape, dtype=bool)
+        for person in self._people:
+            gap = float(np.hypot(person[0] - pos_xy[0], person[1] - pos_xy[1]))
+            keep = max(closest, min(contact, gap - 0.5 * self.map.resolution_m))
+            near |= disc_mask(self.map, [person], keep)
         blocked = self.static_blocked | near
         free = np.argwhere(~blocked[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
         if len(free) == 0:

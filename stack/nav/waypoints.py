@@ -9,6 +9,8 @@ move; if it does, the action is refused here and the robot does not move.
 from __future__ import annotations
 
 import enum
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from stack.cells import CellGrid, Direction
@@ -150,3 +152,40 @@ class CellWaypoints:
                 f"{action.label} from cell {cell} leaves the map",
             )
         return ActionTarget(ActionOutcome.MOVE, action, cell, nxt, self.grid.center(nxt))
+
+
+def entry_point(
+    grid: CellGrid,
+    cell: int,
+    from_xy: tuple[float, float],
+    people: Sequence[tuple[float, float]] = (),
+    inset_m: float = 0.35,
+    clearance_m: float = 0.6,
+    step_m: float = 0.05,
+) -> tuple[float, float]:
+    """Where a trip into ``cell`` ends: the point of the cell ``inset_m`` inside its
+    borders nearest ``from_xy`` among those at least ``clearance_m`` from every person
+    (the cell is the target, not the person's spot: the robot enters where they are
+    not); with no such point, the one farthest from the people.
+
+    Raises:
+        ValueError: the cell is not in the grid.
+    """
+    nearest = grid.nearest_inside(cell, from_xy[0], from_xy[1], inset_m)
+
+    def room(x: float, y: float) -> float:  # distance to the nearest person, capped
+        return min([clearance_m, *(math.hypot(x - px, y - py) for px, py in people)])
+
+    if room(*nearest) >= clearance_m:
+        return nearest
+    x0, y0, x1, y1 = grid.bounds(cell)
+    lo_x, lo_y = grid.nearest_inside(cell, x0, y0, inset_m)
+    hi_x, hi_y = grid.nearest_inside(cell, x1, y1, inset_m)
+    nx = max(1, round((hi_x - lo_x) / step_m))
+    ny = max(1, round((hi_y - lo_y) / step_m))
+    points = [
+        (lo_x + (hi_x - lo_x) * i / nx, lo_y + (hi_y - lo_y) * j / ny)
+        for i in range(nx + 1)
+        for j in range(ny + 1)
+    ]
+    return min(points, key=lambda p: (-round(room(*p), 6), math.dist(p, from_xy)))

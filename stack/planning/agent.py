@@ -22,7 +22,7 @@ import numpy as np
 
 from stack.config import read_text_capped, write_text
 from stack.planning import belief as belief_ops
-from stack.planning.anticipate import Anticipator
+from stack.planning.anticipate import Anticipator, first_move
 from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
@@ -36,6 +36,7 @@ from stack.vocabulary import (
     UNSEEN,
     VELOCITIES,
     parse_hidden,
+    parse_trip,
 )
 
 
@@ -232,7 +233,10 @@ class PlannerAgent:
         self.belief = b0.copy()
         self.step = 0  # steps completed (observed)
         self.phase = "start"  # start | acting | observing | done
-        self.action: int | None = None  # the action of the step under way
+        self.action: int | None = None  # the action of the step under way (the model's)
+        # what navigation is asked to do for it: the action's name, or a trip ("To 1")
+        # whose first move is ``action``
+        self.command: str | None = None
         self.values: list[float] = []
         self.fingerprint = model_fingerprint(pomdp)
         idx = np.unravel_index(np.arange(pomdp.n_states), model.state_shape)
@@ -244,16 +248,40 @@ class PlannerAgent:
         """Choose the next action from the current belief; the step is now under way."""
         a, q = self._choose(self.belief)
         self.anticipated = None
+        move: str | None = None
         if self.anticipator is not None:
             move = self.anticipator.advise(self.robot_cell, ACTIONS[int(a)])
             note = self.anticipator.note()
             if note is not None:
                 self.anticipated = {**note, "policy": ACTIONS[int(a)], "move": move}
             if move is not None:
-                a = ACTIONS.index(move)
+                dest = parse_trip(move)
+                if dest is None:
+                    a = ACTIONS.index(move)
+                else:  # the model counts a trip as its first move
+                    start = self.robot_cell
+                    first = None if start is None else first_move(self.model.task.grid, start, dest)
+                    a = ACTIONS.index(first or "Do nothing")
         self.action, self.values = int(a), [float(v) for v in q]
+        self.command = move if move is not None else ACTIONS[self.action]
         self.phase = "acting"
         return self.action
+
+    def revise(self) -> str | None:
+        """The anticipation layer's new trip for the step under way (its target changed
+        since the decision), or None: the step's command stands. Only a trip is revised
+        mid-step (going there now); the rest waits for the step's end."""
+        if self.anticipator is None or self.action is None or self.phase != "acting":
+            return None
+        policy = (self.anticipated or {}).get("policy", ACTIONS[self.action])
+        move = self.anticipator.advise(self.robot_cell, policy)
+        if move is None or parse_trip(move) is None or move == self.command:
+            return None
+        self.command = move
+        if self.anticipated is None:  # no estimate yet at the decision
+            self.anticipated = {**(self.anticipator.note() or {}), "policy": policy, "move": None}
+        self.anticipated["revised"] = move
+        return move
 
     def track(self, t: float, observed: Observed) -> str | None:
         """Every observation, step end or not: the robot's cell and the anticipation
@@ -289,11 +317,16 @@ class PlannerAgent:
                 "robot 'Out of the map' is impossible from this belief: observation ignored"
             )
         note = None
+        belief, action = self.belief, self.action
+        if robot is not None and self._robot_probability(robot) == 0.0:
+            # the robot went further than the action's one move (a trip crossing cells,
+            # a push): it is observed exactly and the people move whatever it does, so
+            # the belief moves it to where it is and the update is Do nothing's
+            belief, action = self._relocated(robot), ACTIONS.index("Do nothing")
+            note = f"robot observed in cell {robot}, beyond the action's move: belief moved there"
         try:
             lik = self.likelihood(observed, z)
-            self.belief = belief_ops.update_with_likelihood(
-                self.pomdp, self.belief, self.action, lik
-            )
+            self.belief = belief_ops.update_with_likelihood(self.pomdp, belief, action, lik)
         except belief_ops.ZeroProbabilityObservation:
             note = "observation impossible under the model: belief restarted from it"
             self.belief = self.model.initial_belief(
@@ -303,6 +336,13 @@ class PlannerAgent:
         record = self.record(observed, note)
         self.phase = "observing"  # until the next decide()
         return record
+
+    def _relocated(self, robot: int) -> np.ndarray:
+        """The belief with all its robot mass in ``robot``'s cell."""
+        t = self.belief.reshape(self.model.state_shape)
+        out = np.zeros_like(t)
+        out[self.model.robot_index(robot)] = t.sum(axis=0)
+        return out.ravel()
 
     def _robot_probability(self, cell: int | None) -> float:
         """P(robot in ``cell`` after the action under way | belief)."""
@@ -400,6 +440,7 @@ class PlannerAgent:
             "step": self.step,
             "phase": self.phase,
             "action": self.action,
+            "command": self.command,
             "values": self.values,
             "belief": [float(v) for v in self.belief],
         }
@@ -437,5 +478,9 @@ class PlannerAgent:
             raise StateFileError(f"{path}: values must be a list of numbers")
         self.belief, self.step, self.phase = belief, step, phase
         self.action = None if action is None else int(action)
+        command = data.get("command")
+        # a trip survives a restart; anything else is the action's own name
+        trip = isinstance(command, str) and parse_trip(command) in self.model.task.grid.cells
+        self.command = command if trip else None if action is None else ACTIONS[int(action)]
         self.values = [float(v) for v in values]
         return True

@@ -6,16 +6,18 @@ reaches the cell seconds after them. A task with ``person_model: goal`` adds thi
 layer: the person's observed floor positions feed Bayesian goal inference
 (:mod:`stack.planning.intent`: a Boltzmann-rational walker heading for a restricted
 cell or elsewhere), and while the person is believed to be heading for a restricted
-cell the robot takes the first move of a shortest path there instead of the policy's
-action. The policy decides everything else: waiting at rest, guarding while the
-person is in the cell (the robot is there), coming back.
+cell the robot drives straight there at top speed (a navigation trip, "To 1"; or with
+``motion: cells`` the first move of a shortest path of cell moves) instead of the
+policy's action. The policy decides everything else: waiting at rest, coming back, and
+whatever it does while the person is not seen.
 
 - heading for cell c starts when P(goal = c) reaches ``go_probability`` and stops
   when it falls under ``stay_probability`` (hysteresis: a person who pauses on the
   way does not make the robot turn back at once);
+- a person seen *in* a restricted cell makes it the target whatever the goal belief
+  (the trip there, not the policy's cell moves with a stop at each);
 - with the robot in the target cell it waits there (the policy values the cell only
-  with the person in it, and would leave); once the person is *in* a restricted cell
-  the layer is silent (the policy guards);
+  with the person in it, and would leave);
 - a change of target is an event: the planner decides again at once
   (:class:`stack.planning.stepper.DecisionSteps`), not at the end of the step.
 
@@ -34,8 +36,11 @@ from typing import Any
 from stack.cells import MOVING_DIRECTIONS, CellGrid
 from stack.config import Config, require
 from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
+from stack.vocabulary import trip_command
 
 PERSON_MODELS = ("thesis", "goal")
+MOTIONS = ("trip", "cells")
+TRIP_INSET_M = 0.35  # how far inside the cell a trip ends (navigation's trip_inset_m)
 
 
 @dataclass(frozen=True)
@@ -44,8 +49,12 @@ class AnticipationConfig(Config):
     go_probability: head for a restricted cell once the person's goal is it with at
         least this probability.
     stay_probability: keep heading there while the probability stays above this.
-    robot_speed_mps: the robot's mean speed over a trip of cell moves (stops and
-        decisions included; 0.41 m/s measured in the twin).
+    motion: how the robot heads for the target: ``trip`` (one navigation trip
+        straight into the cell at top speed, "To 1") or ``cells`` (the thesis's cell
+        moves, one per decision step).
+    robot_speed_mps: the robot's mean speed over a trip (acceleration, and for cell
+        moves the stops and decisions, included; cell moves average 0.41 m/s in the
+        twin).
     lead_s: heading for a cell starts once the person's predicted time to entry is
         within the robot's trip time plus this (the intent's ``eta_s``): the robot
         still arrives first, and a person who turns away before has not sent it.
@@ -64,6 +73,7 @@ class AnticipationConfig(Config):
 
     go_probability: float = 0.6
     stay_probability: float = 0.35
+    motion: str = "trip"
     robot_speed_mps: float = 0.4
     lead_s: float = 1.5
     enter_probability: float = 0.6
@@ -76,6 +86,7 @@ class AnticipationConfig(Config):
                 "must be in (0, 1]")  # fmt: skip
         require(0.0 <= self.stay_probability <= self.go_probability, "stay_probability",
                 self.stay_probability, "must be in [0, go_probability]")  # fmt: skip
+        require(self.motion in MOTIONS, "motion", self.motion, f"must be one of {MOTIONS}")
         require(0.0 < self.robot_speed_mps <= 5.0, "robot_speed_mps", self.robot_speed_mps,
                 "must be in (0, 5] m/s")  # fmt: skip
         require(0.0 <= self.lead_s <= 60.0, "lead_s", self.lead_s, "must be in [0, 60] s")
@@ -160,8 +171,21 @@ class Anticipator:
         self.inference = GoalInference(grid, restricted_cells, config.intent, config.exits_m)
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
-        # trip lengths from every cell to each restricted cell (moves are symmetric)
-        self._trip_m = {r: travel_m(grid, r) for r in self.restricted}
+        # trip lengths from every cell to each restricted cell (moves are symmetric;
+        # a trip: straight from the cell's centre to the nearest point inside)
+        self._trip_m = {r: self.trip_lengths(grid, r, config.motion) for r in self.restricted}
+
+    @staticmethod
+    def trip_lengths(grid: CellGrid, cell: int, motion: str) -> dict[int, float]:
+        """The robot's trip length (m) from every cell's centre into ``cell``: cell moves
+        centre to centre, or a trip straight to the nearest point ``TRIP_INSET_M`` inside."""
+        if motion == "cells":
+            return travel_m(grid, cell)
+        out = {}
+        for c in grid.cells:
+            x, y = grid.center(c)
+            out[c] = math.dist((x, y), grid.nearest_inside(cell, x, y, TRIP_INSET_M))
+        return out
 
     @classmethod
     def for_task(cls, task: Any) -> Anticipator | None:
@@ -184,8 +208,10 @@ class Anticipator:
         before = self.target
         cfg = self.config
         unseen = est.age_s > cfg.max_unseen_s
-        if est.inside is not None or unseen:
-            self.target = None  # in a restricted cell (the policy guards it), or not seen
+        if unseen:
+            self.target = None
+        elif est.inside is not None:
+            self.target = est.inside  # in a restricted cell: be there, now, at top speed
         else:
             if self.target is not None and est.p(self.target) < cfg.stay_probability:
                 self.target = None
@@ -205,7 +231,8 @@ class Anticipator:
         return est.forecast(cell).eta_s <= trip_s + self.config.lead_s
 
     def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
-        """The move toward the target cell, "Do nothing" in it (wait there for the
+        """The trip to the target cell ("To 1"; with ``motion: cells`` the first move
+        toward it), "Do nothing" in it (wait there for the
         person: the policy, which values the cell only with the person in it, would
         leave), or None (the policy decides). Without a target, a policy move *into* a
         restricted cell the person is seen and not heading for (goal probability under
@@ -213,10 +240,14 @@ class Anticipator:
         next to it; ``enter_probability``) is held back ("Do nothing"): the thesis's
         model enters on the person's cell and direction alone, a needless trip when
         they do not come.
-        The policy decides while the person is in a restricted cell or unseen."""
+        The policy decides while the person is unseen."""
         if robot_cell is None:
             return None
         if self.target is not None:
+            if robot_cell == self.target:
+                return "Do nothing"
+            if self.config.motion == "trip":
+                return trip_command(self.target)
             return first_move(self.grid, robot_cell, self.target) or "Do nothing"
         est = self.estimate
         if (

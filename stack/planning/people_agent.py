@@ -91,6 +91,11 @@ class PeopleAgent:
         self.depth = 0
         self.fingerprint = people_fingerprint(pm)
 
+    @property
+    def command(self) -> str | None:
+        """What navigation is asked to do: the action's name (no trips here)."""
+        return None if self.action is None else ACTIONS[self.action]
+
     # -- deciding --------------------------------------------------------------------
     def decide(self) -> int:
         """The next action from the current belief; the step is now under way."""

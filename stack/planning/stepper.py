@@ -73,6 +73,8 @@ class Agent(Protocol):
     step: int
     phase: str
     action: int | None
+    # and optionally ``command``: what navigation is asked to do, the action's name or a
+    # trip ("To 1"); without it the action's name
 
     def decide(self) -> int: ...
 
@@ -182,7 +184,8 @@ class DecisionSteps:
             return []
         trigger = "step"
         # the anticipation layer's target changed now, or earlier within this step
-        heading = self.agent.track(now_s, observed) or self.intent_event
+        changed = self.agent.track(now_s, observed)
+        heading = changed or self.intent_event
         if self.waiting != "obs":  # an event: the person shows up in a new cell
             person = _event_key(observed)
             elapsed = now_s - self.step_start_s
@@ -193,7 +196,7 @@ class DecisionSteps:
                 and elapsed >= self.timing.min_event_step_s
             ):
                 self.intent_event = heading  # decide on it once the step is long enough
-                return []
+                return self._revise(now_s) if changed else []  # but drive there now
             trigger = f"person in {person}" if moved else str(heading)
             if self.last_nav is None:
                 self.last_nav = {"result": "in progress", "action": self.sent_action}
@@ -221,7 +224,9 @@ class DecisionSteps:
             self.since_s = now_s - self.timing.nav_timeout_s + self.timing.resume_wait_s
             self.step_start_s = now_s
             if self.agent.action is not None:
-                self.sent_action = ACTIONS[self.agent.action]
+                self.sent_action = (
+                    getattr(self.agent, "command", None) or ACTIONS[self.agent.action]
+                )
             self.sent_goal_id = goal_id_of(self.agent.step + 1)
             return [Command("log", text=f"resumed during step {self.agent.step + 1}")]
         return self._act(now_s)
@@ -232,9 +237,21 @@ class DecisionSteps:
         a = self.agent.decide()
         self.waiting, self.since_s, self.last_nav = "nav", now_s, None
         self.step_start_s = now_s
-        self.sent_action = ACTIONS[a]
+        self.sent_action = getattr(self.agent, "command", None) or ACTIONS[a]
         self.sent_goal_id = goal_id_of(self.agent.step + 1)
         return [Command("act", action=self.sent_action, goal_id=self.sent_goal_id)]
+
+    def _revise(self, now_s: float) -> list[Command]:
+        """A new target mid-step: the agent's revised command (a trip) goes out at once
+        under the step's goal id, and the step waits for its arrival; the belief keeps
+        the step's cadence (the model's steps are of one length)."""
+        revise = getattr(self.agent, "revise", None)
+        command = revise() if revise is not None else None
+        if not command or command == self.sent_action:
+            return []
+        self.sent_action = command
+        self.waiting, self.since_s, self.last_nav = "nav", now_s, None
+        return [Command("act", action=command, goal_id=self.sent_goal_id)]
 
     def _request(self, now_s: float) -> list[Command]:
         self.waiting, self.since_s = "obs", now_s
