@@ -259,3 +259,29 @@ def test_a_new_target_sends_the_trip_at_once_and_the_step_keeps_its_length():
     assert acts[0][0] < 2.5 and len(acts) == 1  # before the step could end, and once
     assert not [c for _, c in out if c.kind == "record"]
     assert steps.waiting == "nav" and agent.anticipated["revised"] == "To 1"
+
+
+def test_the_first_steps_through_the_doorway_are_no_evidence_of_a_goal():
+    """Everyone entering walks straight in through the door (south here, towards cell
+    1 below it): a walker who then turns west to cell 10 does not send the robot to
+    cell 1, as they did when the doorway steps counted; a visitor still does, early."""
+    from stack.planning.intent import IntentConfig
+
+    door = (7.0, 5.2)
+    inside = walk(door, (7.0, 4.4), dt=0.1)
+    targets = {}
+    for zone in (1.0, 0.0):
+        cfg = AnticipationConfig(exits_m=(door,), intent=IntentConfig(door_zone_m=zone))
+        ant = Anticipator(GRID, (1,), cfg)
+        seen = set()
+        for k, p in enumerate(inside + walk((7.0, 4.4), (1.5, 2.25), dt=0.1)[1:]):
+            ant.observe(0.1 * k, p, 3)
+            seen.add(ant.target)
+        targets[zone] = seen
+    assert targets[1.0] == {None} and 1 in targets[0.0]
+    ant = Anticipator(GRID, (1,), AnticipationConfig(exits_m=(door,)))
+    for k, p in enumerate(inside + walk((7.0, 4.4), (5.5, 0.75), dt=0.1)[1:]):
+        ant.observe(0.1 * k, p, 3)
+        if ant.target == 1:
+            break
+    assert ant.target == 1 and p[1] > 2.0  # still north of cell 1's row, 1.3 m off

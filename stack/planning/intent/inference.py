@@ -148,6 +148,7 @@ class GoalInference:
         self.grid = grid
         self.restricted = tuple(int(c) for c in restricted_cells)
         self.goals = make_goals(grid, self.restricted, exits, config.other_cells_as_goals)
+        self._doors = np.array([(float(x), float(y)) for x, y in exits], dtype=float).reshape(-1, 2)
         self._rects = np.array([g.rect for g in self.goals if g.rect is not None], dtype=float)
         n_r = len(self.restricted)
         n_dest = len(self.goals) - n_r - 1
@@ -210,7 +211,7 @@ class GoalInference:
             return self.estimate()
         self._diffuse(obs.t)
         step = self._steps.push(obs)
-        if step is not None:
+        if step is not None and not self._in_door_zone(step[0]):
             post = self.belief * self.evidence(*step)
             total = post.sum()
             if total > 0 and np.isfinite(total):
@@ -230,6 +231,12 @@ class GoalInference:
         a ``t`` before the last update gives the belief at that update."""
         self._diffuse(t)
         return self.estimate()
+
+    def _in_door_zone(self, x: np.ndarray) -> bool:
+        """``x`` lies within ``door_zone_m`` of an exit (see :class:`IntentConfig`)."""
+        if len(self._doors) == 0 or self.config.door_zone_m <= 0:
+            return False
+        return bool((np.hypot(*(self._doors - x).T) <= self.config.door_zone_m).any())
 
     # -- reading ------------------------------------------------------------------------
     def _inside(self) -> int | None:

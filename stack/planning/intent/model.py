@@ -48,6 +48,10 @@ class IntentConfig(Config):
         directions: directions averaged in the normaliser Z (numerical integration).
         max_gap_s: observations further apart than this are not one displacement (the
             track was lost and found again): no evidence from the jump.
+        door_zone_m: steps that begin within this distance of an exit are no evidence
+            of a goal: a person coming in walks straight through the doorway, whatever
+            they came for (everyone entering the twin's room first walks south, towards
+            the restricted cell below the door). 0: every step counts.
     """
 
     section = "intent"
@@ -65,6 +69,7 @@ class IntentConfig(Config):
     inside_belief: float = 0.9
     directions: int = 32
     max_gap_s: float = 2.0
+    door_zone_m: float = 1.0
 
     _rules = {
         "rationality_per_m": (lambda v: 0.0 <= v <= 100.0, "must be in [0, 100] per metre"),
@@ -79,6 +84,7 @@ class IntentConfig(Config):
         "inside_belief": (lambda v: 0.0 <= v < 1.0, "must be a probability in [0, 1)"),
         "directions": (lambda v: 8 <= v <= 720, "must be in [8, 720]"),
         "max_gap_s": (lambda v: v > 0.0, "must be > 0 s"),
+        "door_zone_m": (lambda v: 0.0 <= v <= 5.0, "must be in [0, 5] m"),
     }
 
 
