@@ -145,6 +145,9 @@ def observation_to_msg(d: Mapping[str, Any], frame_id: str = "map") -> PersonObs
     people = d.get("people") or ()
     msg.people_person = [str(p["person"]) for p in people]
     msg.people_velocity = [str(p["velocity"]) for p in people]
+    if any("position_m" in p for p in people):
+        msg.people_has_position = [p.get("position_m") is not None for p in people]
+        msg.people_position = [_point(p.get("position_m")) for p in people]
     return msg
 
 
@@ -186,6 +189,16 @@ def observation_from_msg(msg: Any) -> dict[str, Any]:
             {"person": str(p), "velocity": str(v)}
             for p, v in zip(msg.people_person, msg.people_velocity, strict=True)
         ]
+        if len(msg.people_has_position):
+            if not len(msg.people_has_position) == len(msg.people_position) == len(out["people"]):
+                raise ValueError(
+                    f"observation has {len(out['people'])} people but "
+                    f"{len(msg.people_has_position)} position flags and "
+                    f"{len(msg.people_position)} positions"
+                )
+            flags, points = msg.people_has_position, msg.people_position
+            for slot, has, q in zip(out["people"], flags, points, strict=True):
+                slot["position_m"] = _xy(q, "people_position") if has else None
     return out
 
 

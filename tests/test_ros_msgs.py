@@ -42,6 +42,20 @@ def test_observation_people_slots_round_trip():
     assert back["people"] == people
 
 
+def test_observation_people_positions_round_trip_and_reach_the_planner():
+    people = [
+        {"person": "5", "velocity": "Not moving", "position_m": [3.5, 0.75]},
+        {"person": "No person", "velocity": "Not moving", "position_m": None},
+    ]
+    back = rm.observation_from_msg(rm.observation_to_msg({**OBS, "people": people}))
+    assert back["people"] == people
+    assert Observed.from_dict(back).people_positions_m == ((3.5, 0.75), None)
+    msg = rm.observation_to_msg({**OBS, "people": people})
+    msg.people_has_position = [True]  # one flag for two slots
+    with pytest.raises(ValueError, match="position flags"):
+        rm.observation_from_msg(msg)
+
+
 def test_malformed_observation_names_the_field():
     msg = rm.observation_to_msg(OBS)
     msg.hidden_fractions = [0.5]

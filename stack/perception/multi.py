@@ -59,6 +59,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -406,17 +407,20 @@ def model_persons(people: Sequence[SlotPerson]) -> list[tuple[int | None, str]]:
     return [(p.cell, p.velocity_label) for p in sorted(people, key=lambda p: p.slot)]
 
 
-def slot_labels(people: Sequence[SlotPerson], unseen: bool = False) -> list[dict[str, str]]:
+def slot_labels(people: Sequence[SlotPerson], unseen: bool = False) -> list[dict[str, Any]]:
     """The slots as the observations message carries them (issue 16), slot 0 first:
-    ``{"person": cell or "No person", "velocity": label}`` each; every slot "Unseen"
-    (velocity "Not moving") when the camera could not look at all (``unseen``)."""
-    out = []
+    ``{"person": cell or "No person", "velocity": label, "position_m": [x, y] or
+    None}`` each (the position also off the grid, for the goal inference of
+    ``person_model: goal``); every slot "Unseen" (velocity "Not moving", no position)
+    when the camera could not look at all (``unseen``)."""
+    out: list[dict[str, Any]] = []
     for p in sorted(people, key=lambda p: p.slot):
         if unseen:
-            out.append({"person": UNSEEN, "velocity": NOT_MOVING})
+            out.append({"person": UNSEEN, "velocity": NOT_MOVING, "position_m": None})
         else:
             label = NO_PERSON if p.cell is None else str(p.cell)
-            out.append({"person": label, "velocity": p.velocity_label})
+            pos = None if p.position_m is None else [round(float(c), 4) for c in p.position_m]
+            out.append({"person": label, "velocity": p.velocity_label, "position_m": pos})
     return out
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -244,22 +245,35 @@ class Anticipator:
         if robot_cell is None:
             return None
         if self.target is not None:
-            if robot_cell == self.target:
-                return "Do nothing"
-            if self.config.motion == "trip":
-                return trip_command(self.target)
-            return first_move(self.grid, robot_cell, self.target) or "Do nothing"
-        est = self.estimate
-        if (
-            policy_action is None
-            or est is None
-            or est.inside is not None
-            or est.age_s > self.config.max_unseen_s
-        ):
+            return self.move_to(robot_cell, self.target)
+        return self.hold_back(robot_cell, policy_action, [self.estimate])
+
+    def move_to(self, robot_cell: int, target: int) -> str:
+        """The command toward ``target``: "Do nothing" in it, else the trip (or the
+        first cell move with ``motion: cells``)."""
+        if robot_cell == target:
+            return "Do nothing"
+        if self.config.motion == "trip":
+            return trip_command(target)
+        return first_move(self.grid, robot_cell, target) or "Do nothing"
+
+    def hold_back(
+        self,
+        robot_cell: int,
+        policy_action: str | None,
+        estimates: Sequence[IntentEstimate | None],
+    ) -> str | None:
+        """ "Do nothing" instead of the policy's move into a restricted cell that none of
+        the people seen (``estimates``, one per person) is heading for, while at least
+        one of them is seen and none is in a restricted cell; else None."""
+        fresh = [e for e in estimates if e is not None and e.age_s <= self.config.max_unseen_s]
+        if policy_action is None or not fresh or any(e.inside is not None for e in fresh):
             return None
         direction = next((d for d in MOVING_DIRECTIONS if d.label == policy_action), None)
         entering = None if direction is None else self.grid.neighbour(robot_cell, direction)
-        if entering in self.restricted and est.p(entering) < self.config.enter_probability:
+        if entering in self.restricted and all(
+            e.p(entering) < self.config.enter_probability for e in fresh
+        ):
             return "Do nothing"
         return None
 
@@ -270,4 +284,90 @@ class Anticipator:
         return {
             "target": self.target,
             "p_goal": {str(c): round(self.estimate.p(c), 3) for c in self.restricted},
+        }
+
+
+class PeopleAnticipator:
+    """The anticipation layer for several people (a task's ``people`` >= 2): one
+    :class:`Anticipator` per person slot, and one target for the robot, chosen by
+    expected loss: a visit under way (a person in a restricted cell: a certain loss
+    while unguarded) before a likely one, the likelier before the less likely, the
+    sooner entry on a tie. The target in hand is kept while it stays a candidate,
+    unless a visit under way elsewhere takes precedence over a likely one.
+
+    The interface of :class:`Anticipator` as the agents use it: :meth:`observe` takes
+    one floor position (or None) per person slot.
+    """
+
+    def __init__(
+        self,
+        grid: CellGrid,
+        restricted_cells: tuple[int, ...],
+        config: AnticipationConfig,
+        people: int,
+    ):
+        if people < 1:
+            raise ValueError(f"people must be >= 1, got {people}")
+        self.slots = [Anticipator(grid, restricted_cells, config) for _ in range(people)]
+        self.config = config
+        self.target: int | None = None
+
+    @classmethod
+    def for_task(cls, task: Any) -> PeopleAnticipator | None:
+        """The task's layer, or None for ``person_model: thesis``."""
+        if getattr(task, "person_model", "thesis") != "goal":
+            return None
+        return cls(task.grid, task.restricted_cells, task.anticipation, task.people)
+
+    def observe(
+        self,
+        t: float,
+        positions_m: Sequence[tuple[float, float] | None],
+        robot_cell: int | None = None,
+    ) -> bool:
+        """Each slot's floor position at ``t`` (None: not seen; missing slots are not
+        seen); returns whether the robot's target changed."""
+        for k, slot in enumerate(self.slots):
+            slot.observe(t, positions_m[k] if k < len(positions_m) else None, robot_cell)
+        before = self.target
+        self.target = self._choose()
+        return self.target != before
+
+    def _choose(self) -> int | None:
+        ranked = []  # (visit under way first, likelier first, sooner first, target)
+        for slot in self.slots:
+            est = slot.estimate
+            if slot.target is None or est is None:
+                continue
+            under_way = est.inside == slot.target
+            eta = est.forecast(slot.target).eta_s if not under_way else 0.0
+            ranked.append((not under_way, -est.p(slot.target), eta, slot.target))
+        if not ranked:
+            return None
+        ranked.sort()
+        best = ranked[0]
+        held = next((r for r in ranked if r[3] == self.target), None)
+        if held is not None and (not held[0] or best[0]):  # keep it, unless a visit
+            return held[3]  # under way elsewhere outranks a likely one
+        return best[3]
+
+    def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
+        """As :meth:`Anticipator.advise`, for the chosen target; without one, the
+        policy's move into a restricted cell is held back when none of the people seen
+        is heading there."""
+        if robot_cell is None:
+            return None
+        first = self.slots[0]
+        if self.target is not None:
+            return first.move_to(robot_cell, self.target)
+        return first.hold_back(robot_cell, policy_action, [s.estimate for s in self.slots])
+
+    def note(self) -> dict[str, Any] | None:
+        """For the step record: the target and each slot's goal probabilities."""
+        notes = [s.note() for s in self.slots]
+        if all(n is None for n in notes):
+            return None
+        return {
+            "target": self.target,
+            "p_goal": [None if n is None else n["p_goal"] for n in notes],
         }

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from stack.planning.agent import (
+    Anticipating,
     ObservationError,
     Observed,
     StateFileError,
@@ -41,6 +42,7 @@ from stack.planning.agent import (
     read_state,
     save_state,
 )
+from stack.planning.anticipate import PeopleAnticipator
 from stack.planning.belief import ZeroProbabilityObservation
 from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.model import direction_index
@@ -62,13 +64,15 @@ def people_fingerprint(pm: PeopleModel) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-class PeopleAgent:
+class PeopleAgent(Anticipating):
     """Factored belief and online decisions for one deployment with n >= 2 people.
 
     Args:
         pm: the task's per-person tables.
         initial: the belief before the first step (default: the task's).
         config: the online planner's settings.
+        anticipator: the task's anticipation layer for its people (``person_model:
+            goal``; :class:`stack.planning.anticipate.PeopleAnticipator`), or None.
     """
 
     def __init__(
@@ -76,9 +80,15 @@ class PeopleAgent:
         pm: PeopleModel,
         initial: PeopleBelief | None = None,
         config: OnlineConfig | None = None,
+        anticipator: PeopleAnticipator | None = None,
     ):
         config = OnlineConfig() if config is None else config
         self.pm = pm
+        self.anticipator = anticipator
+        self.grid = pm.task.grid
+        self.robot_cell: int | None = None
+        self.anticipated: dict[str, Any] | None = None
+        self.command: str | None = None
         self.config = config
         self.planner = OnlinePlanner(pm, config)
         self.belief = PeopleBelief.initial(pm) if initial is None else initial
@@ -91,23 +101,15 @@ class PeopleAgent:
         self.depth = 0
         self.fingerprint = people_fingerprint(pm)
 
-    @property
-    def command(self) -> str | None:
-        """What navigation is asked to do: the action's name (no trips here)."""
-        return None if self.action is None else ACTIONS[self.action]
-
     # -- deciding --------------------------------------------------------------------
     def decide(self) -> int:
         """The next action from the current belief; the step is now under way."""
         self.planner.reset(self.config.seed * 1_000_003 + self.step)
         d = self.planner.decide(self.belief)
-        self.action, self.values, self.depth = d.action, [float(v) for v in d.values], d.depth
+        self.action = self.advised(int(d.action))
+        self.values, self.depth = [float(v) for v in d.values], d.depth
         self.phase = "acting"
         return self.action
-
-    def track(self, t: float, observed: Observed) -> str | None:  # noqa: ARG002
-        """Every observation: nothing to track (no anticipation layer for several people)."""
-        return None
 
     def observe(self, observed: Observed) -> dict[str, Any]:
         """Update the belief with the step's observations (see the module docstring).
@@ -126,10 +128,13 @@ class PeopleAgent:
         slots = self.slot_labels(observed)
         lik = np.stack([self.likelihood(observed, p, v) for p, v in slots])
         note = None
+        belief, action, r = self.belief, self.action, self.pm.model.robot_index(robot)
+        if robot is not None and not self.pm.robot_T[action, belief.robot, r] > 0.0:
+            # further than the action's one move (a trip): as PlannerAgent.observe
+            belief, action = PeopleBelief(r, belief.persons), ACTIONS.index("Do nothing")
+            note = f"robot observed in cell {robot}, beyond the action's move: belief moved there"
         try:
-            self.belief = self.belief.update_likelihood(
-                self.pm, self.action, self.pm.model.robot_index(robot), lik
-            )
+            self.belief = belief.update_likelihood(self.pm, action, r, lik)
         except ZeroProbabilityObservation:
             note = "observation impossible under the model: belief restarted from it"
             persons = []
@@ -205,7 +210,7 @@ class PeopleAgent:
             "values": [round(v, 4) for v in self.values],
             "depth": self.depth,
             "note": note,
-        }
+        } | ({} if self.anticipated is None else {"anticipation": self.anticipated})
 
     # -- persistence ------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -214,6 +219,7 @@ class PeopleAgent:
             "step": self.step,
             "phase": self.phase,
             "action": self.action,
+            "command": self.command,
             "values": self.values,
             "robot": self.belief.robot,
             "persons": self.belief.persons.tolist(),
@@ -253,6 +259,7 @@ class PeopleAgent:
         self.belief = PeopleBelief(robot, persons)
         self.step, self.phase, self.values = step, phase, values
         self.action = None if action is None else int(action)
+        self.restore_command(data.get("command"))
         return True
 
 

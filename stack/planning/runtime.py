@@ -17,7 +17,7 @@ from typing import Any
 from stack.cells import ConfigError
 from stack.memo import Memo, file_version
 from stack.planning.agent import PlannerAgent
-from stack.planning.anticipate import Anticipator
+from stack.planning.anticipate import Anticipator, PeopleAnticipator
 from stack.planning.factored import PeopleModel
 from stack.planning.model import FactoredModel, build_model
 from stack.planning.online import OnlineConfig
@@ -119,7 +119,7 @@ def make_planner(
             pm, start.robot_cell or ini.robot, first, start.direction or ini.direction
         )
         return PlannerSetup(
-            PeopleAgent(pm, b, online),
+            PeopleAgent(pm, b, online, anticipator=PeopleAnticipator.for_task(task)),
             first,
             f"online planner (depth {online.depth}, {online.samples} samples)",
         )

@@ -237,8 +237,6 @@ class Task(Config):
             raise ConfigError("initial.person", ini.person, "is not a cell of the grid (or 'none')")
         if self.person_model not in PERSON_MODELS:
             raise ConfigError("person_model", self.person_model, f"must be one of {PERSON_MODELS}")
-        if self.person_model == "goal" and self.people != 1:
-            raise ConfigError("person_model", "goal", "anticipates one person (people: 1)")
         if ini.direction not in DIRECTION_NAMES:
             raise ConfigError(
                 "initial.direction", ini.direction, f"must be one of {DIRECTION_NAMES}"
