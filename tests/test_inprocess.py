@@ -195,6 +195,21 @@ def test_two_people_and_a_fault_run_in_process_with_the_online_planner(tmp_path)
     assert summary["people"]["n_visits"] >= 1  # the first walker's stay in cell 1
 
 
+def test_two_people_anticipated_in_process(tmp_path):
+    """The two-person task with ``person_model: goal``: each walker's goal inferred from
+    their own slot's floor points; the robot heads for cell 1 as the first walker
+    approaches it, in one trip, and guards the visit."""
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO.format(task=REPO / "config" / "task-r2-n2-goal.yaml"))
+    summary = run_inprocess(scenario, tmp_path / "g", say=lambda _s: None, perception="model")
+    steps = _records(tmp_path / "g" / "steps.jsonl")
+    notes = [s["anticipation"] for s in steps if s.get("anticipation")]
+    assert notes and all(len(n["p_goal"]) == 2 for n in notes)
+    assert any(n["target"] == 1 and "To 1" in (n["move"], n.get("revised")) for n in notes)
+    guarded = [v for p in summary["people"]["per_person"] for v in p["visits"] if v["guarded"]]
+    assert [v["cell"] for v in guarded] == [1]
+
+
 @pytest.mark.slow
 @pytest.mark.ros
 def test_two_people_and_a_fault_make_the_same_steps_through_ros_and_in_process(tmp_path):
@@ -203,9 +218,13 @@ def test_two_people_and_a_fault_make_the_same_steps_through_ros_and_in_process(t
     what the one-person comparison asserts: the first steps identical (stamps,
     observations with their slot labels, beliefs, actions), the same course of moves,
     the same visits guarded per walker."""
-    ros, mine, a, b = _both_transports(tmp_path, TWO, "task-r2-n2.yaml")
+    ros, mine, a, b = _both_transports(tmp_path, TWO, "task-r2-n2-goal.yaml")
     _first_steps_agree(a, b)
     assert _moves(a) == _moves(b)
+    # each slot's floor point crossed the wire: the goal inference of both walkers
+    notes = [s["anticipation"] for s in b if s.get("anticipation")]
+    assert notes[:3] == [s["anticipation"] for s in a if s.get("anticipation")][:3]
+    assert any(n["target"] == 1 for n in notes)
 
     def visits(summary):
         return [
