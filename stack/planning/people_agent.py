@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from stack.planning.agent import (
-    Anticipating,
     ObservationError,
     Observed,
     StateFileError,
@@ -42,7 +41,7 @@ from stack.planning.agent import (
     read_state,
     save_state,
 )
-from stack.planning.anticipate import PeopleAnticipator
+from stack.planning.anticipate import Anticipating, PeopleAnticipator
 from stack.planning.belief import ZeroProbabilityObservation
 from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.model import direction_index
