@@ -127,3 +127,17 @@ def test_a_twin_run_writes_a_readable_bag(tmp_path):
     assert [t for t, ty in types.items() if ty == "std_msgs/msg/String"] == []
     # each decision says which goal its action went out as: the step's number
     assert decisions and [d.goal_id for d in decisions] == [d.step for d in decisions]
+
+
+def test_a_discarded_bag_removes_only_the_folder_it_made(tmp_path):
+    store = STORE
+    own = BagWriter(tmp_path / "own", store, reserve_bytes=4096)
+    own.add_topic("/x", "std_msgs/msg/Empty")
+    own.discard()
+    assert not (tmp_path / "own").exists() and not list(tmp_path.glob(".own*"))
+    swapped = BagWriter(tmp_path / "bag", store)
+    (tmp_path / "bag").rename(tmp_path / "moved")
+    (tmp_path / "bag").mkdir()  # another folder under the bag's name: not the writer's
+    (tmp_path / "bag" / "keep.txt").write_text("the user's")
+    swapped.discard()
+    assert (tmp_path / "bag" / "keep.txt").read_text() == "the user's"

@@ -28,6 +28,7 @@ from __future__ import annotations
 import errno
 import importlib
 import os
+import shutil
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -176,12 +177,27 @@ class BagWriter:
                 raise
             self.writer.close()
 
-    def _check_folder(self) -> None:
+    def discard(self) -> None:
+        """Drop a bag that must not be kept (a failed salvage): the writer is aborted,
+        and the reserve and the bag's folder are removed, the folder only while it is
+        still the one this writer made (never one swapped in under its name)."""
+        if not self.closed:
+            self.closed = True
+            if self.reserve is not None:
+                self.reserve.unlink(missing_ok=True)
+            self.writer.abort()
+        if self._own_folder():
+            shutil.rmtree(self.path, ignore_errors=True)
+
+    def _own_folder(self) -> bool:
         try:
             st = os.lstat(self.path)
         except FileNotFoundError:
-            st = None
-        if st is None or not stat.S_ISDIR(st.st_mode) or (st.st_dev, st.st_ino) != self._made:
+            return False
+        return stat.S_ISDIR(st.st_mode) and (st.st_dev, st.st_ino) == self._made
+
+    def _check_folder(self) -> None:
+        if not self._own_folder():
             raise OSError(
                 errno.ELOOP,
                 "is no longer the folder this bag writer made (moved, or replaced by another"

@@ -30,7 +30,6 @@ bounded by one record.
 from __future__ import annotations
 
 import os
-import shutil
 import struct
 import sys
 from collections.abc import Iterator
@@ -466,8 +465,7 @@ def salvage_bag(bag: str | Path, max_bytes: int | None = None) -> Salvage:
             writer.close()
         except BaseException:
             if writer is not None:  # a partial bag of our own is no salvage: removed
-                writer.writer.abort()
-                shutil.rmtree(dst, ignore_errors=True)
+                writer.discard()
             raise
     return Salvage(
         mcap,
