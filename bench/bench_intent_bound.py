@@ -31,6 +31,7 @@ sys.path.insert(0, str(REPO))
 
 from stack.planning.intent import GoalInference, TrackObservation  # noqa: E402
 from stack.planning.task import load_task  # noqa: E402
+from stack.vocabulary import TRIP_INSET_M  # noqa: E402
 
 THRESHOLDS = (0.4, 0.5, 0.6, 0.8)
 MOTIONS = (
@@ -38,7 +39,6 @@ MOTIONS = (
     ("centre to centre at 0.5 m/s", 0.5, "straight"),
     ("trip into the cell at 0.5 m/s", 0.5, "trip"),
 )
-TRIP_INSET_M = 0.35  # stack.nav.config.FollowerConfig.trip_inset_m
 
 
 def main() -> int:

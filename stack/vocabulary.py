@@ -19,6 +19,7 @@ ACTIONS = ("North", "South", "East", "West", "Do nothing")
 # at top speed, entering where no person stands, instead of one cell move per step.
 # The planner's model still counts it as the first move of the way (its belief update).
 TRIP_PREFIX = "To "
+TRIP_INSET_M = 0.35  # how far inside the cell a trip ends, by default [m]
 DIRECTIONS = ("North", "South", "East", "West", "Not moving")  # index = cells.Direction
 SPEED_CLASSES = ("higher", "0.2-0.7", "0-0.2")  # > 0.7, 0.2-0.7, 0-0.2 m/s (section 4.2)
 NOT_MOVING = "Not moving"

@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 
 from stack.cells import ConfigError
 from stack.config import Config, read_yaml
+from stack.vocabulary import TRIP_INSET_M
 
 T = TypeVar("T")
 
@@ -73,7 +74,7 @@ class FollowerConfig(Config):
     # a trip ("To 1", issue 26) ends this far inside the cell, at the point nearest the
     # robot at least trip_clearance_m from every person, or the farthest from them
     # (stack.nav.waypoints.entry_point)
-    trip_inset_m: float = 0.35
+    trip_inset_m: float = TRIP_INSET_M
     trip_clearance_m: float = 0.6  # robot_radius_m + person_radius_m
     replan_period_s: float = 0.5  # retry interval while waiting [s]
     max_start_escape_m: float = 0.3  # start cell in the inflated zone: look this far for free [m]

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from stack.cells import CellGrid, Direction
+from stack.vocabulary import TRIP_INSET_M
 
 _ACTION_NAMES = {
     "north": Direction.NORTH,
@@ -159,7 +160,7 @@ def entry_point(
     cell: int,
     from_xy: tuple[float, float],
     people: Sequence[tuple[float, float]] = (),
-    inset_m: float = 0.35,
+    inset_m: float = TRIP_INSET_M,
     clearance_m: float = 0.6,
     step_m: float = 0.05,
 ) -> tuple[float, float]:

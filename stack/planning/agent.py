@@ -200,6 +200,11 @@ def model_fingerprint(pomdp: POMDP) -> str:
     return h.hexdigest()[:16]
 
 
+def beyond_move_note(robot: int) -> str:
+    """The step record's note when the robot was seen beyond its action's one move."""
+    return f"robot observed in cell {robot}, beyond the action's move: belief moved there"
+
+
 class PlannerAgent(Anticipating):
     """Belief tracking and action choice for one deployment.
 
@@ -282,7 +287,7 @@ class PlannerAgent(Anticipating):
             # a push): it is observed exactly and the people move whatever it does, so
             # the belief moves it to where it is and the update is Do nothing's
             belief, action = self._relocated(robot), ACTIONS.index("Do nothing")
-            note = f"robot observed in cell {robot}, beyond the action's move: belief moved there"
+            note = beyond_move_note(robot)
         try:
             lik = self.likelihood(observed, z)
             self.belief = belief_ops.update_with_likelihood(self.pomdp, belief, action, lik)
@@ -304,11 +309,11 @@ class PlannerAgent(Anticipating):
         return out.ravel()
 
     def _robot_probability(self, cell: int | None) -> float:
-        """P(robot in ``cell`` after the action under way | belief)."""
+        """P(robot in ``cell`` after the action under way | belief): the robot's
+        marginal through the robot's own transition (people do not move it)."""
         assert self.action is not None
-        pred = belief_ops.predict(self.pomdp, self.belief, self.action)
-        r = self._robot_of_state == self.model.robot_index(cell)
-        return float(pred[r].sum())
+        robot = self.belief.reshape(self.model.state_shape[0], -1).sum(axis=1)
+        return float(robot @ self.model.robot_T[self.action][:, self.model.robot_index(cell)])
 
     def likelihood(self, observed: Observed, z: int | None = None) -> np.ndarray:
         """P(observation | state) over the flat states, with the camera's blind cells.

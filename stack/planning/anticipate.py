@@ -37,11 +37,10 @@ from typing import Any
 from stack.cells import MOVING_DIRECTIONS, CellGrid
 from stack.config import Config, require
 from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
-from stack.vocabulary import ACTIONS, parse_trip, trip_command
+from stack.vocabulary import ACTIONS, TRIP_INSET_M, parse_trip, trip_command
 
 PERSON_MODELS = ("thesis", "goal")
 MOTIONS = ("trip", "cells")
-TRIP_INSET_M = 0.35  # how far inside the cell a trip ends (navigation's trip_inset_m)
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from stack.planning.agent import (
     ObservationError,
     Observed,
     StateFileError,
+    beyond_move_note,
     check_progress,
     parse_cell,
     read_state,
@@ -131,7 +132,7 @@ class PeopleAgent(Anticipating):
         if robot is not None and not self.pm.robot_T[action, belief.robot, r] > 0.0:
             # further than the action's one move (a trip): as PlannerAgent.observe
             belief, action = PeopleBelief(r, belief.persons), ACTIONS.index("Do nothing")
-            note = f"robot observed in cell {robot}, beyond the action's move: belief moved there"
+            note = beyond_move_note(robot)
         try:
             self.belief = belief.update_likelihood(self.pm, action, r, lik)
         except ZeroProbabilityObservation:
