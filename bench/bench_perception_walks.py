@@ -25,7 +25,8 @@ over the last ``TRUTH_WINDOW_S`` (0.5 s, the direction estimator's window); the
 instantaneous velocity and "steady" frames (true velocity unchanged for 1 s) are
 reported beside it.
 
-``--quick`` runs two short walks and the 640 x 400 timing only (about a minute);
+``--shadows on|off`` and ``--antialias N`` render the twin's camera otherwise (the
+real-time twin's cost). ``--quick`` runs two short walks and the 640 x 400 timing only (about a minute);
 ``--no-short-box`` runs the pipeline without the short-box foot refinement
 (``CameraConfig.short_box_ratio=None``), as it was before, for comparison.
 """
@@ -169,6 +170,7 @@ def run_walk(
     leg_cfg: LegConfig | None = None,
     tracker_cfg: TrackerConfig | None = None,
     seed: int = 0,
+    render: dict | None = None,
 ) -> WalkResult:
     from twin.calibration import calibrate_twin
     from twin.config import TwinConfig
@@ -176,7 +178,7 @@ def run_walk(
     from twin.twin import Twin, VelocityCommand
 
     data = {
-        "camera": {"width_px": width, "height_px": height},
+        "camera": {"width_px": width, "height_px": height, **(render or {})},
         "person": {"waypoints": list(walk.waypoints)},
     }
     tw = Twin(TwinConfig.from_dict(data), seed=seed)
@@ -347,18 +349,28 @@ def main() -> None:
     ap.add_argument("--no-short-box", action="store_true",
                     help="CameraConfig(short_box_ratio=None): the pipeline before short boxes' "
                          "foreground feet (for comparison)")  # fmt: skip
+    ap.add_argument("--shadows", choices=("on", "off"), default=None,
+                    help="the twin's camera.shadows (default: the twin's default)")
+    ap.add_argument("--antialias", type=int, default=None,
+                    help="the twin's camera.antialias_samples (default: the twin's default)")
     args = ap.parse_args()
+    render = {}
+    if args.shadows is not None:
+        render["shadows"] = args.shadows == "on"
+    if args.antialias is not None:
+        render["antialias_samples"] = args.antialias
     walks = QUICK_WALKS if args.quick else WALKS
     camera_cfg = CameraConfig(short_box_ratio=None) if args.no_short_box else CameraConfig()
     setting = "short_box_ratio=None" if args.no_short_box else "default"
     print(f"cv2 {cv2.__version__}, threads {cv2.getNumThreads()}, camera {args.camera_hz} Hz, "
-          f"640x400, {setting} CameraConfig, default LegConfig / TrackerConfig")  # fmt: skip
+          f"640x400, {setting} CameraConfig, default LegConfig / TrackerConfig, "
+          f"render {render or 'default'}")  # fmt: skip
     t_start = time.perf_counter()
     all_frames: list[Frame] = []
     all_ms: list[float] = []
     for walk in walks:
         t0 = time.perf_counter()
-        r = run_walk(walk, args.camera_hz, camera_cfg=camera_cfg)
+        r = run_walk(walk, args.camera_hz, camera_cfg=camera_cfg, render=render)
         all_frames += r.frames
         all_ms += r.ms
         cells = sorted({f.truth_cell for f in r.frames if f.truth_cell is not None})

@@ -1,5 +1,6 @@
 """Deployment files, scenario files, and the launcher's process handling."""
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -307,6 +308,44 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path, monkeypatch):
     assert p["localisation"]["publish_map_odom"] is True
     assert p["localisation"]["calibration_file"].endswith("calibration.yaml")
     assert p["legs"]["pose_source"] == p["observations"]["pose_source"] == "odom"
+
+
+def test_a_realtime_twin_runs_free_writes_its_stats_and_its_nodes_yield_the_cores(tmp_path):
+    from vigil.system import REALTIME_NODES_NICE, prepare
+
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
+    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
+    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    lockstep = prepare(parse_deployment(data, tmp_path / "twin.yaml"), tmp_path / "a",
+                       say=lambda s: None)  # fmt: skip
+    assert all(s.nice == 0 for s in lockstep.specs)
+    assert lockstep.params["twin_bridge"]["realtime_file"] == ""
+    data.update(lockstep=False)
+    data["twin"]["realtime"] = True
+    system = prepare(parse_deployment(data, tmp_path / "twin.yaml"), tmp_path / "b",
+                     say=lambda s: None)  # fmt: skip
+    bridge = system.params["twin_bridge"]
+    assert bridge["realtime"] is True and bridge["lockstep"] is False
+    assert bridge["realtime_file"] == str(tmp_path / "b" / "realtime.json")
+    nice = {s.name: s.nice for s in system.specs}
+    assert nice.pop("twin_bridge") == 0
+    assert set(nice.values()) == {REALTIME_NODES_NICE} and REALTIME_NODES_NICE > 0
+
+
+def test_a_spec_s_niceness_reaches_its_process(tmp_path):
+    code = "import os; print('niceness', os.nice(0), flush=True); import time; time.sleep(30)"
+    base = os.nice(0)
+    la = Launcher(
+        [ProcessSpec("n", "x", command=[sys.executable, "-c", code], nice=3)],
+        tmp_path,
+        say=lambda s: None,
+    )
+    la.start()
+    log = tmp_path / "n.log"
+    assert wait_for(lambda: log.exists() and "niceness" in log.read_text())
+    la.stop(timeout_s=2.0)
+    assert f"niceness {min(base + 3, 19)}" in log.read_text()
 
 
 def test_twin_with_tf_pose_source_gives_every_consumer_tf(tmp_path):

@@ -19,7 +19,14 @@ Time, three modes:
         until every participant has processed them and everything that followed
         (detections, observations, the planner's decision, the next ``/cmd_vel``),
         and only then steps the physics. Results do not depend on the machine's speed.
-    real time (``realtime`` true): one tick per control period of wall-clock time.
+    real time (``realtime`` true, ``lockstep`` false): the simulated time follows a
+        monotonic wall clock (:class:`twin.realtime.Pacer`): a bridge that fell behind
+        steps the physics until it has caught up and drops the camera frames it could
+        not render in time. Every stamp is the ROS system time of the run's start plus
+        the simulated time, so the twin's messages carry the wall clock, as a robot's
+        drivers' do, and the nodes (on the system clock, as on the robot) join them.
+        How well it kept up (:class:`twin.realtime.RealtimeStats`) is logged every 10 s
+        and written to ``realtime_file`` (JSON, replaced each second).
     free-running (both false): ticks as fast as the executor allows.
 
 Ground truth for evaluation also goes out as one record per sensor tick on
@@ -54,6 +61,7 @@ import stack.topics as topic
 from stack import tf
 from stack.cells import ConfigError
 from stack.exits import EXIT_STALLED  # the lock-step stalled for good
+from stack.files import replace_into, write_text
 from stack.hardware.base_watchdog import OK as WATCHDOG_OK
 from stack.hardware.base_watchdog import STALE, BaseWatchdog, check_timeout
 from stack.lockstep import (
@@ -74,6 +82,7 @@ from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
 from twin.config import TwinConfig, load_twin_config
 from twin.occupancy import OccupancyMap
+from twin.realtime import Pacer
 from twin.sensors import CameraInfo
 from twin.sensors import LaserScan as Scan
 from twin.twin import GroundTruth, Odometry, Twin, VelocityCommand, truth_record
@@ -116,10 +125,10 @@ def camera_info_msg(info: CameraInfo, t_s: float) -> CameraInfoMsg:
     return msg
 
 
-def scan_msg(scan: Scan) -> LaserScan:
-    """sensor_msgs/LaserScan of a twin scan."""
+def scan_msg(scan: Scan, offset_s: float = 0.0) -> LaserScan:
+    """sensor_msgs/LaserScan of a twin scan, stamped ``offset_s`` after its time."""
     msg = LaserScan()
-    msg.header.stamp, msg.header.frame_id = stamp_of(scan.time_s), scan.frame_id
+    msg.header.stamp, msg.header.frame_id = stamp_of(scan.time_s + offset_s), scan.frame_id
     msg.angle_min, msg.angle_max = scan.angle_min_rad, scan.angle_max_rad
     msg.angle_increment = scan.angle_increment_rad
     msg.range_min, msg.range_max = scan.range_min_m, scan.range_max_m
@@ -127,10 +136,11 @@ def scan_msg(scan: Scan) -> LaserScan:
     return msg
 
 
-def odometry_msg(odom: Odometry) -> OdometryMsg:
-    """nav_msgs/Odometry (frame odom, child base_link) of the twin's odometry."""
+def odometry_msg(odom: Odometry, offset_s: float = 0.0) -> OdometryMsg:
+    """nav_msgs/Odometry (frame odom, child base_link) of the twin's odometry, stamped
+    ``offset_s`` after its time."""
     msg = OdometryMsg()
-    msg.header.stamp, msg.header.frame_id = stamp_of(odom.time_s), "odom"
+    msg.header.stamp, msg.header.frame_id = stamp_of(odom.time_s + offset_s), "odom"
     msg.child_frame_id = "base_link"
     p = msg.pose.pose
     p.position.x, p.position.y = odom.pose.x_m, odom.pose.y_m
@@ -213,6 +223,7 @@ class TwinBridge(Releasing, Node):
             stall_warn_s=5.0,
             stall_timeout_s=30.0,
             sensor_outages="[]",
+            realtime_file="",
         )
         self.lockstep = v.lockstep
         participants = list(v.participants)
@@ -274,13 +285,20 @@ class TwinBridge(Releasing, Node):
             self.pub_tf_static,
             tf_message([tf.StampedTransform(tf.BASE_LINK, tf.LASER, twin.time_s, laser)]),
         )
-        realtime = v.realtime
-        period = cfg.control_period_s if realtime and not self.lockstep else 0.001
+        # real time: the wall-clock schedule; the stamps' offset is set at the first tick
+        self.pacer = Pacer(cfg.control_period_s) if v.realtime and not self.lockstep else None
+        self.offset_s = 0.0
+        self.realtime_file = v.realtime_file
+        self._stats_at = (0.0, 0.0)  # wall times of the last stats file and log line
+        if self.lockstep:
+            callback, period = self._lockstep_poll, 0.001
+        elif self.pacer is not None:  # twice per period: a tick is at most half late
+            callback, period = self._realtime_tick, cfg.control_period_s / 2
+        else:
+            callback, period = self._tick, 0.001
         # a steady timer: a wall clock set back must not hold the physics (or the timeout)
         steady = RosClock(clock_type=ClockType.STEADY_TIME)
-        self.timer = self.create_timer(
-            period, self._lockstep_poll if self.lockstep else self._tick, clock=steady
-        )
+        self.timer = self.create_timer(period, callback, clock=steady)
 
     @staticmethod
     def _wall_s() -> float:
@@ -365,40 +383,97 @@ class TwinBridge(Releasing, Node):
         tw.step(VelocityCommand(vx, vy, wz) if reason == WATCHDOG_OK else None)
 
     def _tick(self) -> None:
-        """Real time and free-running: one control period, then what is due."""
+        """Free-running: one control period, then what is due."""
         self._step_physics()
         self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s)))
         self._publish_sensors()
 
-    def _due(self, name: str, t: float) -> bool:
+    def _realtime_tick(self) -> None:
+        """Real time: the control periods the wall clock owes, then what is due once."""
+        pacer = self.pacer
+        assert pacer is not None
+        wall = self._wall_s()
+        if pacer.stats.ticks == 0 and self.offset_s == 0.0:
+            # the stamps: the system clock at the start plus the simulated time
+            now_s = self.get_clock().now().nanoseconds * 1e-9
+            self.offset_s = now_s - self.twin.time_s
+        owed = pacer.due(wall)
+        for _ in range(owed):
+            self._step_physics()
+            pacer.stepped(self._wall_s())
+        if owed:
+            self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s + self.offset_s)))
+            self._publish_sensors()
+        self._report_realtime(wall)
+
+    def _report_realtime(self, wall: float) -> None:
+        """The stats: to ``realtime_file`` each second, a log line each 10 s."""
+        assert self.pacer is not None
+        stats = self.pacer.stats
+        written, logged = self._stats_at
+        if self.realtime_file and wall - written >= 1.0:
+            self.write_realtime()
+            written = wall
+        if wall - logged >= 10.0:
+            if logged:
+                self.get_logger().info(stats.line())
+            logged = wall
+        self._stats_at = (written, logged)
+
+    def write_realtime(self) -> None:
+        """Replace ``realtime_file`` with the stats so far (a crash leaves the last)."""
+        if self.pacer is None or not self.realtime_file:
+            return
+        tmp = self.realtime_file + ".tmp"
+        try:
+            write_text(tmp, json.dumps(self.pacer.stats.to_json(), sort_keys=True) + "\n")
+            replace_into(tmp, self.realtime_file)
+        except OSError as err:
+            self.get_logger().error(
+                f"realtime_file {self.realtime_file}: {err}", throttle_duration_sec=10.0
+            )
+
+    def _due(self, name: str, t: float) -> int:
+        """How many periods of sensor ``name`` came by time ``t`` (0: not due)."""
         if t + 1e-9 < self._next[name]:
-            return False
+            return 0
+        n = 0
         while self._next[name] <= t + 1e-9:
             self._next[name] += self._periods[name]
-        return True
+            n += 1
+        return n
 
     def _publish_sensors(self) -> None:
         tw = self.twin
         t = tw.time_s
+        ts = t + self.offset_s  # the stamps (real time: on the system clock)
         if self._due("odom", t):
             odom = tw.odometry()
-            self._publish(self.pub_odom, odometry_msg(odom))
+            self._publish(self.pub_odom, odometry_msg(odom, self.offset_s))
             base = tf.Transform.from_pose2d(odom.pose)
-            st = tf.StampedTransform(tf.ODOM, tf.BASE_LINK, odom.time_s, base)
+            st = tf.StampedTransform(tf.ODOM, tf.BASE_LINK, odom.time_s + self.offset_s, base)
             self._publish(self.pub_tf, tf_message([st]))
             self._publish_truth(tw.ground_truth())
         if self._due("scan", t) and not self._out("lidar", t):
-            self._publish(self.pub_scan, scan_msg(tw.scan()))
-        if self._due("camera", t) and not self._out("camera", t):
-            self._publish(self.pub_image, image_msg(tw.render_camera(), t, tw.camera_info.frame_id))
-            self._publish(self.pub_info, camera_info_msg(tw.camera_info, t))
+            self._publish(self.pub_scan, scan_msg(tw.scan(), self.offset_s))
+        frames = self._due("camera", t)
+        if frames and not self._out("camera", t):
+            self._publish(
+                self.pub_image, image_msg(tw.render_camera(), ts, tw.camera_info.frame_id)
+            )
+            self._publish(self.pub_info, camera_info_msg(tw.camera_info, ts))
+            if self.pacer is not None:  # the frames of periods skipped while catching up
+                self.pacer.frame(sent=True, due=frames)
 
     def _out(self, sensor: str, t: float) -> bool:
         return any(s == sensor and t0 <= t < t1 for s, t0, t1 in self.outages)
 
     def _publish_truth(self, gt: GroundTruth) -> None:
-        t = gt.time_s
-        self._publish(self.pub_truth, truth_to_msg(truth_record(gt)))
+        t = gt.time_s + self.offset_s
+        record = truth_record(gt)
+        if self.offset_s:
+            record["t"] = round(t, 6)
+        self._publish(self.pub_truth, truth_to_msg(record))
         # counted: the localisation stand-in (a participant) reads it
         self._publish(self.pub_robot, pose_msg(gt.robot.x_m, gt.robot.y_m, gt.robot.yaw_rad, t))
         self.pub_robot_cell.publish(Int32(data=gt.robot_cell or -1))
@@ -413,7 +488,11 @@ class TwinBridge(Releasing, Node):
             self.pub_person_cell.publish(Int32(data=p.cell if p.cell is not None else -1))
 
     def _release(self) -> None:
-        """The twin (its renderer), closed once (:class:`stack.ros_main.Releasing`)."""
+        """The twin (its renderer), closed once (:class:`stack.ros_main.Releasing`); the
+        real-time stats written a last time."""
+        if self.pacer is not None:
+            self.write_realtime()
+            self.get_logger().info(self.pacer.stats.line())
         self.twin.close()
 
 

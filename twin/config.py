@@ -105,7 +105,9 @@ class CameraConfig(_FromDict):
     lateral_offset_m: float = 0.0  # along +y from the region's mid-line
     rate_hz: float = 10.0
     antialias_samples: int = 4
-    shadows: bool = True  # only the key light casts shadows (they dominate render time)
+    # the key light casts shadows only when asked: they triple the render time on the
+    # CPU and change neither detection nor cells (docs/BENCHMARKS.md, perception)
+    shadows: bool = False
 
     _rules: ClassVar[dict[str, Rule]] = {
         "width_px": (lambda v: 16 <= v <= 1280, "must be in [16, 1280] (P1344 maximum)"),

@@ -254,7 +254,7 @@ def _add_room(spec: mujoco.MjSpec, config: TwinConfig, layout: SceneLayout) -> N
     # a whiteboard on the east wall and a cabinet: background behind a walking person
     _box(wb, "whiteboard", (x1 - 0.015, cy, 1.5), (0.01, 1.0, 0.55), "board")
     _box(wb, "cabinet", (x1 - 0.25, y0 + 0.6, 0.9), (0.22, 0.45, 0.9), "cabinet")
-    # ceiling lights: one casts shadows (FEASIBILITY: shadows dominate render time,
+    # ceiling lights: one casts shadows if asked (FEASIBILITY: shadows dominate render time,
     # and a single light alone gave many HOG false positives)
     spots = [(0.25, 0.3), (0.75, 0.3), (0.25, 0.7), (0.75, 0.7)]
     for i, (fx, fy) in enumerate(spots):

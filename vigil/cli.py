@@ -374,6 +374,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="twin: the whole stack; table: the thesis table's observations",
     )
     p.add_argument("--timeout", type=float, default=1800.0, help="wall-clock seconds")
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="hardware in the loop: the twin keeps the wall clock and the stack does not "
+        "wait for it (no lock-step); summary.json's realtime entry says how well it kept up",
+    )
     p.set_defaults(func=cmd_run)
 
     p = _command(
@@ -572,7 +578,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     try:
         summary = run_scenario(
-            args.scenario, args.config, args.out, args.seed, args.observations, args.timeout
+            args.scenario,
+            args.config,
+            args.out,
+            args.seed,
+            args.observations,
+            args.timeout,
+            realtime=args.realtime,
         )
     except RunError as err:  # the first cause in one line, an exit code per cause
         print(f"vigil run: {err}", file=sys.stderr)

@@ -11,6 +11,7 @@ closed), then SIGTERM, then SIGKILL to what is left.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import signal
@@ -34,6 +35,13 @@ from vigil.resume import (  # re-exported: the resumption's rules
     previous_state,
     resume_decision,
 )
+
+
+def _child_setup(nice: int) -> None:
+    """In the child, before exec: :func:`_die_with_parent`, then the spec's niceness."""
+    _die_with_parent()
+    if nice:
+        os.nice(nice)
 
 
 def _die_with_parent() -> None:
@@ -121,7 +129,7 @@ class Launcher:
             stderr=subprocess.STDOUT,
             env=env,
             start_new_session=True,  # its own process group: Ctrl-C reaches us first
-            preexec_fn=_die_with_parent,
+            preexec_fn=functools.partial(_child_setup, spec.nice),
         )
         self.running[spec.name] = _Running(spec, proc, log, restarts)
 
@@ -197,10 +205,13 @@ class Launcher:
         return f"{name} exited ({code})" + (f": {last}" if last else "")
 
     def stop(self, timeout_s: float = 5.0) -> dict[str, int | None]:
-        """Stop every process: SIGINT, then SIGTERM, then SIGKILL; returns exit codes."""
+        """Stop every process: SIGINT, ``timeout_s`` later SIGTERM, then SIGKILL; returns
+        exit codes. SIGKILL comes no sooner than 1 s after a node's own teardown alarm
+        (``TEARDOWN_S`` after SIGINT, :func:`stack.ros_main.spin_node`), so a node whose
+        ROS teardown hangs ends by its alarm: a warning, not a failure."""
         for sig, wait_s in (
             (signal.SIGINT, timeout_s),
-            (signal.SIGTERM, 2.0),
+            (signal.SIGTERM, max(2.0, TEARDOWN_S + 1.0 - timeout_s)),
             (signal.SIGKILL, 2.0),
         ):
             alive = [r for r in self.running.values() if r.proc.poll() is None]

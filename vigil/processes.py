@@ -18,6 +18,8 @@ class ProcessSpec:
         restart: start it again when it exits while the system runs.
         env: extra environment variables.
         command: run this instead of the module (any program).
+        nice: added to its niceness (lower CPU priority): in real-time mode the nodes
+            yield the cores to the twin, which stands for the physical world.
     """
 
     name: str
@@ -26,6 +28,7 @@ class ProcessSpec:
     restart: bool = True
     env: dict[str, str] = field(default_factory=dict)
     command: list[str] | None = None
+    nice: int = 0
 
     def argv(self) -> list[str]:
         if self.command is not None:

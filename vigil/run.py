@@ -78,6 +78,7 @@ def run_scenario(
     observations: str = "twin",
     timeout_s: float = 1800.0,
     say=print,
+    realtime: bool = False,
 ) -> dict:
     """Run a scenario end to end and write its report; returns the summary.
 
@@ -91,6 +92,9 @@ def run_scenario(
         observations: "twin" (the whole stack in the twin) or "table" (the thesis
             table's observations through the planner node).
         timeout_s: wall-clock limit.
+        realtime: the twin keeps the wall clock and the stack does not wait for it
+            (hardware in the loop; the deployment's ``lockstep`` off, ``twin.realtime``
+            on): the run's ``summary.json`` says how well it kept up (``realtime``).
 
     Every way out after the run folder exists (the run finished, a node died, the disk
     filled up, SIGINT, SIGTERM, SIGHUP, a stalled lock-step, the timeout, a bad file
@@ -106,6 +110,8 @@ def run_scenario(
     if seed is not None:
         scenario = replace(scenario, seed=seed)
     dep = load_deployment(config_path or DEFAULT_CONFIG)
+    if realtime:
+        dep = replace(dep, lockstep=False, twin=replace(dep.twin, realtime=True))
     run_id = uuid.uuid4().hex[:12]
     run_dir = fresh_run_dir(Path(out or REPO / "runs" / scenario.name).resolve(), run_id)
     signals = Signals()

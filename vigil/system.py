@@ -26,6 +26,7 @@ from stack.config import dump_yaml, read_yaml, write_text
 from stack.files import make_dir
 from stack.memo import Memo
 from stack.planning.threads import ENV_VARS as BLAS_THREAD_VARS
+from twin.realtime import REALTIME_FILE
 from vigil.dds import dds_env, write_profile
 from vigil.deployment import Deployment, gate_topics
 from vigil.processes import ProcessSpec
@@ -35,6 +36,7 @@ from vigil.security import security_env
 REPO = Path(__file__).resolve().parents[1]
 POLICY_CACHE = REPO / "runs" / ".policies"
 LIDAR_X_M = 0.24  # the twin's lidar site on the MBot (twin/assets/mbot.xml)
+REALTIME_NODES_NICE = 5  # the nodes' niceness beside a real-time twin (ProcessSpec.nice)
 
 MODULES = {
     "twin_bridge": "twin.bridge_node",
@@ -160,6 +162,10 @@ def prepare(
             "config": str(twin_file),
             "seed": seed,
             "realtime": dep.twin.realtime,
+            # how well a real-time twin kept the wall clock: summary.json's "realtime"
+            "realtime_file": str(run_dir / REALTIME_FILE)
+            if dep.twin.realtime and not dep.lockstep
+            else "",
             "odom_rate_hz": dep.twin.odom_rate_hz,
             "lockstep": dep.lockstep,
             "stall_timeout_s": dep.twin.stall_timeout_s,
@@ -316,12 +322,16 @@ def _write(
     params_file = run_dir / "params.yaml"
     doc = {name: {"ros__parameters": params[name]} for name in names}
     write_text(params_file, dump_yaml(doc, sort_keys=True))
+    # a real-time twin stands for the physical world, which never waits: the nodes
+    # yield the cores to it (on a robot they have cores of their own)
+    realtime = dep.mode == "twin" and dep.twin.realtime and not dep.lockstep
     specs = [
         ProcessSpec(
             name,
             MODULES[name],
             params_file,
             restart=dep.nodes.restart and name not in ("twin_bridge", "recorder"),
+            nice=REALTIME_NODES_NICE if realtime and name != "twin_bridge" else 0,
         )
         for name in names
     ]

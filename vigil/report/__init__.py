@@ -40,6 +40,7 @@ from vigil.report.records import (
     direction_of,
     load_run,
     read_jsonl,
+    read_realtime,
     true_velocity_label,
 )
 from vigil.report.tables import (
@@ -285,6 +286,9 @@ def write_report(
     wavs = sorted(p.relative_to(run_dir).as_posix() for p in (run_dir / "speech").glob("*.wav"))
     title = f"{run_dir.name} ({task.name})"
     summary = summarise(model, rows, records, tl, wavs, thesis_table)
+    realtime = read_realtime(run_dir, records.warnings)
+    if realtime is not None:  # a real-time twin: how well it kept the wall clock
+        summary["realtime"] = realtime
     walkers = walkers_in_trace(trace)
     if walkers > 1:  # several people (issue 16): visits per person
         tls = [timeline_from_trace(trace, grid, room, until, walker=i) for i in range(walkers)]

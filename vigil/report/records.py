@@ -47,6 +47,7 @@ from typing import Any
 
 from stack.files import MAX_RECORD_BYTES, read_text_capped
 from stack.vocabulary import ACTIONS, NO_PERSON, OUT_OF_MAP, VELOCITIES
+from twin.realtime import REALTIME_FILE
 
 NOT_MOVING = "Not moving"
 UNSEEN = "Unseen"  # the camera could not look: not "No person"
@@ -280,6 +281,23 @@ class RunRecords:
     utterances: list[Utterance]
     speech_source: str
     warnings: list[str]
+
+
+def read_realtime(run_dir: str | Path, warnings: list[str]) -> dict | None:
+    """The real-time twin's stats (:data:`twin.realtime.REALTIME_FILE`, written by the
+    bridge), or None for a lock-step run; a malformed file is a warning, not an error."""
+    path = Path(run_dir) / REALTIME_FILE
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(read_text_capped(path, 1 << 20))
+    except (OSError, ValueError) as err:
+        warnings.append(f"{REALTIME_FILE}: unreadable: {err}")
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("factor"), int | float):
+        warnings.append(f"{REALTIME_FILE}: not the real-time stats (no factor)")
+        return None
+    return data
 
 
 def load_run(run_dir: str | Path, n_cells: int) -> RunRecords:

@@ -1,0 +1,107 @@
+"""The real-time twin's schedule (twin.realtime.Pacer) on a scripted wall clock."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from twin.realtime import REALTIME_FILE, Pacer
+from vigil.report.records import read_realtime
+
+T = 0.02
+
+
+def run(pacer: Pacer, walls: list[float]) -> list[int]:
+    """Call the pacer at each wall time, step what it owes there; the owed counts."""
+    owed = []
+    for w in walls:
+        n = pacer.due(w)
+        for _ in range(n):
+            pacer.stepped(w)
+        owed.append(n)
+    return owed
+
+
+def test_on_time_one_period_per_period_and_never_ahead_of_the_wall_clock():
+    p = Pacer(T)
+    walls = [10.0 + k * T / 2 for k in range(201)]  # polled twice a period for 2 s
+    owed = run(p, walls)
+    assert owed[0] == 0  # the first call starts the schedule
+    assert sum(owed) == 100  # 2 s of wall time: 100 periods, not one more
+    assert max(owed) == 1
+    s = p.stats
+    assert s.sim_s == pytest.approx(2.0)
+    assert s.wall_s == pytest.approx(2.0)
+    assert s.factor == pytest.approx(1.0)
+    assert s.late_ticks == 0 and s.slips == 0
+    assert s.max_lag_s < T / 2 + 1e-9
+
+
+def test_a_stall_is_caught_up_and_counted_late():
+    p = Pacer(T)
+    walls = [0.0] + [k * T for k in range(1, 11)] + [0.2 + 0.5]  # 0.5 s without a call
+    owed = run(p, walls)
+    assert owed[-1] == 25  # the half second's periods, stepped at once
+    s = p.stats
+    assert s.factor == pytest.approx(1.0)  # caught up: no simulated time lost
+    assert s.max_lag_s == pytest.approx(0.5 - T)  # the first owed period waited longest
+    # periods due more than 0.1 s before the catch-up are late: those due at 0.22-0.58 s
+    assert s.late_ticks == 19
+    assert s.slips == 0
+
+
+def test_falling_further_behind_than_the_catch_up_bound_slips():
+    p = Pacer(T, max_catchup_s=1.0)
+    owed = run(p, [0.0, T, 3.0 + T, 3.0 + 2 * T])
+    assert owed == [0, 1, 1, 1]  # the 3 s gap is not stepped through
+    s = p.stats
+    assert s.slips == 1 and s.slipped_s == pytest.approx(3.0 - T)
+    assert s.sim_s == pytest.approx(3 * T)
+    assert s.factor < 0.05  # the lost time counts against real time
+
+
+def test_a_process_that_cannot_keep_up_reports_a_factor_below_one():
+    p = Pacer(T, max_catchup_s=0.2)
+    # each call costs 3 periods of wall time but is owed 3: it keeps up ...
+    owed = run(p, [k * 3 * T for k in range(50)])
+    assert p.stats.factor == pytest.approx(1.0, abs=0.03)
+    assert max(owed) == 3
+    # ... whereas one whose every stepped period costs 1.5 periods of wall time slips
+    slow = Pacer(T, max_catchup_s=0.2)
+    w = 0.0
+    slow.due(w)
+    for _ in range(200):
+        for _ in range(slow.due(w)):
+            w += 1.5 * T
+            slow.stepped(w)
+        w += 0.001
+    assert slow.stats.slips > 0
+    assert slow.stats.factor == pytest.approx(1 / 1.5, abs=0.08)
+
+
+def test_frames_delivered_and_dropped():
+    p = Pacer(T)
+    p.frame(sent=True)
+    p.frame(sent=True, due=3)  # two periods' frames skipped while catching up
+    s = p.stats.to_json()
+    assert (s["frames"], s["frames_due"], s["dropped_frames"]) == (2, 4, 2)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_bad_periods_are_refused_by_name(bad):
+    with pytest.raises(ValueError, match="period_s"):
+        Pacer(bad)
+
+
+def test_the_report_reads_the_stats_and_warns_on_a_bad_file(tmp_path):
+    warnings: list[str] = []
+    assert read_realtime(tmp_path, warnings) is None and not warnings  # lock-step run
+    p = Pacer(T)
+    run(p, [0.0, T, 2 * T])
+    (tmp_path / REALTIME_FILE).write_text(json.dumps(p.stats.to_json()))
+    got = read_realtime(tmp_path, warnings)
+    assert got is not None and got["ticks"] == 2 and got["factor"] == pytest.approx(1.0)
+    (tmp_path / REALTIME_FILE).write_text("[1, 2]")
+    assert read_realtime(tmp_path, warnings) is None
+    assert warnings and REALTIME_FILE in warnings[0]
