@@ -566,29 +566,50 @@ def test_standalone_nodes_read_the_deployment_file_as_the_launcher_gives_it(ros,
     """docs/HARDWARE.md starts the gate and the stream on their own with
     ``config_file:=config/hardware.yaml``, whose sections sit under ``hardware:``;
     before, they read top-level sections, found none and ran on built-in defaults. Now a
-    node started on its own and one started by ``vigil launch`` (which writes
-    ``hardware:`` to the run folder) hold the same configuration, and it is the file's."""
+    node started on its own and one started with the parameters ``vigil launch`` gives
+    it (:func:`vigil.system.prepare`: the run folder's ``hardware.yaml``, ``armed``, the
+    topics) hold the same configuration, and it is the file's: every key of both
+    sections (``velocity_gate``, ``camera_stream``) set away from its default."""
+    import dataclasses
+
     import yaml
 
+    from stack.hardware.camera_stream import StreamConfig
     from stack.hardware.node_camera_stream import CameraStreamNode
+    from vigil.deployment import load_deployment
     from vigil.run import REPO
+    from vigil.system import prepare
 
     data = yaml.safe_load((REPO / "config" / "hardware.yaml").read_text())
-    data["hardware"]["velocity_gate"]["max_linear_mps"] = 0.25  # not the default 0.3
+    gate_keys = {"max_linear_mps": 0.25, "max_angular_radps": 0.5, "cmd_timeout_s": 0.4,
+                 "max_linear_accel_mps2": 0.4, "max_angular_accel_radps2": 1.2,
+                 "require_arming": True}  # fmt: skip
+    stream_keys = {"url": "http://192.168.1.91/axis-cgi/mjpg/video.cgi", "rate_hz": 5.0,
+                   "width_px": 320, "height_px": 200, "reconnect_s": 1.5,
+                   "frozen_after_frames": 30, "open_timeout_s": 4.0}  # fmt: skip
+    assert set(gate_keys) == {f.name for f in dataclasses.fields(GateConfig)}
+    assert set(stream_keys) == {f.name for f in dataclasses.fields(StreamConfig)}
+    data["hardware"]["velocity_gate"].update(gate_keys)
+    data["hardware"]["camera_stream"].update(stream_keys)
+    (tmp_path / "cal.yaml").write_text("unused: true\n")
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data.update(task=str(REPO / "config" / "task-r2.yaml"), policy="policy.npz",
+                perception={"calibration": "cal.yaml"})  # fmt: skip
     deployment = tmp_path / "deployment.yaml"
     deployment.write_text(yaml.safe_dump(data))
-    hw = data["hardware"]
-    launched = tmp_path / "hardware.yaml"  # what vigil.system writes for the launcher
-    launched.write_text(yaml.safe_dump(hw))
-    gates = [VelocityGateNode(parameter_overrides=[Parameter("config_file", value=str(f))])
-             for f in (deployment, launched)]  # fmt: skip
-    streams = [CameraStreamNode(parameter_overrides=[Parameter("config_file", value=str(f))])
-               for f in (deployment, launched)]  # fmt: skip
+    launched = prepare(load_deployment(deployment), tmp_path / "run", say=lambda s: None).params
+
+    def node(kind, params):
+        return kind(parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+
+    alone = {"config_file": str(deployment)}  # as docs/HARDWARE.md starts them
+    gates = [node(VelocityGateNode, alone), node(VelocityGateNode, launched["velocity_gate"])]
+    streams = [node(CameraStreamNode, alone), node(CameraStreamNode, launched["camera_stream"])]
     try:
         assert gates[0].config == gates[1].config
-        assert gates[0].config.max_linear_mps == 0.25 != GateConfig().max_linear_mps
+        assert dataclasses.asdict(gates[0].config) == gate_keys  # the file's, not defaults
         assert streams[0].config == streams[1].config
-        assert streams[0].config.url == hw["camera_stream"]["url"]
+        assert dataclasses.asdict(streams[0].config) == stream_keys
     finally:
-        for node in (*gates, *streams):
-            node.destroy_node()
+        for n in (*gates, *streams):
+            n.destroy_node()

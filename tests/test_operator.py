@@ -307,3 +307,194 @@ def test_heartbeat_rate_counts_beats_not_messages_and_survives_a_restart():
     assert heartbeat_hz(lossy) == 20.0
     restarted = [(0.0, 500), (0.1, 502), (0.2, 1), (0.7, 11)]
     assert heartbeat_hz(restarted) == pytest.approx(20.0)
+
+
+def test_status_lists_the_robot_inputs_and_names_the_missing_ones():
+    from vigil.operator_report import Input
+
+    robot = {
+        "/scan": Input("scan", "/scan", "the lidar driver", times=[9.0, 9.1, 9.2, 9.3]),
+        "/odom": Input("odom", "/odom", "the base driver", publishers=["/mbot"]),
+        "/map": Input("map", "/map", "a map server", False, publishers=["/map_server"]),
+        "map -> odom": Input("map_odom", "/tf", "the localisation", times=[9.5]),
+        "/amcl_pose": Input("pose", "/amcl_pose", "AMCL", False, publishers=[]),
+    }
+    record = status_record(healthy(robot=robot))
+    assert record["problems"] == ["/odom MISSING (the base driver)", "/amcl_pose MISSING (AMCL)"]
+    assert status_exit_code(record) == 1
+    r = record["robot"]
+    assert r["/scan"] == {"topic": "/scan", "from": "the lidar driver", "heard": 4,
+                          "age_s": 0.7, "hz": 10.0, "ok": True}  # fmt: skip
+    assert r["/map"]["ok"] and r["/map"]["heard"] == 0  # latched: a publisher suffices
+    lines = {line.split("  ")[0]: line for line in status_lines(record)}
+    assert lines["/scan"].split() == ["/scan", "OK", "10", "Hz,", "last", "0.7", "s", "ago"]
+    assert "MISSING nothing heard; publishers: /mbot (the base driver)" in lines["/odom"]
+    assert "OK      1 heard, last 0.5 s ago" in lines["map -> odom"]
+    assert "MISSING nothing heard; publishers: none (AMCL)" in lines["/amcl_pose"]
+    # a gate-only window (arm, disarm, the older callers) lists no robot inputs
+    assert "robot" not in status_record(healthy())
+
+
+class FakeRobot(Node if HAVE_ROS else object):  # type: ignore[misc]
+    """The robot side on the loopback: the lidar, the base's odometry, a latched map and
+    the localisation's map -> odom at 10 Hz; no AMCL pose."""
+
+    def __init__(self, quiet_s: float = 0.0):
+        from geometry_msgs.msg import TransformStamped
+        from nav_msgs.msg import OccupancyGrid, Odometry
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import LaserScan
+        from tf2_msgs.msg import TFMessage
+
+        super().__init__("fake_robot")
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                             reliability=ReliabilityPolicy.RELIABLE)  # fmt: skip
+        grid = OccupancyGrid()
+        grid.header.frame_id, grid.info.width, grid.info.height = "map", 4, 4
+        grid.data = [0] * 16
+        self.map_pub = self.create_publisher(OccupancyGrid, "/map", latched)
+        self.map_pub.publish(grid)  # once, before anyone listens: latched
+        scan, odom = LaserScan(), Odometry()
+        move = TransformStamped()
+        move.header.frame_id, move.child_frame_id = "map", "odom"
+        move.transform.rotation.w = 1.0
+        other = TransformStamped()  # not the localisation's: ignored
+        other.header.frame_id, other.child_frame_id = "odom", "base_link"
+        tf = self.create_publisher(TFMessage, "/tf", 100)
+        pubs = [
+            (self.create_publisher(LaserScan, "/scan", 10), scan),
+            (self.create_publisher(Odometry, "/odom", 10), odom),
+            (tf, TFMessage(transforms=[move])),
+            (tf, TFMessage(transforms=[other])),
+        ]
+        start = time.monotonic()
+
+        def beat():  # silent for quiet_s: its publishers are known before its messages
+            if time.monotonic() - start >= quiet_s:
+                for pub, msg in pubs:
+                    pub.publish(msg)
+
+        self.create_timer(0.1, beat)
+
+
+def status_with_robot(ros, config: Path, quiet_s: float, **kw) -> tuple[int, dict]:
+    """``vigil status`` (in-process) while a :class:`FakeRobot` spins in a thread."""
+    import threading
+
+    from vigil.deployment import load_deployment
+    from vigil.operator import status
+
+    robot = FakeRobot(quiet_s)
+    ros.add_node(robot)
+    done = threading.Event()
+
+    def spin():
+        while not done.is_set():
+            ros.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    said: list[str] = []
+    try:
+        code = status(load_deployment(config), as_json=True, say=said.append, **kw)
+    finally:
+        done.set()
+        spinner.join(timeout=10)
+        ros.remove_node(robot)
+        robot.destroy_node()
+    return code, json.loads(said[0])
+
+
+@needs_ros
+@pytest.mark.ros
+def test_status_hears_the_robot_side_and_names_what_is_missing(ros, tmp_path, private_ros_domain):
+    """``vigil status`` reports the robot side the stack reads (docs/HARDWARE.md, "start the
+    robot's drivers"): without the ``ros2`` command line it is the engineer's only view."""
+    config = deployment(tmp_path, private_ros_domain)
+    code, record = status_with_robot(ros, config, 0.0, wait_s=3.0, timeout_s=1.0)
+    assert code == 1  # no gate, no AMCL pose
+    r = record["robot"]
+    assert r["/scan"]["ok"] and r["/scan"]["heard"] >= 5, r
+    assert r["/scan"]["publishers"] == ["/fake_robot"]
+    assert r["/odom"]["ok"] and r["map -> odom"]["ok"], r
+    assert r["/map"]["ok"] and r["/map"]["heard"] == 1, r  # the latched map, sent before
+    assert r["map -> odom"]["heard"] <= r["/scan"]["heard"] + 2  # odom -> base_link not counted
+    assert not r["/amcl_pose"]["ok"] and r["/amcl_pose"]["publishers"] == []
+    assert "/amcl_pose MISSING (AMCL, for navigation.pose_source: amcl)" in record["problems"]
+
+
+@needs_ros
+@pytest.mark.ros
+def test_status_waits_for_a_stream_whose_publisher_it_found(ros, tmp_path, private_ros_domain):
+    """A driver discovered late, or whose first message comes after the listen window
+    (seen on the loopback rehearsal: ``/scan MISSING nothing heard; publishers:
+    /fake_robot``): ``vigil status`` waits, within ``--timeout``, for the first message
+    of every stream that has a publisher, instead of calling it missing."""
+    config = deployment(tmp_path, private_ros_domain)
+    code, record = status_with_robot(ros, config, 3.5, wait_s=0.5, timeout_s=2.0)
+    r = record["robot"]
+    assert r["/scan"]["publishers"] == ["/fake_robot"]
+    assert r["/scan"]["ok"] and r["/odom"]["ok"] and r["map -> odom"]["ok"], record["problems"]
+
+
+@needs_ros
+@pytest.mark.ros
+def test_arm_waits_for_the_camera_status_discovered_after_the_gate(
+    ros, tmp_path, private_ros_domain
+):
+    """``vigil arm`` checks every status it heard; the camera's participant can be
+    discovered seconds after the gate's (here, once in three arms on the loopback
+    deployment, its ERROR was not heard within ``--wait`` 1.5 s and the gate armed into
+    a camera that could not stream). It waits, within ``--timeout``, for the camera's
+    status too, and refuses its ERROR."""
+    import threading
+
+    from rclpy.parameter import Parameter
+
+    from stack.hardware.node_camera_stream import CameraStreamNode
+    from stack.hardware.node_velocity_gate import VelocityGateNode
+    from vigil.deployment import load_deployment
+    from vigil.operator import EXIT_CHECKS, OperatorError, arm
+
+    config = deployment(tmp_path, private_ros_domain)
+    gate = VelocityGateNode(parameter_overrides=[Parameter("config_file", value=str(config))])
+    ros.add_node(gate)
+    nodes = [gate]
+    done = threading.Event()
+
+    def spin():
+        started = time.monotonic()
+        while not done.is_set():
+            if len(nodes) == 1 and time.monotonic() - started > 2.0:  # the camera, late
+                cam = CameraStreamNode(parameter_overrides=[
+                    Parameter("url", value=str(tmp_path / "gone.avi")),
+                    Parameter("reconnect_s", value=0.5)])  # fmt: skip
+                nodes.append(cam)
+                ros.add_node(cam)
+            ros.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    notes: list[str] = []
+    try:
+        with pytest.raises(OperatorError) as refused:
+            arm(load_deployment(config), timeout_s=8.0, wait_s=0.3, say=notes.append,
+                warn=notes.append)  # fmt: skip
+        assert gate.get_parameter("armed").value is False
+    finally:
+        done.set()
+        spinner.join(timeout=10)
+        for node in nodes:
+            ros.remove_node(node)
+            node.destroy_node()
+    assert refused.value.code == EXIT_CHECKS
+    assert "not arming: camera_stream ERROR (cannot open" in str(refused.value), notes
+
+
+def test_arm_notes_a_camera_it_never_heard():
+    from vigil.operator_report import arm_notes
+
+    assert any("camera_stream: no status heard" in n for n in arm_notes(healthy()))
+    seen = healthy()
+    seen.statuses["camera_stream"] = {"level": 0, "message": "streaming"}
+    assert arm_notes(seen) == []

@@ -166,3 +166,39 @@ def test_resume_decision_without_an_identity_file(tmp_path):
     assert state is None and "records nothing" in line
     with pytest.raises(ConfigError, match="resume-max-age-s"):
         vl.prepare_launch(CONFIG, tmp_path / "x", resume_max_age_s=math.nan)
+
+
+def test_a_hung_ros_teardown_ends_by_its_own_alarm_with_the_deployments_stop_timeout(tmp_path):
+    """A node whose ROS teardown hangs (seen: the markers node in ``destroy_service``
+    after Ctrl-C of a hardware launch) ends itself by its alarm, ``TEARDOWN_S`` (8 s)
+    into the teardown, and the launcher warns. With the deployment's default
+    ``nodes.stop_timeout_s`` (5 s) the launcher sent SIGKILL 7 s after SIGINT, before
+    the alarm: the stop became a failure (``markers exited (code -9, SIGKILL) at
+    shutdown``, exit 3)."""
+    import signal
+
+    from stack.exits import TEARDOWN_S
+    from vigil.deployment import NodesSection
+    from vigil.processes import ProcessSpec
+
+    # as stack.ros_main.spin_node: SIGINT and SIGTERM set its stop flag (SIGTERM dumps the
+    # stacks too); the teardown then hangs until the alarm
+    hung = (
+        "import faulthandler, signal, sys, time\nfrom stack.ros_main import _teardown_alarm\n"
+        "signal.signal(signal.SIGTERM, lambda *a: None)\n"
+        "faulthandler.register(signal.SIGTERM, file=sys.stderr, all_threads=True, chain=True)\n"
+        "signal.signal(signal.SIGINT, lambda *a: (_teardown_alarm(), time.sleep(60)))\n"
+        "print('ready', flush=True)\ntime.sleep(60)\n"
+    )
+    spec = ProcessSpec("hung", "", command=[sys.executable, "-u", "-c", hung])
+    la = vl.Launcher([spec], tmp_path / "logs", {"PYTHONPATH": str(REPO)}, say=lambda s: None)
+    la.start()
+    log = tmp_path / "logs" / "hung.log"
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline and not (log.exists() and "ready" in log.read_text()):
+        time.sleep(0.1)
+    t0 = time.monotonic()
+    codes = la.stop(NodesSection().stop_timeout_s)  # 5 s
+    assert codes == {"hung": -signal.SIGALRM}, log.read_text()
+    assert la.failures == [] and la.warnings[0].startswith("hung: its ROS teardown hung")
+    assert TEARDOWN_S <= time.monotonic() - t0 < TEARDOWN_S + 5.0

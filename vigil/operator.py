@@ -9,7 +9,8 @@ topics are :func:`vigil.deployment.gate_topics`; the caps it should have are the
 ``hardware.velocity_gate``.
 
 - :func:`arm`: waits for the gate's parameter service (``--timeout``), listens for the
-  gate's state and everyone's ``/diagnostics`` for a moment, refuses what
+  gate's state and everyone's ``/diagnostics`` for a moment (and, within the timeout,
+  until the gate's and the camera's statuses were heard), refuses what
   :func:`vigil.operator_report.arm_refusals` names (unless ``force``), sets ``armed``
   true through ``/velocity_gate/set_parameters`` and confirms it from the gate's own
   status (``armed: true`` on ``/diagnostics``) or, failing that, the parameter read back.
@@ -17,7 +18,8 @@ topics are :func:`vigil.deployment.gate_topics`; the caps it should have are the
   false on the arm topic, repeated until the gate's status (or parameter) says disarmed,
   so a slow or absent parameter service does not hold it up.
 - :func:`status`: listens ``wait`` seconds and prints one screen
-  (:func:`vigil.operator_report.status_lines`) or its JSON.
+  (:func:`vigil.operator_report.status_lines`) or its JSON: the gate, the base, every
+  ``/diagnostics`` status and the robot side's inputs (:func:`robot_inputs`).
 
 Exit codes: :data:`EXIT_OK` 0; 1 ``vigil status`` heard a problem; 2 bad input (the
 deployment); :data:`EXIT_NO_GATE` 3 no gate answered within the timeout;
@@ -37,11 +39,15 @@ from typing import Any
 
 import stack.topics as topic
 from stack.cells import ConfigError
+from stack.tf import MAP as MAP_FRAME
+from stack.tf import ODOM as ODOM_FRAME
 from vigil.deployment import Deployment, gate_topics
 from vigil.operator_report import (
+    CAMERA,
     CAPS,
     GATE,
     Heard,
+    Input,
     arm_notes,
     arm_refusals,
     caps_text,
@@ -110,11 +116,30 @@ def _environment(env: dict[str, str]) -> Iterator[None]:
                 os.environ[k] = v
 
 
+def robot_inputs(dep: Deployment) -> dict[str, Input]:
+    """What the stack reads from the robot side (docs/INTERFACES.md): the lidar's scan,
+    the base's odometry, the map, the localisation's ``map -> odom`` on ``/tf`` and,
+    with ``navigation.pose_source: amcl``, AMCL's pose; label -> :class:`Input`."""
+    t = dep.topics
+    out = {
+        t.scan: Input("scan", t.scan, "the lidar driver"),
+        t.odom: Input("odom", t.odom, "the base driver"),
+        topic.MAP: Input("map", topic.MAP, "a map server, e.g. nav2's map_server", False),
+        f"{MAP_FRAME} -> {ODOM_FRAME}": Input(
+            "map_odom", topic.TF, "the localisation on /tf, e.g. nav2's AMCL"
+        ),
+    }
+    if dep.navigation.pose_source == "amcl":  # AMCL publishes it when its filter updates
+        pose = dep.navigation.pose_topic or topic.AMCL_POSE
+        out[pose] = Input("pose", pose, "AMCL, for navigation.pose_source: amcl", False)
+    return out
+
+
 class Session:
     """One rclpy participant on the deployment's domain that hears the gate, the base,
     navigation and ``/diagnostics``, and can set the gate's parameters."""
 
-    def __init__(self, dep: Deployment, verb: str):
+    def __init__(self, dep: Deployment, verb: str, robot: bool = False):
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import Twist
@@ -150,6 +175,46 @@ class Session:
         self._bool = Bool
         self.set_client = self.node.create_client(SetParameters, topic.GATE_SET_PARAMETERS)
         self.get_client = self.node.create_client(GetParameters, topic.GATE_GET_PARAMETERS)
+        if robot:
+            self._listen_robot(robot_inputs(dep), listen)
+
+    def _listen_robot(self, inputs: dict[str, Input], listen: Any) -> None:
+        """Hear the robot side's inputs (:func:`robot_inputs`) into ``heard.robot``."""
+        from geometry_msgs.msg import PoseWithCovarianceStamped
+        from nav_msgs.msg import OccupancyGrid, Odometry
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import LaserScan
+        from tf2_msgs.msg import TFMessage
+
+        latched = QoSProfile(  # as a map server offers it: the map sent before we joined
+            depth=1,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        self.heard.robot = inputs
+        types = {"scan": LaserScan, "odom": Odometry, "map": OccupancyGrid,
+                 "pose": PoseWithCovarianceStamped}  # fmt: skip
+        for i in inputs.values():
+            if i.kind == "map_odom":
+                self.node.create_subscription(TFMessage, i.topic, self._map_odom(i.times), listen)
+            else:
+                qos = latched if i.kind == "map" else listen
+                self.node.create_subscription(types[i.kind], i.topic, self._stamp(i.times), qos)
+
+    @staticmethod
+    def _stamp(into: list[float]) -> Callable[[Any], None]:
+        return lambda _msg: into.append(time.monotonic())
+
+    @staticmethod
+    def _map_odom(into: list[float]) -> Callable[[Any], None]:
+        def on_tf(msg: Any) -> None:
+            for t in msg.transforms:
+                pair = (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/"))
+                if pair == (MAP_FRAME, ODOM_FRAME):
+                    into.append(time.monotonic())
+                    return
+
+        return on_tf
 
     # -- what is heard --------------------------------------------------------------
     def _on_diagnostics(self, msg: Any) -> None:
@@ -230,20 +295,39 @@ class Session:
     def publish_arm(self, armed: bool) -> None:
         self.arm_pub.publish(self._bool(data=armed))
 
-    def base_publishers(self, deadline: float) -> list[str]:
-        """The nodes publishing the base's topic. A participant whose node names have not
+    def publishers(self, name: str, deadline: float) -> list[str]:
+        """The nodes publishing topic ``name``. A participant whose node names have not
         arrived yet shows as ``_NODE_NAME_UNKNOWN_``: asked again until ``deadline``."""
 
         def names() -> list[str]:
-            infos = self.node.get_publishers_info_by_topic(self.topics["output_topic"])
+            infos = self.node.get_publishers_info_by_topic(name)
             return [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
 
         found = names()
         while any(UNKNOWN in n for n in found) and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.05)
             found = names()
-        self.heard.base_publishers = found
         return found
+
+    def base_publishers(self, deadline: float) -> list[str]:
+        """The nodes publishing the base's topic (:meth:`publishers`)."""
+        self.heard.base_publishers = self.publishers(self.topics["output_topic"], deadline)
+        return self.heard.base_publishers
+
+    def robot_streams_heard(self) -> bool:
+        """Every robot stream with a publisher in the graph was heard at least once."""
+        return all(
+            i.times or self.node.count_publishers(i.topic) == 0
+            for i in self.heard.robot.values()
+            if i.stream
+        )
+
+    def robot_publishers(self, deadline: float) -> None:
+        """The publishers of each robot input but ``/tf`` (whose publishers say nothing
+        about ``map -> odom``)."""
+        for i in self.heard.robot.values():
+            if i.kind != "map_odom":
+                i.publishers = self.publishers(i.topic, deadline)
 
     def finish(self) -> Heard:
         """The window closes: what was heard, its length and end."""
@@ -258,15 +342,15 @@ class Session:
 
 
 @contextmanager
-def session(dep: Deployment, verb: str) -> Iterator[Session]:
+def session(dep: Deployment, verb: str, robot: bool = False) -> Iterator[Session]:
     """A :class:`Session` in the deployment's environment (its DDS profile in a folder of
-    this process's own, removed afterwards)."""
+    this process's own, removed afterwards); ``robot``: it hears the robot's inputs too."""
     from vigil.private_dir import private_dir
 
     folder = private_dir(f"operator-{os.getpid()}")
     try:
         with _environment(operator_env(hardware_deployment(dep), folder)):
-            s = Session(dep, verb)
+            s = Session(dep, verb, robot)
             try:
                 yield s
             finally:
@@ -323,6 +407,8 @@ def arm(
         # the gate's state (2 Hz) and everyone's diagnostics, for at least wait_s more
         s.spin_until(lambda: False, time.monotonic() + wait_s)
         s.spin_until(lambda: s.heard.gate_status() is not None, time.monotonic() + timeout_s)
+        # the camera's status (1 Hz) too: its participant may be discovered after the gate's
+        s.spin_until(lambda: CAMERA in s.heard.statuses, time.monotonic() + timeout_s)
         s.read_params(time.monotonic() + timeout_s)
         s.base_publishers(time.monotonic() + 1.0)
         heard = s.finish()
@@ -434,15 +520,20 @@ def status(
     say: Callable[[str], None] = print,
 ) -> int:
     """Wait up to ``timeout_s`` for the gate to be discovered, listen ``wait_s`` seconds
-    more and print the system's state; 0 all OK, 1 otherwise."""
+    more and print the system's state, the robot's inputs included; 0 all OK, 1
+    otherwise."""
     import json
 
-    with session(dep, "status") as s:
+    with session(dep, "status", robot=True) as s:
         # DDS discovery of a running participant takes 0-3 s here (its announcements)
         s.spin_until(s.gate_seen, s.start + timeout_s)
         s.spin_until(lambda: False, time.monotonic() + wait_s)
+        # a stream whose publisher is known but not yet heard: its first message, within
+        # the timeout (a driver discovered late)
+        s.spin_until(s.robot_streams_heard, time.monotonic() + timeout_s)
         s.read_params(time.monotonic() + 1.0)
         s.base_publishers(time.monotonic() + 1.0)
+        s.robot_publishers(time.monotonic() + 1.0)
         record = status_record(s.finish())
         if not s.base_visible:
             record["base"]["note"] = "not readable from the operator's enclave (SROS2)"

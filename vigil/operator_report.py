@@ -19,7 +19,13 @@ Before arming (:func:`arm_refusals`), refused unless ``--force``:
 - another node publishing the base's topic (a path around the gate).
 
 Not refused: ``stale`` (an armed gate whose navigation is idle: normal), WARN of other
-components, navigation commanding motion (printed: the base moves at once when armed).
+components, a camera never heard, navigation commanding motion (printed: the base moves
+at once when armed).
+
+``vigil status`` also lists the robot side's inputs the stack reads (:class:`Input`: the
+lidar's scan, the base's odometry, the map, the localisation's ``map -> odom`` and, with
+``pose_source: amcl``, its pose): a stream heard nothing in the window, or a latched or
+sparse topic has no publisher, is a problem.
 """
 
 from __future__ import annotations
@@ -50,6 +56,22 @@ def level_name(level: int) -> str:
 
 
 @dataclass
+class Input:
+    """One of the robot side's inputs the stack reads, as one listen window heard it.
+
+    ``stream``: it must be heard within the window (a sensor, the localisation's
+    transform); otherwise a publisher suffices (a latched map, a pose published only
+    when the filter updates)."""
+
+    kind: str  # scan | odom | map | map_odom (on /tf) | pose: its message type
+    topic: str
+    source: str  # who should provide it, for the operator
+    stream: bool = True
+    times: list[float] = field(default_factory=list)  # receipt times (monotonic)
+    publishers: list[str] | None = None  # node names; None: not looked up
+
+
+@dataclass
 class Heard:
     """What one listen window heard; times are monotonic seconds, ``now`` its end."""
 
@@ -66,6 +88,7 @@ class Heard:
     nav_cmds: list[tuple[float, Cmd]] = field(default_factory=list)
     base_publishers: list[str] | None = None  # node names; None: not looked up
     params: dict[str, Any] | None = None  # the gate's parameters; None: no answer
+    robot: dict[str, Input] = field(default_factory=dict)  # label -> input; {}: not listened
 
     def gate_status(self) -> dict[str, Any] | None:
         return self.statuses.get(GATE)
@@ -91,6 +114,13 @@ def heartbeat_hz(beats: list[tuple[float, int]]) -> float | None:
     if t1 - t0 <= 0 or c1 <= c0:
         return None
     return (c1 - c0) / (t1 - t0)
+
+
+def rate_hz(times: list[float]) -> float | None:
+    """Messages per second over the receipt times; None with fewer than three."""
+    if len(times) < 3 or times[-1] <= times[0]:
+        return None
+    return (len(times) - 1) / (times[-1] - times[0])
 
 
 def caps_text(values: dict[str, Any]) -> str:
@@ -167,6 +197,11 @@ def arm_notes(heard: Heard) -> list[str]:
     for name, st in sorted(heard.statuses.items()):
         if name != GATE and st.get("level", 0) == 1:
             out.append(f"{name} WARN ({st.get('message', '')})")
+    if CAMERA not in heard.statuses:
+        out.append(
+            f"{CAMERA}: no status heard within {heard.window_s:g} s, so not checked (is it "
+            "running?)"
+        )
     if heard.nav_cmds and _moving(heard.nav_cmds[-1][1]):
         out.append(
             f"navigation is commanding {_cmd_text(heard.nav_cmds[-1][1])} on "
@@ -220,6 +255,20 @@ def status_record(heard: Heard) -> dict[str, Any]:
         base["publishers"] = sorted(heard.base_publishers)
         for name in other_publishers(heard):
             problems.append(f"{name} also publishes {heard.base_topic} (a path around the gate)")
+    robot: dict[str, Any] = {}
+    for label, i in heard.robot.items():
+        entry: dict[str, Any] = {"topic": i.topic, "from": i.source, "heard": len(i.times)}
+        if i.times:
+            entry["age_s"] = round(heard.now - i.times[-1], 2)
+        hz = rate_hz(i.times)
+        if hz is not None:
+            entry["hz"] = round(hz, 1)
+        if i.publishers is not None:
+            entry["publishers"] = sorted(i.publishers)
+        entry["ok"] = bool(i.times) or (not i.stream and bool(i.publishers))
+        if not entry["ok"]:
+            problems.append(f"{label} MISSING ({i.source})")
+        robot[label] = entry
     statuses = {}
     for name, s in sorted(heard.statuses.items()):
         entry = {k: v for k, v in s.items() if k not in ("level", "message")}
@@ -231,7 +280,7 @@ def status_record(heard: Heard) -> dict[str, Any]:
         }
         if name != GATE and s["level"] != 0:
             problems.append(f"{name} {level_name(s['level'])} ({s.get('message', '')})")
-    return {
+    record = {
         "ok": not problems,
         "domain_id": heard.domain_id,
         "window_s": heard.window_s,
@@ -240,6 +289,23 @@ def status_record(heard: Heard) -> dict[str, Any]:
         "base": base,
         "statuses": statuses,
     }
+    if robot:
+        record["robot"] = robot
+    return record
+
+
+def _input_text(r: dict[str, Any]) -> str:
+    """``9.9 Hz, last 0.1 s ago; publishers: /lidar`` or what is missing and from whom."""
+    if r["heard"]:
+        what = f"{r['hz']:g} Hz" if "hz" in r else f"{r['heard']} heard"
+        what += f", last {r['age_s']:.1f} s ago"
+    else:
+        what = "nothing heard"
+    if "publishers" in r:
+        what += f"; publishers: {', '.join(r['publishers']) or 'none'}"
+    if not r["ok"]:
+        what += f" ({r['from']})"
+    return what
 
 
 def status_exit_code(record: dict[str, Any]) -> int:
@@ -275,6 +341,8 @@ def status_lines(record: dict[str, Any]) -> list[str]:
         lines.append(f"{name:<16} {s['level']:<7} {s['message']} ({s['age_s']:.1f} s ago)")
     if CAMERA not in record["statuses"]:
         lines.append(f"{CAMERA:<16} {'':<7} no status heard")
+    for label, r in record.get("robot", {}).items():
+        lines.append(f"{label:<16} {'OK' if r['ok'] else 'MISSING':<7} {_input_text(r)}")
     if record["problems"]:
         lines.append("not OK: " + "; ".join(record["problems"]))
     else:
