@@ -26,7 +26,8 @@ instantaneous velocity and "steady" frames (true velocity unchanged for 1 s) are
 reported beside it.
 
 ``--shadows on|off`` and ``--antialias N`` render the twin's camera otherwise (the
-real-time twin's cost). ``--quick`` runs two short walks and the 640 x 400 timing only (about a minute);
+real-time twin's cost). ``--quick`` runs two short walks and the 640 x 400 timing only
+(about a minute);
 ``--no-short-box`` runs the pipeline without the short-box foot refinement
 (``CameraConfig.short_box_ratio=None``), as it was before, for comparison.
 """
@@ -349,10 +350,18 @@ def main() -> None:
     ap.add_argument("--no-short-box", action="store_true",
                     help="CameraConfig(short_box_ratio=None): the pipeline before short boxes' "
                          "foreground feet (for comparison)")  # fmt: skip
-    ap.add_argument("--shadows", choices=("on", "off"), default=None,
-                    help="the twin's camera.shadows (default: the twin's default)")
-    ap.add_argument("--antialias", type=int, default=None,
-                    help="the twin's camera.antialias_samples (default: the twin's default)")
+    ap.add_argument(
+        "--shadows",
+        choices=("on", "off"),
+        default=None,
+        help="the twin's camera.shadows (default: the twin's default)",
+    )
+    ap.add_argument(
+        "--antialias",
+        type=int,
+        default=None,
+        help="the twin's camera.antialias_samples (default: the twin's default)",
+    )
     args = ap.parse_args()
     render = {}
     if args.shadows is not None:

@@ -105,3 +105,79 @@ def test_the_report_reads_the_stats_and_warns_on_a_bad_file(tmp_path):
     (tmp_path / REALTIME_FILE).write_text("[1, 2]")
     assert read_realtime(tmp_path, warnings) is None
     assert warnings and REALTIME_FILE in warnings[0]
+
+
+class FakeRenderer:
+    """Records on which thread it was made, updated, rendered and closed."""
+
+    def __init__(self, log: list, fail: bool = False):
+        import threading
+
+        self.log, self.fail, self.scene = log, fail, None
+        self.log.append(("made", threading.current_thread().name))
+
+    def update_scene(self, data, camera=None):
+        self.scene = (data, camera)
+
+    def render(self):
+        import threading
+
+        import numpy as np
+
+        self.log.append(("render", threading.current_thread().name))
+        if self.fail:
+            raise RuntimeError("GL lost")
+        return np.full((2, 3, 3), self.scene[0], np.uint8)
+
+    def close(self):
+        import threading
+
+        self.log.append(("closed", threading.current_thread().name))
+
+
+def test_the_async_camera_renders_on_its_thread_one_frame_at_a_time():
+    from twin.camera_thread import AsyncCamera
+
+    log: list = []
+    cam = AsyncCamera(lambda: FakeRenderer(log), camera="ceiling")
+    assert cam.collect() is None  # nothing in flight
+    assert cam.capture(7, 1.25)
+    assert not cam.capture(8, 1.35)  # one in flight: the next frame is dropped
+    t_s, img = cam.collect(wait=True)
+    assert t_s == 1.25 and int(img[0, 0, 0]) == 7  # the scene taken at capture
+    assert cam.capture(9, 1.45)
+    assert cam.collect(wait=True)[0] == 1.45
+    cam.close()
+    threads = {what: name for what, name in log}
+    assert threads["made"] == threads["render"] == threads["closed"] == "camera-render"
+
+
+def test_a_failed_render_reaches_the_collector():
+    from twin.camera_thread import AsyncCamera
+
+    cam = AsyncCamera(lambda: FakeRenderer([], fail=True), camera=0)
+    cam.capture(1, 0.0)
+    with pytest.raises(RuntimeError, match="GL lost"):
+        cam.collect(wait=True)
+    assert not cam.busy
+    cam.close()
+
+
+def test_the_twin_s_async_camera_renders_what_render_camera_renders():
+    import numpy as np
+
+    from twin.config import TwinConfig
+    from twin.twin import Twin
+
+    with Twin(TwinConfig(), seed=0) as tw:
+        for _ in range(25):
+            tw.step(None)
+        direct = tw.render_camera()
+        cam = tw.async_camera()
+        try:
+            assert cam.capture(tw.data, tw.time_s)
+            t_s, img = cam.collect(wait=True)
+        finally:
+            cam.close()
+    assert t_s == pytest.approx(0.5)
+    assert np.array_equal(img, direct)

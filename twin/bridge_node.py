@@ -287,6 +287,9 @@ class TwinBridge(Releasing, Node):
         )
         # real time: the wall-clock schedule; the stamps' offset is set at the first tick
         self.pacer = Pacer(cfg.control_period_s) if v.realtime and not self.lockstep else None
+        # real time: the camera renders on its own thread while the physics goes on
+        self.camera = twin.async_camera() if self.pacer is not None else None
+        self._frame_owed = False  # a frame came due while the renderer was busy
         self.offset_s = 0.0
         self.realtime_file = v.realtime_file
         self._stats_at = (0.0, 0.0)  # wall times of the last stats file and log line
@@ -401,15 +404,39 @@ class TwinBridge(Releasing, Node):
         for _ in range(owed):
             self._step_physics()
             pacer.stepped(self._wall_s())
+        self._publish_frame()  # first: a renderer it frees can take a frame due now
         if owed:
             self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s + self.offset_s)))
             self._publish_sensors()
         self._report_realtime(wall)
 
+    def _publish_frame(self) -> None:
+        """Real time: a frame the render thread finished, stamped when it was captured."""
+        if self.camera is None or (frame := self.camera.collect()) is None:
+            return
+        t_s, rgb = frame
+        ts = t_s + self.offset_s
+        info = self.twin.camera_info
+        self._publish(self.pub_image, image_msg(rgb, ts, info.frame_id))
+        self._publish(self.pub_info, camera_info_msg(info, ts))
+        if self._frame_owed:  # the frame that came due meanwhile: taken now, a bit late
+            self._capture()
+
+    def _capture(self) -> None:
+        """Real time: hand the scene to the render thread now, or owe it the frame."""
+        assert self.camera is not None and self.pacer is not None
+        sent = self.camera.capture(self.twin.data, self.twin.time_s)
+        self._frame_owed = not sent
+        if sent:
+            self.pacer.frame(sent=True, due=0)
+
     def _report_realtime(self, wall: float) -> None:
         """The stats: to ``realtime_file`` each second, a log line each 10 s."""
         assert self.pacer is not None
         stats = self.pacer.stats
+        if self.camera is not None and self.camera.render_s:
+            ms = sorted(self.camera.render_s)
+            stats.render_ms_median, stats.render_ms_max = ms[len(ms) // 2] * 1e3, ms[-1] * 1e3
         written, logged = self._stats_at
         if self.realtime_file and wall - written >= 1.0:
             self.write_realtime()
@@ -458,12 +485,16 @@ class TwinBridge(Releasing, Node):
             self._publish(self.pub_scan, scan_msg(tw.scan(), self.offset_s))
         frames = self._due("camera", t)
         if frames and not self._out("camera", t):
-            self._publish(
-                self.pub_image, image_msg(tw.render_camera(), ts, tw.camera_info.frame_id)
-            )
-            self._publish(self.pub_info, camera_info_msg(tw.camera_info, ts))
-            if self.pacer is not None:  # the frames of periods skipped while catching up
-                self.pacer.frame(sent=True, due=frames)
+            if self.camera is not None:  # real time: rendered beside the physics
+                # a frame owed since the last period is dropped (counted), this one taken
+                # now or as soon as the renderer is free (_publish_frame)
+                assert self.pacer is not None
+                self.pacer.frame(sent=False, due=frames)
+                self._capture()
+            else:
+                rgb = tw.render_camera()
+                self._publish(self.pub_image, image_msg(rgb, ts, tw.camera_info.frame_id))
+                self._publish(self.pub_info, camera_info_msg(tw.camera_info, ts))
 
     def _out(self, sensor: str, t: float) -> bool:
         return any(s == sensor and t0 <= t < t1 for s, t0, t1 in self.outages)
@@ -490,6 +521,8 @@ class TwinBridge(Releasing, Node):
     def _release(self) -> None:
         """The twin (its renderer), closed once (:class:`stack.ros_main.Releasing`); the
         real-time stats written a last time."""
+        if self.camera is not None:
+            self.camera.close()
         if self.pacer is not None:
             self.write_realtime()
             self.get_logger().info(self.pacer.stats.line())

@@ -41,6 +41,8 @@ class RealtimeStats:
     slipped_s: float = 0.0  # wall time given up by those slips
     frames: int = 0  # camera frames published
     frames_due: int = 0  # camera frames the configured rate asks for
+    render_ms_median: float = 0.0  # the camera's render time per frame (real time:
+    render_ms_max: float = 0.0  # on a thread of its own, twin.camera_thread)
     late_s: float = LATE_S
 
     @property

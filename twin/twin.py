@@ -29,6 +29,7 @@ import numpy as np
 
 from stack.geometry import Pose2D
 from stack.nav.occupancy import OccupancyMap, save_map_yaml
+from twin.camera_thread import AsyncCamera
 from twin.config import TwinConfig
 from twin.occupancy import occupancy_from_model
 from twin.person import PersonPose, PersonScript, default_waypoints
@@ -438,6 +439,14 @@ class Twin:
             self._renderer = mujoco.Renderer(self.model, c.height_px, c.width_px)
         self._renderer.update_scene(self.data, camera=self._camera)
         return self._renderer.render().copy()
+
+    def async_camera(self) -> AsyncCamera:
+        """The ceiling camera on a render thread of its own (the real-time twin's:
+        :mod:`twin.camera_thread`); the caller closes it."""
+        c = self.config.camera
+        return AsyncCamera(
+            lambda: mujoco.Renderer(self.model, c.height_px, c.width_px), self._camera
+        )
 
     def render_segmentation(self) -> np.ndarray:
         """Render which geom each ceiling-camera pixel sees (ground truth for perception).
