@@ -427,6 +427,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--docs", default=None, help="update a marked section of this Markdown file")
     p.add_argument("--label", default="guard", help="the section's marker label")
+    p.add_argument(
+        "--realtime", action="store_true", help="each run as vigil run --realtime (wall clock)"
+    )
     p.add_argument("--heading", default="", help="heading for a new section (empty: none)")
     p.set_defaults(func=cmd_experiments)
 
@@ -634,6 +637,7 @@ def cmd_experiments(args: argparse.Namespace) -> int:
         seed=args.seed,
         report_only=args.report_only,
         only=args.only,
+        realtime=args.realtime,
     )
     if args.docs:
         doc = write_docs(args.docs, args.out, args.label, args.heading)

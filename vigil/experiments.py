@@ -72,6 +72,7 @@ def run_set(
     only: Sequence[str] = (),
     runner: Runner | None = None,
     say: Callable[[str], None] = print,
+    realtime: bool = False,
 ) -> dict[str, Any]:
     """Run (or re-report) every scenario; write the set's table, JSON and figure.
 
@@ -83,6 +84,8 @@ def run_set(
         report_only: recompute the reports of existing run folders, run nothing.
         only: run these file stems only (default: all).
         runner: :func:`vigil.run.run_scenario` or a stand-in with its signature.
+        realtime: each run with the twin on the wall clock (``vigil run --realtime``);
+            each entry then carries the run's ``realtime`` stats.
 
     Returns:
         The set's record (what ``experiments.json`` holds).
@@ -132,7 +135,8 @@ def run_set(
                     if not line.startswith("[launch] started"):
                         say(f"[{name}] {line}")
 
-                summary = runner(path, config, run_dir, sc.seed, say=prefixed)
+                extra = {"realtime": True} if realtime else {}
+                summary = runner(path, config, run_dir, sc.seed, say=prefixed, **extra)
         except Exception as exc:  # noqa: BLE001 - one failed scenario must not stop the set
             if getattr(getattr(exc, "ending", None), "kind", "") in STOPPING_SIGNALS:
                 raise  # Ctrl-C or SIGTERM during a run stops the set, not only the run
@@ -147,6 +151,8 @@ def run_set(
             entry["load_before"] = entry["load_after"] = "-"
         entry["error"] = error
         entry["metrics"] = _brief(summary.get("metrics")) if summary else None
+        if summary and "realtime" in summary:  # how well the real-time twin kept up
+            entry["realtime"] = summary["realtime"]
         entries.append(entry)
         write_set(out, entries, say=None)
     record = write_set(out, entries, say=say)
