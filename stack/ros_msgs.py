@@ -139,6 +139,9 @@ def observation_to_msg(d: Mapping[str, Any], frame_id: str = "map") -> PersonObs
     msg.person_position = _point(pos)
     msg.speed_mps = _none_nan(d.get("speed_mps"))
     msg.source = _str(d.get("source"))
+    frame = d.get("frame_stamp_s")
+    if frame is not None:
+        msg.frame_stamp = stamp(float(frame))
     hidden = d.get("hidden") or {}
     msg.hidden_cells = [int(c) for c in hidden]
     msg.hidden_fractions = [float(f) for f in hidden.values()]
@@ -178,6 +181,11 @@ def observation_from_msg(msg: Any) -> dict[str, Any]:
         ),
         "speed_mps": _nan_none(msg.speed_mps),
         "source": str(msg.source),
+        "frame_stamp_s": (
+            round(stamp_s(msg.frame_stamp), 9)
+            if msg.frame_stamp.sec or msg.frame_stamp.nanosec
+            else None
+        ),
         # float32 on the wire: the sender rounded to 3 decimals, so this is its value
         "hidden": {
             str(int(c)): round(float(f), 3)

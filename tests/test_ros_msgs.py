@@ -24,6 +24,7 @@ OBS = {
     "speed_mps": 0.4,
     "source": "camera",
     "hidden": {"3": 0.123, "8": 1.0},
+    "frame_stamp_s": 12.4,
 }
 
 
@@ -32,8 +33,18 @@ def test_observation_round_trip_and_the_planner_reads_it():
     assert back == OBS
     assert Observed.from_dict(back) == Observed.from_dict(OBS)
     none = {**OBS, "person": "No person", "person_position_m": None, "speed_mps": None}
-    none["hidden"] = {}
+    none["hidden"], none["frame_stamp_s"] = {}, None  # no camera frame
     assert rm.observation_from_msg(rm.observation_to_msg(none)) == none
+
+
+def test_the_frame_stamp_reaches_the_step_record():
+    """The camera frame's stamp crosses the wire into the planner's record (the run's
+    camera-to-decision latency, vigil.report.latency)."""
+    obs = Observed.from_dict(rm.observation_from_msg(rm.observation_to_msg(OBS)))
+    assert obs.frame_stamp_s == pytest.approx(12.4)
+    assert obs.to_dict()["frame_stamp_s"] == pytest.approx(12.4)
+    assert "frame_stamp_s" not in Observed.from_dict({**OBS, "frame_stamp_s": None}).to_dict()
+    assert Observed.from_dict({**OBS, "frame_stamp_s": "x"}).frame_stamp_s is None
 
 
 def test_observation_people_slots_round_trip():

@@ -107,6 +107,8 @@ class Observer:
         pose, self.pose = self.pose, None
         obs = self.combiner.combine(now_s, self.camera, self.tracks, pose)
         record = obs.to_dict()
+        # the frame the labels come from: the latency from camera to decision (issue 25)
+        record["frame_stamp_s"] = self.camera.stamp_s if self.camera is not None else None
         if self.slots is not None:
             record["people"] = slot_labels(self.slot_people, obs.blind)
         return obs, record

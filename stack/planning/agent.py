@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +67,9 @@ class Observed:
     position_m: tuple[float, float] | None = None  # the person's floor point, when measured
     # each slot's floor point (None: not measured), slot 0 first; () without slots
     people_positions_m: tuple[tuple[float, float] | None, ...] = ()
+    # the stamp of the camera frame the labels come from (None: none): the latency
+    # from camera to decision in the step's record
+    frame_stamp_s: float | None = None
 
     @classmethod
     def from_dict(cls, data: Any) -> Observed:
@@ -87,11 +91,14 @@ class Observed:
         except ValueError as err:
             raise ObservationError(str(err)) from None
         source = data.get("source", "")
+        frame = data.get("frame_stamp_s")
+        frame_s = float(frame) if isinstance(frame, int | float) and math.isfinite(frame) else None
         return cls(
             labels["robot"], labels["person"], labels["velocity"], parsed,
             source if isinstance(source, str) else "", _people(data.get("people")),
             _position(data.get("person_position_m")),
             tuple(_position(p.get("position_m")) for p in data.get("people") or ()),
+            frame_s,
         )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
@@ -106,6 +113,8 @@ class Observed:
             out["source"] = self.source
         if self.people:
             out["people"] = [{"person": p, "velocity": v} for p, v in self.people]
+        if self.frame_stamp_s is not None:
+            out["frame_stamp_s"] = round(self.frame_stamp_s, 6)
         return out
 
 

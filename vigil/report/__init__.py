@@ -29,6 +29,7 @@ from stack.cells import CellGrid
 from stack.config import write_text
 from stack.planning.model import FactoredModel
 from stack.vocabulary import ACTIONS, OUT_OF_MAP
+from vigil.report.latency import latency
 from vigil.report.metrics import Timeline, guard_metrics, timeline_from_trace
 from vigil.report.people import people_markdown, people_metrics, walkers_in_trace
 from vigil.report.records import (
@@ -286,6 +287,7 @@ def write_report(
     wavs = sorted(p.relative_to(run_dir).as_posix() for p in (run_dir / "speech").glob("*.wav"))
     title = f"{run_dir.name} ({task.name})"
     summary = summarise(model, rows, records, tl, wavs, thesis_table)
+    summary["latency"] = latency(steps, trace)  # camera to decision to motion
     realtime = read_realtime(run_dir, records.warnings)
     if realtime is not None:  # a real-time twin: how well it kept the wall clock
         summary["realtime"] = realtime
