@@ -328,6 +328,8 @@ def test_a_realtime_twin_runs_free_writes_its_stats_and_its_nodes_yield_the_core
     bridge = system.params["twin_bridge"]
     assert bridge["realtime"] is True and bridge["lockstep"] is False
     assert bridge["realtime_file"] == str(tmp_path / "b" / "realtime.json")
+    assert system.params["bag"]["sim_clock"] is False  # the system clock, as on a robot
+    assert lockstep.params["bag"]["sim_clock"] is True
     nice = {s.name: s.nice for s in system.specs}
     assert nice.pop("twin_bridge") == 0
     assert set(nice.values()) == {REALTIME_NODES_NICE} and REALTIME_NODES_NICE > 0

@@ -21,8 +21,9 @@ Time, three modes:
         and only then steps the physics. Results do not depend on the machine's speed.
     real time (``realtime`` true, ``lockstep`` false): the simulated time follows a
         monotonic wall clock (:class:`twin.realtime.Pacer`): a bridge that fell behind
-        steps the physics until it has caught up and drops the camera frames it could
-        not render in time. Every stamp is the ROS system time of the run's start plus
+        steps the physics until it has caught up; the camera renders on a thread of its
+        own (:mod:`twin.camera_thread`) and a frame it could not render in time is
+        dropped. Every stamp is the ROS system time of the run's start plus
         the simulated time, so the twin's messages carry the wall clock, as a robot's
         drivers' do, and the nodes (on the system clock, as on the robot) join them.
         How well it kept up (:class:`twin.realtime.RealtimeStats`) is logged every 10 s

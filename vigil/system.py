@@ -163,9 +163,7 @@ def prepare(
             "seed": seed,
             "realtime": dep.twin.realtime,
             # how well a real-time twin kept the wall clock: summary.json's "realtime"
-            "realtime_file": str(run_dir / REALTIME_FILE)
-            if dep.twin.realtime and not dep.lockstep
-            else "",
+            "realtime_file": str(run_dir / REALTIME_FILE) if realtime_twin(dep) else "",
             "odom_rate_hz": dep.twin.odom_rate_hz,
             "lockstep": dep.lockstep,
             "stall_timeout_s": dep.twin.stall_timeout_s,
@@ -273,7 +271,10 @@ def prepare(
     # the run's rosbag2 bag (MCAP): with lock-step a participant (it only listens, but the
     # twin waits for it, so every message is in the bag in its lock-step phase: what
     # vigil replay-bag re-enacts); without lock-step it only listens
-    params["bag"] = {"out_dir": str(run_dir), "camera_period_s": 1.0, "sim_clock": twin_mode}
+    # log times: the twin's /clock in lock-step; the system clock in real time (as on a
+    # robot: the twin's stamps are on it too)
+    sim_clock = twin_mode and not realtime_twin(dep)
+    params["bag"] = {"out_dir": str(run_dir), "camera_period_s": 1.0, "sim_clock": sim_clock}
     if twin_mode and dep.lockstep:
         params["bag"].update(
             lockstep=True, participants=list(params["twin_bridge"]["participants"])
@@ -324,7 +325,7 @@ def _write(
     write_text(params_file, dump_yaml(doc, sort_keys=True))
     # a real-time twin stands for the physical world, which never waits: the nodes
     # yield the cores to it (on a robot they have cores of their own)
-    realtime = dep.mode == "twin" and dep.twin.realtime and not dep.lockstep
+    realtime = realtime_twin(dep)
     specs = [
         ProcessSpec(
             name,
@@ -349,6 +350,11 @@ def _write(
     # cores, and the planner's small products only lose by more (stack.planning.threads)
     env.update({k: "1" for k in BLAS_THREAD_VARS if k not in os.environ})
     return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
+
+
+def realtime_twin(dep: Deployment) -> bool:
+    """The deployment runs the twin on the wall clock (hardware in the loop)."""
+    return dep.mode == "twin" and dep.twin.realtime and not dep.lockstep
 
 
 def scene_people(
