@@ -62,7 +62,7 @@ def test_ros_time_keeps_nanoseconds_as_a_stamp_does():
     # every node's clock stepped back a second at each whole second)
     assert ros_time(2.999999999999891) == 3.0
     assert ros_time(1.5) == 1.5
-    from twin.bridge_node import stamp_of
+    from twin.ros_sensors import stamp_of
 
     for t in (2.999999999999891, 0.04 * 75, 1e-10, 12.3456789):
         s = stamp_of(t)

@@ -70,7 +70,7 @@ def test_each_run_claims_its_own_domain_until_it_ends(tmp_path):
 
 
 def test_stamp_of_rounds_to_the_nearest_nanosecond():
-    from twin.bridge_node import stamp_of
+    from twin.ros_sensors import stamp_of
 
     for t, want in [
         (2.9999999999, (3, 0)),

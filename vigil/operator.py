@@ -25,6 +25,10 @@ Exit codes: :data:`EXIT_OK` 0; 1 ``vigil status`` heard a problem; 2 bad input (
 deployment); :data:`EXIT_NO_GATE` 3 no gate answered within the timeout;
 :data:`EXIT_REFUSED` 4 the gate refused or did not confirm; :data:`EXIT_CHECKS` 5
 ``vigil arm`` found a reason not to arm (``--force`` arms anyway).
+
+One module over 500 lines: the three verbs are short and share the :class:`Session`
+(discovery, listening, the gate's parameter service), which is most of it; what they
+print and when they refuse is already apart (:mod:`vigil.operator_report`).
 """
 
 from __future__ import annotations
