@@ -66,6 +66,19 @@ def test_no_person_and_out_of_map_labels_and_invariants():
         Observation.from_labels(1.0, "3", "somewhere", "Not moving")
 
 
+def test_a_robot_just_past_the_edge_is_in_the_edge_cell_further_out_of_the_map():
+    """An overshoot 0.23 m past cell 1's south edge once labelled the robot "Out of the
+    map", which the task model cannot reach: the planner ignored every observation."""
+    comb = ObservationCombiner(GRID)
+    x0, y0 = GRID.origin_m
+    w, _ = GRID.size_m
+    just_out = Pose2D(x0 + w - 0.5, y0 - 0.23, 0.0)
+    edge = GRID.cell_at(x0 + w - 0.5, y0 + 0.01)
+    assert comb.combine(10.0, None, (), just_out).robot_label == str(edge)
+    far = Pose2D(x0 + w - 0.5, y0 - 0.5, 0.0)
+    assert comb.combine(10.1, None, (), far).robot_label == "Out of the map"
+
+
 def test_no_person_from_a_camera_that_sees_the_cell_ignores_the_laser():
     comb = ObservationCombiner(GRID)
     fast_leg = track(GRID.center(4), 1.5)

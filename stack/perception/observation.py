@@ -22,7 +22,9 @@ only where the camera could have seen one.
   of the camera's person, the position is their inverse-variance mean
   (``camera_sigma_m``, ``laser_sigma_m``): the laser's legs correct a foot point the
   robot half hides. A position within ``border_margin_m`` outside the grid is put in
-  the nearest cell (foot-point error), not dropped.
+  the nearest cell (foot-point error), not dropped; so is the robot's (its body is still
+  on the edge cell), whose observation would otherwise be "Out of the map", a state the
+  task model's robot never reaches from inside.
 - **Cannot see.** A camera that has sent nothing for ``max_camera_age_s`` (outage,
   frozen frames) or cannot tell (bad frames) sees nothing: every cell is hidden. With
   a calibration, the cells the robot hides from the camera and the floor outside the
@@ -238,7 +240,8 @@ class CombinerConfig(Config):
     camera_sigma_m: the camera foot point's error [m] (twin walks: median 0.10 m, p90
         0.21 m; up to 0.6 m with the legs half hidden).
     laser_sigma_m: a leg track's position error [m].
-    border_margin_m: a person this close outside the grid is in the nearest cell [m].
+    border_margin_m: a person or the robot this close outside the grid is in the
+        nearest cell [m].
     laser_only_min_hidden: a laser track counts alone where the camera's hidden
         fraction is at least this.
     last_seen_memory_s: how long the place the person was last seen is remembered [s].
@@ -344,7 +347,12 @@ class ObservationCombiner:
             The observation (see the module's rules).
         """
         if robot_pose is not None:
-            self._robot_cell = self.grid.cell_at(robot_pose.x_m, robot_pose.y_m)
+            # the robot's centre just past the region's edge (its body still on the edge
+            # cell: an overshoot, a localisation wobble) is in that cell, as a person's
+            # foot point is; further out it is "Out of the map"
+            self._robot_cell = self.grid.cell_near(
+                robot_pose.x_m, robot_pose.y_m, self.config.border_margin_m
+            )
             self._pose = robot_pose
         robot_cell = self._robot_cell
         cfg = self.config
