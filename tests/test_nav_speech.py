@@ -75,6 +75,22 @@ def test_speaker_queues_and_logs_each_utterance(tmp_path):
     assert log[2].split("\t")[3] == wavs[1].name
 
 
+def test_a_warning_s_camera_frame_is_logged_and_read_back(tmp_path):
+    """The frame-to-warning latency: the speech log holds the stamp of the camera frame
+    that caused a warning, the report's reader gives it back, a plain request has none."""
+    from vigil.report.records import read_speech_log
+
+    sp = Speaker(SpeechConfig(policy="queue"), tmp_path)
+    sp.say(None, now_s=12.5, frame_stamp_s=12.25)
+    sp.poll(12.6)
+    sp.poll(100.0)
+    sp.say("Hello.", now_s=101.0)
+    sp.poll(101.0)
+    got = read_speech_log(tmp_path / Speaker.LOG_NAME)
+    assert [(u.t, u.frame_stamp_s) for u in got] == [(12.5, 12.25), (101.0, None)]
+    assert got[1].text == "Hello."
+
+
 def test_speaker_replace_policy_cuts_the_current_utterance(tmp_path):
     sp = Speaker(SpeechConfig(policy="replace"), tmp_path)
     first = sp.say(None, now_s=0.0)

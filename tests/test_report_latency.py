@@ -41,7 +41,7 @@ def test_frame_to_decision_decision_to_motion_and_their_sum():
     # the first record showing motion: the one after 1.2 s (speed measured since the last)
     assert got["decision_to_motion_s"]["median_s"] == pytest.approx(0.24, abs=1e-6)
     assert got["frame_to_motion_s"]["median_s"] == pytest.approx(0.08 + 0.24, abs=1e-6)
-    assert got["within_budget"] == dict.fromkeys(BUDGET_S, True)
+    assert got["within_budget"] == dict.fromkeys(BUDGET_S, True) | {"frame_to_warning_s": None}
 
 
 def test_a_robot_already_moving_or_that_never_moves_is_not_counted():
@@ -66,3 +66,13 @@ def test_stats_nearest_rank():
     s = stats([float(k) for k in range(1, 21)])
     assert (s["n"], s["median_s"], s["p95_s"], s["max_s"]) == (20, 11.0, 19.0, 20.0)
     assert stats([])["median_s"] is None
+
+
+def test_frame_to_warning_from_the_speech_log():
+    from vigil.report.records import Utterance
+
+    said = [Utterance(5.0, 2.0, "warning", "a.wav", 4.7), Utterance(9.0, 1.0, "hello", "b.wav")]
+    got = latency([], [], said)
+    assert got["frame_to_warning_s"]["n"] == 1
+    assert got["frame_to_warning_s"]["median_s"] == pytest.approx(0.3)
+    assert got["within_budget"]["frame_to_warning_s"] is True

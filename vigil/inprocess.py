@@ -509,7 +509,7 @@ class InProcessSystem:
             self.publish(topic.SPEECH_WARNING, self.speaker.config.warning if self.speaker else "")
             if self.speaker is not None:
                 try:
-                    self.speaker.say(None, self.now_s)
+                    self.speaker.say(None, self.now_s, frame_stamp_s=self.warner.frame_stamp_s)
                 except SpeechError as exc:
                     self.say(f"[inprocess] cannot speak: {exc}")
         elif decision == "stop" and self.speaker is not None:

@@ -125,7 +125,7 @@ class SpeechNode(Releasing, Node):
             self.warning_pub.publish(
                 warning_to_msg(self.config.warning, self._warnings, w.person_cell, self.now_s())
             )
-            self.say(None)
+            self.say(None, w.frame_stamp_s)
         elif decision == "stop" and self.speaker is not None:
             self.get_logger().info("the person has left: warning cut short")
             for event in self.speaker.stop():
@@ -134,7 +134,7 @@ class SpeechNode(Releasing, Node):
     def on_say(self, msg: String) -> None:
         self.say(msg.data or None)
 
-    def say(self, text: str | None) -> None:
+    def say(self, text: str | None, frame_stamp_s: float | None = None) -> None:
         if self.speaker is None:
             self._failed_id += 1
             self.publish_event(
@@ -142,7 +142,7 @@ class SpeechNode(Releasing, Node):
             )
             return
         try:
-            self.speaker.say(text, self.now_s())
+            self.speaker.say(text, self.now_s(), frame_stamp_s=frame_stamp_s)
         except SpeechError as exc:
             self.get_logger().warning(f"cannot say {text!r}: {exc}")
             self._failed_id += 1

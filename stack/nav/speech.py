@@ -225,11 +225,16 @@ class SpeechEvent:
     error: str = ""
 
 
+# speech_log.tsv: one line an utterance; frame_stamp_s empty unless a camera frame caused it
+LOG_HEADER = "time_s\tvoice\tduration_s\twav\tframe_stamp_s\ttext\n"
+
+
 @dataclass
 class _Request:
     id: int
     text: str
     voice: str
+    frame_stamp_s: float | None = None  # the camera frame that caused it (a warning)
 
 
 class Speaker:
@@ -257,7 +262,7 @@ class Speaker:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             log = self.out_dir / self.LOG_NAME
             if not log.exists():
-                write_text(log, "time_s\tvoice\tduration_s\twav\ttext\n")
+                write_text(log, LOG_HEADER)
         self._queue: deque[_Request] = deque()
         self._current: _Request | None = None
         self._current_utt: Utterance | None = None
@@ -274,13 +279,21 @@ class Speaker:
     def queued(self) -> int:
         return len(self._queue)
 
-    def say(self, text: str | None, now_s: float, voice: str | None = None) -> int:
+    def say(
+        self,
+        text: str | None,
+        now_s: float,
+        voice: str | None = None,
+        frame_stamp_s: float | None = None,
+    ) -> int:
         """Request an utterance; it starts at once or on a later :meth:`poll`.
 
         Args:
             text: what to say (``config.warning`` when None).
             now_s: the current time [s].
             voice: a voice for this request only.
+            frame_stamp_s: the stamp of the camera frame that caused it (a warning's
+                observation), logged beside its start: the frame-to-warning latency.
 
         Returns:
             The request id, used in the events.
@@ -297,7 +310,7 @@ class Speaker:
             )
         voice = voice or self.config.voice
         check_voice(voice, self.config.espeak_path)
-        req = _Request(self._next_id, text, voice)
+        req = _Request(self._next_id, text, voice, frame_stamp_s)
         self._next_id += 1
         if self._current is not None and self.config.policy == "replace":
             self._queue.clear()
@@ -383,7 +396,10 @@ class Speaker:
         wav = self.out_dir / f"utterance_{req.id:04d}.wav"
         utt = synthesize(req.text, wav, self.config, req.voice)
         with open_write(self.out_dir / self.LOG_NAME, "a") as log:
-            log.write(f"{now_s:.3f}\t{utt.voice}\t{utt.duration_s:.3f}\t{wav.name}\t{utt.text}\n")
+            frame = "" if req.frame_stamp_s is None else f"{req.frame_stamp_s:.3f}"
+            log.write(
+                f"{now_s:.3f}\t{utt.voice}\t{utt.duration_s:.3f}\t{wav.name}\t{frame}\t{utt.text}\n"
+            )
         return utt
 
     def _play(self, req: _Request) -> Utterance:

@@ -84,11 +84,15 @@ class WarningReactor:
         self.robot_cell: int | None = None
         self.person_cell: int | None = None  # the person to warn (:func:`person_to_warn`)
         self.approaching = False  # someone walks into the robot's cell (:func:`approaching`)
+        self.frame_stamp_s: float | None = None  # the latest observation's camera frame
 
     def observe(self, body: Mapping[str, Any]) -> None:
         """Take one observation record (``robot``, ``person``, ``velocity`` labels and,
         with several people, ``people``)."""
         robot, person = str(body["robot"]), str(body["person"])
+        frame = body.get("frame_stamp_s")
+        # the camera frame this observation comes from: a warning's latency starts there
+        self.frame_stamp_s = float(frame) if isinstance(frame, int | float) else None
         self.robot_cell = int(robot) if robot.isdigit() else None
         self.person_cell = person_to_warn(robot, person, body.get("people"))
         self.approaching = approaching(

@@ -287,7 +287,7 @@ def write_report(
     wavs = sorted(p.relative_to(run_dir).as_posix() for p in (run_dir / "speech").glob("*.wav"))
     title = f"{run_dir.name} ({task.name})"
     summary = summarise(model, rows, records, tl, wavs, thesis_table)
-    summary["latency"] = latency(steps, trace)  # camera to decision to motion
+    summary["latency"] = latency(steps, trace, records.utterances)  # camera to motion, warning
     realtime = read_realtime(run_dir, records.warnings)
     if realtime is not None:  # a real-time twin: how well it kept the wall clock
         summary["realtime"] = realtime

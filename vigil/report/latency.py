@@ -11,6 +11,9 @@ Per decision step, from the run's records:
   faster than :data:`MOVING_MPS`, minus the decision time: the navigation goal, the
   path, the follower, the base's command and its acceleration.
 - **frame to motion**: the two summed, for the steps that have both.
+- **frame to warning**: a warning's start in the speech log minus the stamp of the
+  camera frame whose observation made the speech node warn (its ``frame_stamp_s``
+  column): detector, observations, the speech node's decision and espeak-ng.
 
 Each is reported as count, median, 95th percentile and maximum, against the budget of
 docs/HARDWARE.md (:data:`BUDGET_S`, p95). In lock-step runs (the twin waits for the
@@ -29,7 +32,12 @@ MOVING_MPS = 0.05  # the robot moves: faster than this between two trace records
 AT_REST_MPS = 0.02  # the robot stands still at a decision: slower than this
 MOTION_WINDOW_S = 5.0  # no motion this long after a decision: the step is not counted
 # docs/HARDWARE.md, "Latency budget": p95 of each, seconds
-BUDGET_S = {"frame_to_decision_s": 0.5, "decision_to_motion_s": 0.5, "frame_to_motion_s": 1.0}
+BUDGET_S = {
+    "frame_to_decision_s": 0.5,
+    "decision_to_motion_s": 0.5,
+    "frame_to_motion_s": 1.0,
+    "frame_to_warning_s": 1.0,
+}
 
 
 def _speeds(trace: Sequence[dict]) -> list[tuple[float, float]]:
@@ -78,9 +86,12 @@ def stats(values: Sequence[float]) -> dict[str, Any]:
     }
 
 
-def latency(steps: Sequence[dict], trace: Sequence[dict]) -> dict[str, Any]:
+def latency(
+    steps: Sequence[dict], trace: Sequence[dict], utterances: Sequence[Any] = ()
+) -> dict[str, Any]:
     """The run's latencies (see the module's docstring) with the budget and whether
-    each p95 is within it (None: nothing measured)."""
+    each p95 is within it (None: nothing measured). ``utterances``: the speech log's
+    (:class:`vigil.report.records.Utterance`: ``t`` and ``frame_stamp_s``)."""
     speeds = _speeds(trace)
     frame: list[float] = []
     motion: list[float] = []
@@ -108,6 +119,9 @@ def latency(steps: Sequence[dict], trace: Sequence[dict]) -> dict[str, Any]:
         "frame_to_decision_s": stats(frame),
         "decision_to_motion_s": stats(motion),
         "frame_to_motion_s": stats(both),
+        "frame_to_warning_s": stats(
+            [u.t - u.frame_stamp_s for u in utterances if u.frame_stamp_s is not None]
+        ),
         "budget_p95_s": dict(BUDGET_S),
     }
     out["within_budget"] = {

@@ -219,10 +219,12 @@ class Utterance:
     duration_s: float | None
     text: str
     wav: str = ""
+    frame_stamp_s: float | None = None  # the camera frame that caused it (a warning)
 
 
 def read_speech_log(path: str | Path, warnings: list[str] | None = None) -> list[Utterance]:
-    """The utterances of ``speech_log.tsv`` (header ``time_s voice duration_s wav text``).
+    """The utterances of ``speech_log.tsv`` (header ``time_s voice duration_s wav
+    frame_stamp_s text``; logs without ``frame_stamp_s`` are read too).
 
     Raises:
         RunRecordError: a line without five tab-separated fields or with a time that is
@@ -233,23 +235,31 @@ def read_speech_log(path: str | Path, warnings: list[str] | None = None) -> list
     text = read_text_capped(path, MAX_RECORD_BYTES)
     lines = text.split("\n")
     out: list[Utterance] = []
+    # the text is the last column (it may hold tabs); the frame stamp's column is newer
+    framed = lines[0].split("\t")[4:5] == ["frame_stamp_s"]
+    fields = 6 if framed else 5
     for i, line in enumerate(lines, start=1):
         if not line.strip() or (i == 1 and line.startswith("time_s")):
             continue
         parts = line.split("\t")
+        frame: float | None = None
         try:
-            if len(parts) < 5:
-                raise ValueError(f"expected 5 tab-separated fields, got {len(parts)}")
+            if len(parts) < fields:
+                raise ValueError(f"expected {fields} tab-separated fields, got {len(parts)}")
             t = float(parts[0])
             if not math.isfinite(t):
                 raise ValueError(f"time {parts[0]!r} is not finite")
             dur = float(parts[2]) if parts[2] not in ("", "nan") else None
+            if framed and parts[4]:
+                frame = float(parts[4])
+                if not math.isfinite(frame):
+                    raise ValueError(f"frame stamp {parts[4]!r} is not finite")
         except ValueError as e:
             if i == len(lines) and not text.endswith("\n") and warnings is not None:
                 warnings.append(f"{path.name}:{i}: skipped a truncated last line")
                 continue
             raise RunRecordError(path, i, str(e)) from e
-        out.append(Utterance(t, dur, "\t".join(parts[4:]), parts[3]))
+        out.append(Utterance(t, dur, "\t".join(parts[fields - 1 :]), parts[3], frame))
     return out
 
 
