@@ -390,3 +390,76 @@ def test_hardware_camera_info_reaches_the_camera_node_and_a_bad_one_stops_the_de
     data["hardware"]["camera_info"] = 3
     with pytest.raises(ConfigError, match="must be a path"):
         parse_deployment(data, tmp_path / "hardware.yaml")
+
+
+# -- the system over several hosts ----------------------------------------------------
+def split_twin(tmp_path, hosts, **extra) -> dict:
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
+    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
+    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    data["twin"]["realtime"] = True
+    data.update({"lockstep": False, "hosts": hosts, **extra})
+    return data
+
+
+HOSTS = {
+    "robot": ["twin_bridge", "localisation", "legs", "navigation", "speech"],
+    "camera": ["camera_people"],
+    "planner": ["observations", "planner", "recorder", "bag", "markers"],
+}
+
+
+def test_each_host_starts_its_own_nodes(tmp_path):
+    from vigil.system import host_specs, prepare
+
+    dep = parse_deployment(split_twin(tmp_path, HOSTS), tmp_path / "twin.yaml")
+    system = prepare(dep, tmp_path / "run", say=lambda s: None)
+    assert [s.name for s in host_specs(system, dep, "camera")] == ["camera_people"]
+    robot = {s.name for s in host_specs(system, dep, "robot")}
+    assert robot == set(HOSTS["robot"])
+    assert len(host_specs(system, dep, None)) == len(system.specs)
+    with pytest.raises(ConfigError, match="--host.*not a host"):
+        host_specs(system, dep, "kitchen")
+    bad = parse_deployment(split_twin(tmp_path, {"robot": ["twin_brige"]}), tmp_path / "t.yaml")
+    with pytest.raises(ConfigError, match=r"hosts\.robot.*twin_brige"):
+        host_specs(prepare(bad, tmp_path / "run2", say=lambda s: None), bad, "robot")
+
+
+@pytest.mark.parametrize(
+    "hosts, extra, match",
+    [
+        ({"robot": ["planner"], "pc": ["planner"]}, {}, "already runs on host 'robot'"),
+        ({"robot": "planner"}, {}, r"hosts\.robot.*list of node names"),
+        (["robot"], {}, "must map host names"),
+        ({"the robot": ["planner"]}, {}, "host names are words"),
+        ({"robot": ["planner"]}, {"lockstep": True}, "cannot run in lock-step"),
+    ],
+)
+def test_bad_hosts_are_refused_by_key(tmp_path, hosts, extra, match):
+    with pytest.raises(ConfigError, match=match):
+        parse_deployment(split_twin(tmp_path, hosts, **extra), tmp_path / "twin.yaml")
+
+
+def test_peers_are_asked_at_discovery_and_need_the_network(tmp_path):
+    from vigil.dds import profile_xml
+
+    ros = {"domain_id": 77, "localhost_only": False, "interfaces": ["10.77.0.2"],
+           "peers": ["10.77.0.1", "10.77.0.3"]}  # fmt: skip
+    dep = parse_deployment(split_twin(tmp_path, HOSTS, ros=ros), tmp_path / "twin.yaml")
+    assert dep.ros.peers == ("10.77.0.1", "10.77.0.3")
+    xml = profile_xml(dep.ros.interfaces, dep.ros.peers)
+    peers_list = xml.split("<initialPeersList>")[1].split("</initialPeersList>")[0]
+    assert all(ip in peers_list for ip in ("127.0.0.1", "10.77.0.2", "10.77.0.1", "10.77.0.3"))
+    white = xml.split("<interfaceWhiteList>")[1].split("</interfaceWhiteList>")[0]
+    assert "10.77.0.1" not in white  # a peer is asked, not listened on
+    with pytest.raises(ConfigError, match="peers.*localhost_only: false"):
+        parse_deployment(
+            split_twin(tmp_path, HOSTS, ros={"localhost_only": True, "peers": ["10.0.0.1"]}),
+            tmp_path / "twin.yaml",
+        )
+    with pytest.raises(ConfigError, match="peers"):
+        parse_deployment(
+            split_twin(tmp_path, HOSTS, ros={"localhost_only": False, "peers": ["10.0.0"]}),
+            tmp_path / "twin.yaml",
+        )

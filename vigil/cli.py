@@ -498,6 +498,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=DEFAULT_RESUME_MAX_AGE_S,
         help=f"the oldest planner state --resume takes [s], default {DEFAULT_RESUME_MAX_AGE_S:g}",
     )
+    p.add_argument(
+        "--host",
+        default=None,
+        help="start only this host's nodes (the deployment's hosts: the system over "
+        "several machines, each running vigil launch FILE --host NAME)",
+    )
     p.set_defaults(func=cmd_launch)
 
     p = _command(
@@ -721,7 +727,13 @@ def cmd_security_check(args: argparse.Namespace) -> int:
 def cmd_launch(args: argparse.Namespace) -> int:
     from vigil.launch import launch
 
-    return launch(args.config, args.out, resume=args.resume, resume_max_age_s=args.resume_max_age_s)
+    return launch(
+        args.config,
+        args.out,
+        resume=args.resume,
+        resume_max_age_s=args.resume_max_age_s,
+        host=args.host,
+    )
 
 
 def _operator_args(p: argparse.ArgumentParser) -> None:

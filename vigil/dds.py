@@ -49,8 +49,11 @@ def _ipv4(text: str) -> str:
     return ".".join(str(int(p)) for p in parts)
 
 
-def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
-    """The Fast DDS profile restricting every participant to ``addresses`` (+ loopback).
+def profile_xml(
+    addresses: list[str] | tuple[str, ...] = (), peers: list[str] | tuple[str, ...] = ()
+) -> str:
+    """The Fast DDS profile restricting every participant to ``addresses`` (+ loopback);
+    ``peers``, other hosts' addresses, are asked directly at discovery besides.
 
     Raises:
         ConfigError: an address that is not IPv4.
@@ -59,6 +62,11 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
     white = "".join(f"<address>{escape(a)}</address>" for a in allowed)
     locators = "".join(
         f"<locator><udpv4><address>{escape(a)}</address></udpv4></locator>" for a in allowed
+    )
+    asked = "".join(
+        f"<locator><udpv4><address>{escape(a)}</address></udpv4></locator>"
+        for a in (_ipv4(x) for x in peers)
+        if a not in allowed
     )
     # off loopback (the robot network): multicast discovery on the listed addresses too
     multicast = (
@@ -92,7 +100,7 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
         <useBuiltinTransports>false</useBuiltinTransports>
         <builtin>
           <metatrafficUnicastLocatorList>{locators}</metatrafficUnicastLocatorList>{multicast}
-          <initialPeersList>{locators}</initialPeersList>
+          <initialPeersList>{locators}{asked}</initialPeersList>
         </builtin>
         <defaultUnicastLocatorList>{locators}</defaultUnicastLocatorList>
       </rtps>
@@ -102,10 +110,14 @@ def profile_xml(addresses: list[str] | tuple[str, ...] = ()) -> str:
 """
 
 
-def write_profile(folder: Path, addresses: list[str] | tuple[str, ...] = ()) -> Path:
+def write_profile(
+    folder: Path,
+    addresses: list[str] | tuple[str, ...] = (),
+    peers: list[str] | tuple[str, ...] = (),
+) -> Path:
     """Write :func:`profile_xml` into ``folder``; returns its path."""
     path = Path(folder) / PROFILE_FILE
-    write_text(path, profile_xml(addresses))
+    write_text(path, profile_xml(addresses, peers))
     return path
 
 

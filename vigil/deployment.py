@@ -11,7 +11,9 @@ Sections (all optional except ``mode`` and ``task``)::
     task: task-r2.yaml            # the POMDP (grid, rewards, initial state)
     policy: ""                    # alpha vectors (.npz); "": solved on first use, cached
     lockstep: true                # twin only: advance only when the stack has caught up
-    ros: {domain_id: null, localhost_only: true}
+    ros: {domain_id: null, localhost_only: true, interfaces: [], peers: []}
+    hosts: {robot: [twin_bridge, ...], planner: [...]}  # the system over several hosts:
+                                  # vigil launch FILE --host NAME starts that host's nodes
     twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 25.0}
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
     navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0,
@@ -75,12 +77,16 @@ class RosSection(Config):
             (e.g. the robot's wired address); empty: refused in hardware mode.
         keystore: an SROS2 keystore (``vigil security keystore``); hardware mode runs
             with security enforced when set.
+        peers: the other hosts' addresses, asked directly at discovery (unicast: for a
+            network that drops multicast, e.g. Wi-Fi), beside multicast on
+            ``interfaces``.
     """
 
     domain_id: int = -1
     localhost_only: bool = True
     interfaces: tuple[str, ...] = ()
     keystore: str = ""
+    peers: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not -1 <= self.domain_id <= 232:
@@ -88,6 +94,11 @@ class RosSection(Config):
         for ip in self.interfaces:
             if not _is_ipv4(ip):
                 raise ConfigError("interfaces", ip, "must be IPv4 addresses like 10.0.0.2")
+        for ip in self.peers:
+            if not _is_ipv4(ip):
+                raise ConfigError("peers", ip, "must be IPv4 addresses like 10.0.0.3")
+        if self.peers and self.localhost_only:
+            raise ConfigError("peers", list(self.peers), "needs localhost_only: false")
 
 
 def _is_ipv4(text: str) -> bool:
@@ -218,6 +229,7 @@ class Deployment:
     topics: TopicsSection
     hardware: dict[str, Any] = field(default_factory=dict)
     source: Path | None = None
+    hosts: dict[str, tuple[str, ...]] = field(default_factory=dict)  # host -> its nodes
 
     def resolve(self, path: str) -> Path | None:
         """A path of the file, relative to the file's folder ("" -> None)."""
@@ -237,7 +249,33 @@ _SECTIONS = {
     "nodes": NodesSection,
     "topics": TopicsSection,
 }
-_KEYS = {"mode", "task", "policy", "lockstep", "hardware", *_SECTIONS}
+_KEYS = {"mode", "task", "policy", "lockstep", "hardware", "hosts", *_SECTIONS}
+
+
+def _hosts(data: Any) -> dict[str, tuple[str, ...]]:
+    """The ``hosts`` section: host name -> the names of the nodes it runs, each node on
+    one host at most (which nodes exist is checked by :func:`vigil.system.host_specs`).
+
+    Raises:
+        ConfigError: not such a mapping, or a node listed twice.
+    """
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError("hosts", data, "must map host names to lists of node names")
+    out: dict[str, tuple[str, ...]] = {}
+    seen: dict[str, str] = {}
+    for host, nodes in data.items():
+        if not isinstance(host, str) or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]*", host):
+            raise ConfigError("hosts", host, "host names are words like robot or camera-pc")
+        if not isinstance(nodes, list) or not all(isinstance(n, str) for n in nodes):
+            raise ConfigError(f"hosts.{host}", nodes, "must be a list of node names")
+        for n in nodes:
+            if n in seen:
+                raise ConfigError(f"hosts.{host}", n, f"already runs on host {seen[n]!r}")
+            seen[n] = host
+        out[host] = tuple(nodes)
+    return out
 
 
 def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
@@ -282,6 +320,12 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
             "odom",
             "on a robot odometry drifts from the map: use amcl or tf (REP-105 map -> odom)",
         )
+    hosts = _hosts(data.get("hosts"))
+    if hosts and lockstep:
+        raise ConfigError(
+            "hosts", sorted(hosts), "a system over several hosts cannot run in lock-step: "
+            "set lockstep: false (and, in the twin, twin.realtime: true)",
+        )  # fmt: skip
     dep = Deployment(
         mode=mode,
         task=Path(task),
@@ -289,6 +333,7 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
         lockstep=lockstep,
         hardware=dict(hardware),
         source=source,
+        hosts=hosts,
         **sections,
     )
     resolved = replace(dep, task=dep.resolve(task), policy=dep.resolve(policy) if policy else None)

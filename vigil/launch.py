@@ -19,7 +19,7 @@ import subprocess
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from stack.exits import EXIT_DISK_FULL, TEARDOWN_S, TEARDOWN_SIGNAL
@@ -316,6 +316,7 @@ def prepare_launch(
     resume: bool = False,
     resume_max_age_s: float = DEFAULT_RESUME_MAX_AGE_S,
     say: Callable[[str], None] = print,
+    host: str | None = None,
 ):
     """Everything ``vigil launch`` does before a process starts; returns (deployment,
     system, run id).
@@ -332,7 +333,7 @@ def prepare_launch(
     from stack.hardware.base_watchdog import check_timeout
     from vigil.deployment import load_deployment
     from vigil.run_folder import fresh_run_dir
-    from vigil.system import prepare
+    from vigil.system import host_specs, prepare
 
     max_age_s = check_timeout("--resume-max-age-s", resume_max_age_s)
     dep = load_deployment(config)
@@ -342,6 +343,10 @@ def prepare_launch(
     run_dir = fresh_run_dir(out, run_id)
     say(f"[launch] folder {run_dir}")
     system = prepare(dep, run_dir, say=say)
+    if host is not None:  # one host of several: its own nodes only (the deployment's hosts)
+        specs = host_specs(system, dep, host)
+        system = replace(system, specs=specs)
+        say(f"[launch] host {host}: " + ", ".join(s.name for s in specs))
     planner = system.params.get("planner", {})
     identity = planner_identity(dep.source, planner)
     _write_new(run_dir / IDENTITY_FILE, (json.dumps(identity, indent=2) + "\n").encode())
@@ -358,6 +363,7 @@ def launch(
     say: Callable[[str], None] = print,
     resume: bool = False,
     resume_max_age_s: float = DEFAULT_RESUME_MAX_AGE_S,
+    host: str | None = None,
 ) -> int:
     """``vigil launch CONFIG``: start the system, show each node up, run until a signal
     or until a node dies for good; returns the exit code of the first cause
@@ -369,7 +375,9 @@ def launch(
     Every ending writes ``run.json`` (``ending``, ``cause``, ``exit_code``, the nodes'
     exit codes and failures) into the launch's folder.
 
-    The run folder and the planner's resumption: :func:`prepare_launch`.
+    The run folder and the planner's resumption: :func:`prepare_launch`. With ``host``,
+    only that host's nodes of the deployment's ``hosts`` start (the system over several
+    hosts: each runs ``vigil launch FILE --host NAME``).
 
     Raises:
         ConfigError: a bad deployment, ``--out`` or ``--resume-max-age-s``.
@@ -390,7 +398,7 @@ def launch(
 
     signals = Signals()
     try:
-        dep, system, run_id = prepare_launch(config, out, resume, resume_max_age_s, say)
+        dep, system, run_id = prepare_launch(config, out, resume, resume_max_age_s, say, host)
     except Interrupted as err:
         signals.restore()
         say(f"[launch] {err.name}: stopped before any node started")

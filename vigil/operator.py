@@ -98,7 +98,8 @@ def operator_env(dep: Deployment, folder: Path) -> dict[str, str]:
     from vigil.security import ENCLAVE_ROOT, security_env
 
     addresses = () if dep.ros.localhost_only else dep.ros.interfaces
-    env = dds_env(write_profile(folder, addresses), dep.ros.localhost_only)
+    peers = () if dep.ros.localhost_only else dep.ros.peers
+    env = dds_env(write_profile(folder, addresses, peers), dep.ros.localhost_only)
     env["ROS_DOMAIN_ID"] = str(dep.ros.domain_id)
     if dep.ros.keystore:
         env.update(security_env(dep.resolve(dep.ros.keystore) or dep.ros.keystore))

@@ -339,7 +339,8 @@ def _write(
     env = {"PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"}
     # DDS confined to loopback (+ the listed addresses in hardware mode): vigil/dds.py
     addresses = () if dep.ros.localhost_only else dep.ros.interfaces
-    env.update(dds_env(write_profile(run_dir, addresses), dep.ros.localhost_only))
+    peers = () if dep.ros.localhost_only else dep.ros.peers
+    env.update(dds_env(write_profile(run_dir, addresses, peers), dep.ros.localhost_only))
     if dep.mode == "hardware" and dep.ros.keystore:
         env.update(security_env(dep.resolve(dep.ros.keystore)))
     if dep.ros.domain_id >= 0:
@@ -350,6 +351,24 @@ def _write(
     # cores, and the planner's small products only lose by more (stack.planning.threads)
     env.update({k: "1" for k in BLAS_THREAD_VARS if k not in os.environ})
     return System(run_dir, specs, {n: params[n] for n in names}, env, max_steps)
+
+
+def host_specs(system: System, dep: Deployment, host: str | None) -> list[ProcessSpec]:
+    """The processes ``host`` runs (the deployment's ``hosts``); all of them for None.
+
+    Raises:
+        ConfigError: an unknown host, or a host listing a node the system does not have.
+    """
+    if host is None:
+        return list(system.specs)
+    if host not in dep.hosts:
+        raise ConfigError("--host", host, f"not a host of the deployment ({sorted(dep.hosts)})")
+    names = {s.name for s in system.specs}
+    for h, nodes in dep.hosts.items():
+        unknown = sorted(set(nodes) - names)
+        if unknown:
+            raise ConfigError(f"hosts.{h}", unknown, f"not nodes of this system ({sorted(names)})")
+    return [s for s in system.specs if s.name in dep.hosts[host]]
 
 
 def realtime_twin(dep: Deployment) -> bool:
