@@ -329,6 +329,8 @@ def test_a_realtime_twin_runs_free_writes_its_stats_and_its_nodes_yield_the_core
     assert bridge["realtime"] is True and bridge["lockstep"] is False
     assert bridge["realtime_file"] == str(tmp_path / "b" / "realtime.json")
     assert system.params["bag"]["sim_clock"] is False  # the system clock, as on a robot
+    # the world starts once every node is up
+    assert set(bridge["participants"]) == {s.name for s in system.specs} - {"twin_bridge"}
     assert lockstep.params["bag"]["sim_clock"] is True
     nice = {s.name: s.nice for s in system.specs}
     assert nice.pop("twin_bridge") == 0

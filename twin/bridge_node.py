@@ -189,6 +189,10 @@ class TwinBridge(Releasing, Node):
         # real time: the camera renders on its own thread while the physics goes on
         self.camera = twin.async_camera() if self.pacer is not None else None
         self._frame_owed = False  # a frame came due while the renderer was busy
+        # real time: the nodes the world waits for before it starts (as an experimenter
+        # sends the person in once the system is up), at most stall_timeout_s
+        self._awaited = {n for n in participants if n} if self.pacer is not None else set()
+        self._await_since: float | None = None
         self.offset_s = 0.0
         self.realtime_file = v.realtime_file
         self._stats_at = (0.0, 0.0)  # wall times of the last stats file and log line
@@ -295,6 +299,8 @@ class TwinBridge(Releasing, Node):
         pacer = self.pacer
         assert pacer is not None
         wall = self._wall_s()
+        if self._awaited and not self._stack_up(wall):
+            return
         if pacer.stats.ticks == 0 and self.offset_s == 0.0:
             # the stamps: the system clock at the start plus the simulated time
             now_s = self.get_clock().now().nanoseconds * 1e-9
@@ -308,6 +314,25 @@ class TwinBridge(Releasing, Node):
             self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s + self.offset_s)))
             self._publish_sensors()
         self._report_realtime(wall)
+
+    def _stack_up(self, wall: float) -> bool:
+        """Real time, before the first tick: are the awaited nodes in the ROS graph (or
+        has the wait lasted ``stall_timeout_s``)? Says which once it stops waiting."""
+        if self._await_since is None:
+            self._await_since = wall
+        self._awaited -= set(self.get_node_names())
+        log = self.get_logger()
+        if not self._awaited:
+            log.info("real time: every node is up, the world starts")
+            return True
+        if wall - self._await_since >= self.stall_timeout_s:
+            log.warning(
+                f"real time: starting without {sorted(self._awaited)} "
+                f"(not up after {self.stall_timeout_s:g} s)"
+            )
+            self._awaited = set()
+            return True
+        return False
 
     def _publish_frame(self) -> None:
         """Real time: a frame the render thread finished, stamped when it was captured."""

@@ -281,6 +281,8 @@ def prepare(
         )
         params["twin_bridge"]["participants"].append("bag")
     names.append("bag")
+    if realtime_twin(dep):  # the world starts once every node is up (on any host)
+        params["twin_bridge"]["participants"] = [n for n in names if n != "twin_bridge"]
     return _write(run_dir, names, params, dep, max_steps)
 
 
