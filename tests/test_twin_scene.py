@@ -45,7 +45,10 @@ def test_scene_has_its_parts():
         assert part in names
     assert sum(n.startswith("mbot/wheel_") for n in names) == 4
     assert {"person/shin_l_geom", "person/shin_r_geom", "person/head"} <= names
-    assert m.nlight >= 4 and any(m.light_castshadow)
+    # no light casts shadows by default (the render's cost); camera.shadows: the key light
+    assert m.nlight >= 4 and not any(m.light_castshadow)
+    lit = Twin(TwinConfig.from_dict({"camera": {"shadows": True}}), seed=0).model
+    assert sum(bool(c) for c in lit.light_castshadow) == 1
     # the robot is about 0.6 m wide and 1.2-1.3 m tall
     twin.data.qpos[:] = 0
     mujoco.mj_forward(m, twin.data)
