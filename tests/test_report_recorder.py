@@ -60,3 +60,17 @@ def test_recorder_writes_raw_records(tmp_path):
     frames = list(read_frames(tmp_path / "camera_frames.bin"))
     assert [t for t, _ in frames] == [r["t"] for r in lines]
     assert decode(frames[0][1]).shape == (4, 6, 3) and frames[1][1] == b""
+
+
+def test_a_camera_state_before_the_first_truth_makes_no_trace_record():
+    """In real time the world waits for the nodes; the camera's watchdog may say
+    "unknown" before the twin's first truth: no record then (it once made a record at
+    t = 0 in a trace on the system clock)."""
+    from vigil.trace_records import TraceRecords
+
+    rec = TraceRecords()
+    assert rec.on_person({"stamp_s": 0.0, "status": "unknown"}) is None
+    assert rec.on_truth({"t": 1795782584.5, "robot": [1.0, 2.0, 0.0]}) is not None
+    record, stamp = rec.on_person({"stamp_s": 1795782584.55, "status": "no person"})
+    assert record["t"] == 1795782584.5 and record["robot"] == [1.0, 2.0, 0.0]
+    assert stamp == 1795782584.55

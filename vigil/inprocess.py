@@ -577,7 +577,9 @@ class InProcessSystem:
                 del self._images[min(self._images)]
 
     def rec_on_person(self, text: str) -> None:
-        self._trace_write(*self.records.on_person(json.loads(text)))
+        written = self.records.on_person(json.loads(text))
+        if written is not None:
+            self._trace_write(*written)
 
     def _trace_write(self, record: dict, stamp: float | None) -> None:
         self.trace.write(json.dumps(record, sort_keys=True) + "\n")

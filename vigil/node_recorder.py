@@ -126,7 +126,9 @@ class RecorderNode(Releasing, Node):
 
     @_skips_bad_messages
     def on_person(self, msg: CameraPerson) -> None:
-        self.write(*self.records.on_person(camera_from_msg(msg)))
+        written = self.records.on_person(camera_from_msg(msg))
+        if written is not None:
+            self.write(*written)
 
     def write(self, record: dict, stamp: float | None) -> None:
         """One trace record and, with the video, the frame stamped ``stamp``."""

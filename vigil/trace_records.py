@@ -52,9 +52,13 @@ class TraceRecords:
     def on_warning(self, text: str) -> None:
         self.speech.append(text or "warning")  # every one: two may come between records
 
-    def on_person(self, camera: dict[str, Any]) -> tuple[dict[str, Any], float]:
+    def on_person(self, camera: dict[str, Any]) -> tuple[dict[str, Any], float] | None:
         """The camera people node's message: its record, and the frame's stamp (the
-        frame that goes with it in the video)."""
+        frame that goes with it in the video); None before the twin's first truth (the
+        camera's watchdog stating "unknown" while the world waits for the nodes to come
+        up, in real time: no time to put it at, nothing true to hold)."""
+        if self.truth is None:
+            return None
         stamp = round(float(camera.get("stamp_s") or 0.0), 6)
         t = (self.truth or {}).get("t", stamp)
         return self.record(t, {k: camera.get(k) for k in CAMERA_KEYS}), stamp
