@@ -161,6 +161,16 @@ def replace_into(src: str | os.PathLike, dst: str | os.PathLike) -> None:
     os.replace(src, dst)
 
 
+def write_atomic(path: str | os.PathLike, text: str) -> None:
+    """Replace the text file ``path`` whole: written beside it as ``<name>.tmp``
+    (:func:`write_text`), then renamed over it (:func:`replace_into`), so a crash
+    mid-write leaves the old file intact and a reader never sees half of one."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    write_text(tmp, text)
+    replace_into(tmp, path)
+
+
 class PrivateOutput:
     """A file written by name by a library or a process that would follow a link there
     (ffmpeg, espeak-ng, openssl), then moved into place.

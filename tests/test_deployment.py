@@ -270,16 +270,22 @@ def test_hardware_system_gates_motion_and_has_no_twin(tmp_path):
     assert params["planner"]["ros__parameters"]["task_file"].endswith("task-r2.yaml")
 
 
+def twin_data(tmp_path) -> dict:
+    """config/twin.yaml with task r1, an empty policy in tmp_path and absolute paths."""
+    (tmp_path / "policy.npz").write_bytes(b"")
+    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
+    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
+    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    return data
+
+
 def test_twin_system_is_lockstep_on_localhost(tmp_path, monkeypatch):
     from vigil.system import prepare
 
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the user's choice is kept
 
-    (tmp_path / "policy.npz").write_bytes(b"")
-    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
-    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
-    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    data = twin_data(tmp_path)
     dep = parse_deployment(data, tmp_path / "twin.yaml")
     scenario = load_scenario(REPO / "scenarios" / "5.1.2.yaml")
     system = prepare(dep, tmp_path / "run", scenario, say=lambda s: None)
@@ -313,10 +319,7 @@ def test_twin_system_is_lockstep_on_localhost(tmp_path, monkeypatch):
 def test_a_realtime_twin_runs_free_writes_its_stats_and_its_nodes_yield_the_cores(tmp_path):
     from vigil.system import REALTIME_NODES_NICE, prepare
 
-    (tmp_path / "policy.npz").write_bytes(b"")
-    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
-    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
-    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    data = twin_data(tmp_path)
     lockstep = prepare(parse_deployment(data, tmp_path / "twin.yaml"), tmp_path / "a",
                        say=lambda s: None)  # fmt: skip
     assert all(s.nice == 0 for s in lockstep.specs)
@@ -396,10 +399,7 @@ def test_hardware_camera_info_reaches_the_camera_node_and_a_bad_one_stops_the_de
 
 # -- the system over several hosts ----------------------------------------------------
 def split_twin(tmp_path, hosts, **extra) -> dict:
-    (tmp_path / "policy.npz").write_bytes(b"")
-    data = yaml.safe_load((CONFIG / "twin.yaml").read_text())
-    data.update(task=str(CONFIG / "task-r1.yaml"), policy=str(tmp_path / "policy.npz"))
-    data["twin"]["scene"] = str(CONFIG / "twin-scene.yaml")
+    data = twin_data(tmp_path)
     data["twin"]["realtime"] = True
     data.update({"lockstep": False, "hosts": hosts, **extra})
     return data

@@ -141,12 +141,15 @@ def test_the_async_camera_renders_on_its_thread_one_frame_at_a_time():
     log: list = []
     cam = AsyncCamera(lambda: FakeRenderer(log), camera="ceiling")
     assert cam.collect() is None  # nothing in flight
+    assert cam.render_ms() is None  # no frame yet
     assert cam.capture(7, 1.25)
     assert not cam.capture(8, 1.35)  # one in flight: the next frame is dropped
     t_s, img = cam.collect(wait=True)
     assert t_s == 1.25 and int(img[0, 0, 0]) == 7  # the scene taken at capture
     assert cam.capture(9, 1.45)
     assert cam.collect(wait=True)[0] == 1.45
+    median_ms, max_ms = cam.render_ms()
+    assert 0.0 <= median_ms <= max_ms + 0.05
     cam.close()
     threads = {what: name for what, name in log}
     assert threads["made"] == threads["render"] == threads["closed"] == "camera-render"

@@ -58,7 +58,7 @@ from vigil_interfaces.msg import LockstepAck, TwinTruth
 import stack.topics as topic
 from stack import tf
 from stack.exits import EXIT_STALLED  # the lock-step stalled for good
-from stack.files import replace_into, write_text
+from stack.files import write_atomic
 from stack.hardware.base_watchdog import OK as WATCHDOG_OK
 from stack.hardware.base_watchdog import STALE, BaseWatchdog, check_timeout
 from stack.lockstep import (
@@ -339,12 +339,15 @@ class TwinBridge(Releasing, Node):
         if self.camera is None or (frame := self.camera.collect()) is None:
             return
         t_s, rgb = frame
-        ts = t_s + self.offset_s
-        info = self.twin.camera_info
-        self._publish(self.pub_image, image_msg(rgb, ts, info.frame_id))
-        self._publish(self.pub_info, camera_info_msg(info, ts))
+        self._publish_image(rgb, t_s + self.offset_s)
         if self._frame_owed:  # the frame that came due meanwhile: taken now, a bit late
             self._capture()
+
+    def _publish_image(self, rgb, stamp_s: float) -> None:
+        """The camera's image and its camera_info, stamped ``stamp_s``."""
+        info = self.twin.camera_info
+        self._publish(self.pub_image, image_msg(rgb, stamp_s, info.frame_id))
+        self._publish(self.pub_info, camera_info_msg(info, stamp_s))
 
     def _capture(self) -> None:
         """Real time: hand the scene to the render thread now, or owe it the frame."""
@@ -358,9 +361,6 @@ class TwinBridge(Releasing, Node):
         """The stats: to ``realtime_file`` each second, a log line each 10 s."""
         assert self.pacer is not None
         stats = self.pacer.stats
-        if self.camera is not None and self.camera.render_s:
-            ms = sorted(self.camera.render_s)
-            stats.render_ms_median, stats.render_ms_max = ms[len(ms) // 2] * 1e3, ms[-1] * 1e3
         written, logged = self._stats_at
         if self.realtime_file and wall - written >= 1.0:
             self.write_realtime()
@@ -375,10 +375,11 @@ class TwinBridge(Releasing, Node):
         """Replace ``realtime_file`` with the stats so far (a crash leaves the last)."""
         if self.pacer is None or not self.realtime_file:
             return
-        tmp = self.realtime_file + ".tmp"
+        stats = self.pacer.stats
+        if self.camera is not None and (ms := self.camera.render_ms()) is not None:
+            stats.render_ms_median, stats.render_ms_max = ms
         try:
-            write_text(tmp, json.dumps(self.pacer.stats.to_json(), sort_keys=True) + "\n")
-            replace_into(tmp, self.realtime_file)
+            write_atomic(self.realtime_file, json.dumps(stats.to_json(), sort_keys=True) + "\n")
         except OSError as err:
             self.get_logger().error(
                 f"realtime_file {self.realtime_file}: {err}", throttle_duration_sec=10.0
@@ -416,9 +417,7 @@ class TwinBridge(Releasing, Node):
                 self.pacer.frame(sent=False, due=frames)
                 self._capture()
             else:
-                rgb = tw.render_camera()
-                self._publish(self.pub_image, image_msg(rgb, ts, tw.camera_info.frame_id))
-                self._publish(self.pub_info, camera_info_msg(tw.camera_info, ts))
+                self._publish_image(tw.render_camera(), ts)
 
     def _out(self, sensor: str, t: float) -> bool:
         return any(s == sensor and t0 <= t < t1 for s, t0, t1 in self.outages)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -45,7 +46,11 @@ class AsyncCamera:
         self._busy = False
         self._renderer: Any = None
         self._error: BaseException | None = None
-        self.render_s: list[float] = []  # each frame's render time (wall clock)
+        # the render times (wall clock) in 0.1 ms bins, and the longest: a run of hours
+        # keeps a few thousand counts, not a list it must sort
+        self._render_bins: Counter[int] = Counter()
+        self._render_max_s = 0.0
+        self._stats_lock = threading.Lock()
         self._thread = threading.Thread(
             target=self._run, args=(make_renderer,), name="camera-render", daemon=True
         )
@@ -53,6 +58,21 @@ class AsyncCamera:
         self._ready.wait()
         if self._error is not None:
             raise self._error
+
+    def render_ms(self) -> tuple[float, float] | None:
+        """The median render time (to 0.1 ms) and the longest, in milliseconds; None
+        before the first frame."""
+        with self._stats_lock:
+            bins, longest = sorted(self._render_bins.items()), self._render_max_s
+        n = sum(c for _, c in bins)
+        if not n:
+            return None
+        seen = 0
+        for b, c in bins:  # the bin of the (n // 2)-th time, as sorted(times)[n // 2]
+            seen += c
+            if seen > n // 2:
+                return b / 10.0, longest * 1e3
+        raise AssertionError("unreachable")
 
     @property
     def busy(self) -> bool:
@@ -102,7 +122,10 @@ class AsyncCamera:
                 try:
                     t0 = time.monotonic()
                     rgb = self._renderer.render().copy()
-                    self.render_s.append(time.monotonic() - t0)
+                    took = time.monotonic() - t0
+                    with self._stats_lock:
+                        self._render_bins[round(took * 1e4)] += 1
+                        self._render_max_s = max(self._render_max_s, took)
                     self._done.put((t_s, rgb))
                 except BaseException as err:  # noqa: BLE001 - handed to collect()
                     self._done.put(err)

@@ -40,6 +40,7 @@ PROFILE_FILE = "fastdds.xml"
 # system of nine nodes without multicast: measured, the 6th and later never met)
 MAX_PARTICIPANTS = 64
 LOOPBACK = "127.0.0.1"
+MULTICAST = "239.255.0.1"  # discovery off loopback
 
 
 def _ipv4(text: str) -> str:
@@ -47,6 +48,12 @@ def _ipv4(text: str) -> str:
     if len(parts) != 4 or not all(p.isdigit() and int(p) <= 255 for p in parts):
         raise ConfigError("ros.interfaces", text, "must be an IPv4 address like 10.0.0.2")
     return ".".join(str(int(p)) for p in parts)
+
+
+def _locators(addresses: list[str]) -> str:
+    return "".join(
+        f"<locator><udpv4><address>{escape(a)}</address></udpv4></locator>" for a in addresses
+    )
 
 
 def profile_xml(
@@ -60,18 +67,12 @@ def profile_xml(
     """
     allowed = [LOOPBACK] + [a for a in (_ipv4(x) for x in addresses) if a != LOOPBACK]
     white = "".join(f"<address>{escape(a)}</address>" for a in allowed)
-    locators = "".join(
-        f"<locator><udpv4><address>{escape(a)}</address></udpv4></locator>" for a in allowed
-    )
-    asked = "".join(
-        f"<locator><udpv4><address>{escape(a)}</address></udpv4></locator>"
-        for a in (_ipv4(x) for x in peers)
-        if a not in allowed
-    )
+    locators = _locators(allowed)
+    asked = _locators([a for a in (_ipv4(x) for x in peers) if a not in allowed])
     # off loopback (the robot network): multicast discovery on the listed addresses too
     multicast = (
-        "<metatrafficMulticastLocatorList><locator><udpv4><address>239.255.0.1</address>"
-        "</udpv4></locator></metatrafficMulticastLocatorList>"
+        f"<metatrafficMulticastLocatorList>{_locators([MULTICAST])}"
+        "</metatrafficMulticastLocatorList>"
         if len(allowed) > 1
         else ""
     )
@@ -119,6 +120,19 @@ def write_profile(
     path = Path(folder) / PROFILE_FILE
     write_text(path, profile_xml(addresses, peers))
     return path
+
+
+def deployment_env(
+    folder: Path,
+    localhost_only: bool,
+    interfaces: tuple[str, ...] = (),
+    peers: tuple[str, ...] = (),
+) -> dict[str, str]:
+    """The environment of a deployment's processes (``ros:`` section): its profile
+    written into ``folder`` (loopback only, or also ``interfaces`` with ``peers`` asked
+    at discovery)."""
+    addresses, asked = ((), ()) if localhost_only else (interfaces, peers)
+    return dds_env(write_profile(folder, addresses, asked), localhost_only)
 
 
 def dds_env(profile: Path, localhost_only: bool) -> dict[str, str]:

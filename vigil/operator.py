@@ -94,12 +94,11 @@ def hardware_deployment(dep: Deployment) -> Deployment:
 def operator_env(dep: Deployment, folder: Path) -> dict[str, str]:
     """The environment the launcher's nodes get (domain, DDS profile written into
     ``folder``, security), in the operator's enclave."""
-    from vigil.dds import dds_env, write_profile
+    from vigil.dds import deployment_env
     from vigil.security import ENCLAVE_ROOT, security_env
 
-    addresses = () if dep.ros.localhost_only else dep.ros.interfaces
-    peers = () if dep.ros.localhost_only else dep.ros.peers
-    env = dds_env(write_profile(folder, addresses, peers), dep.ros.localhost_only)
+    ros = dep.ros
+    env = deployment_env(folder, ros.localhost_only, ros.interfaces, ros.peers)
     env["ROS_DOMAIN_ID"] = str(dep.ros.domain_id)
     if dep.ros.keystore:
         env.update(security_env(dep.resolve(dep.ros.keystore) or dep.ros.keystore))

@@ -27,7 +27,7 @@ from stack.files import make_dir
 from stack.memo import Memo
 from stack.planning.threads import ENV_VARS as BLAS_THREAD_VARS
 from twin.realtime import REALTIME_FILE
-from vigil.dds import dds_env, write_profile
+from vigil.dds import deployment_env
 from vigil.deployment import Deployment, gate_topics
 from vigil.processes import ProcessSpec
 from vigil.scenario import Scenario
@@ -340,9 +340,8 @@ def _write(
     ]
     env = {"PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"}
     # DDS confined to loopback (+ the listed addresses in hardware mode): vigil/dds.py
-    addresses = () if dep.ros.localhost_only else dep.ros.interfaces
-    peers = () if dep.ros.localhost_only else dep.ros.peers
-    env.update(dds_env(write_profile(run_dir, addresses, peers), dep.ros.localhost_only))
+    ros = dep.ros
+    env.update(deployment_env(run_dir, ros.localhost_only, ros.interfaces, ros.peers))
     if dep.mode == "hardware" and dep.ros.keystore:
         env.update(security_env(dep.resolve(dep.ros.keystore)))
     if dep.ros.domain_id >= 0:

@@ -14,14 +14,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stack.config import read_text_capped, write_text
+from stack.config import read_text_capped
+from stack.files import write_atomic
 from stack.planning import belief as belief_ops
 from stack.planning.anticipate import Anticipating, Anticipator, PeopleAnticipator
 from stack.planning.model import FactoredModel
@@ -162,10 +162,7 @@ def parse_cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -
 
 def save_state(path: str | Path, state: dict[str, Any]) -> None:
     """Write a planner's state atomically (a crash mid-write leaves the old file intact)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    write_text(tmp, json.dumps(state))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(state))
 
 
 def read_state(path: Path) -> dict[str, Any] | None:
