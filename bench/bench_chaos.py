@@ -1,10 +1,12 @@
-"""The chaos soak (issue 23): a lock-step twin run with at least 20 seeded random
-SIGKILLs of its restartable nodes (navigation, the base's sender, first and while the
-robot drives), then what must hold: the base never kept a command past its timeout
-(it brakes at its acceleration limit), steps.jsonl and every bag read back, and the run
-ended with one line naming the first kill. Figures for docs/SAFETY.md.
+"""The chaos soak (issue 23): a twin run with at least 20 seeded random SIGKILLs of its
+restartable nodes (the base's sender first and while the robot drives: navigation in
+lock-step; with ``--realtime`` the twin keeps the wall clock and the velocity gate sits
+between navigation and the base, and is a victim too), then what must hold: the base
+never kept a command past its timeout (it brakes at its acceleration limit),
+steps.jsonl and every bag read back, and the run ended with one line naming the first
+kill. Figures for docs/SAFETY.md.
 
-    python bench/bench_chaos.py [--kills 20] [--steps 40] [--seed 0] [--out DIR]
+    python bench/bench_chaos.py [--kills 20] [--steps 40] [--seed 0] [--realtime] [--out DIR]
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from vigil.chaos import chaos_files, check_run, run_chaos  # noqa: E402
+from vigil.chaos import GATE_VICTIMS, VICTIMS, chaos_files, check_run, run_chaos  # noqa: E402
 
 
 def main() -> int:
@@ -27,14 +29,19 @@ def main() -> int:
     ap.add_argument("--kills", type=int, default=20)
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--realtime", action="store_true", help="the twin at real time, with the velocity gate"
+    )
     ap.add_argument("--out", default=None, help="keep the run here (default: a temp folder)")
     args = ap.parse_args()
     folder = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="vigil-chaos-"))
     folder.mkdir(parents=True, exist_ok=True)
-    scenario, config = chaos_files(folder, args.steps)
+    scenario, config = chaos_files(folder, args.steps, realtime=args.realtime)
     run = run_chaos(
         scenario, config, folder / "run", kills=args.kills, seed=args.seed, first_s=2.0,
-        gap_s=(4.0, 14.0), first="navigation", when_driving=True, timeout_s=7200.0,
+        gap_s=(4.0, 14.0), first="velocity_gate" if args.realtime else "navigation",
+        victims=GATE_VICTIMS if args.realtime else VICTIMS, when_driving=True,
+        timeout_s=7200.0, realtime=args.realtime,
         say=lambda line: print(line, flush=True) if "[chaos]" in line else None,
     )  # fmt: skip
     result = check_run(run.out)

@@ -340,6 +340,45 @@ def test_a_realtime_twin_runs_free_writes_its_stats_and_its_nodes_yield_the_core
     assert set(nice.values()) == {REALTIME_NODES_NICE} and REALTIME_NODES_NICE > 0
 
 
+def test_a_twin_with_the_velocity_gate_puts_it_between_navigation_and_the_base(tmp_path):
+    """twin.velocity_gate: the hardware chain in the twin, at real time only."""
+    from vigil.system import prepare
+
+    data = twin_data(tmp_path)
+    data["twin"]["velocity_gate"] = True
+    with pytest.raises(ConfigError, match=r"twin\.velocity_gate.*real time"):
+        prepare(parse_deployment(data, tmp_path / "twin.yaml"), tmp_path / "a",
+                say=lambda s: None)  # fmt: skip
+    assert not (tmp_path / "a").exists()  # refused before the run folder is made
+    data.update(lockstep=False)
+    data["twin"]["realtime"] = True
+    system = prepare(parse_deployment(data, tmp_path / "twin.yaml"), tmp_path / "b",
+                     say=lambda s: None)  # fmt: skip
+    p = system.params
+    assert "velocity_gate" in {s.name for s in system.specs}
+    assert p["navigation"]["cmd_vel_topic"] == p["velocity_gate"]["input_topic"] == "/nav/cmd_vel"
+    assert p["velocity_gate"]["output_topic"] == "/cmd_vel" and p["velocity_gate"]["armed"]
+    # the twin's base watches the gate's heartbeat; the world waits for the gate too
+    assert 0 < p["twin_bridge"]["gate_heartbeat_timeout_s"] < 0.5
+    assert "velocity_gate" in p["twin_bridge"]["participants"]
+    # capped at the twin base's own limits: the gate adds its timeout, not a slower robot
+    caps = yaml.safe_load(Path(p["velocity_gate"]["config_file"]).read_text())["velocity_gate"]
+    from twin.config import TwinConfig
+
+    scene = yaml.safe_load((tmp_path / "b" / "twin.yaml").read_text())["twin"]
+    robot = TwinConfig.from_dict(scene).robot
+    assert caps["max_linear_mps"] == robot.max_linear_mps
+    assert caps["max_angular_accel_radps2"] == robot.max_angular_accel_radps2
+    assert caps["require_arming"] is False
+    # without the gate navigation drives the base itself
+    data["twin"]["velocity_gate"] = False
+    plain = prepare(parse_deployment(data, tmp_path / "twin.yaml"), tmp_path / "c",
+                    say=lambda s: None)  # fmt: skip
+    assert plain.params["navigation"]["cmd_vel_topic"] == "/cmd_vel"
+    assert "velocity_gate" not in plain.params
+    assert "gate_heartbeat_timeout_s" not in plain.params["twin_bridge"]
+
+
 def test_a_spec_s_niceness_reaches_its_process(tmp_path):
     code = "import os; print('niceness', os.nice(0), flush=True); import time; time.sleep(30)"
     base = os.nice(0)

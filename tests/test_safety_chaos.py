@@ -1,8 +1,8 @@
-"""Chaos (issue 23): a short lock-step twin run in which the navigation node (the base's
-only sender) is SIGKILLed while the robot drives, and another random node after it
-(seeded); the base stops within its timeout, ``steps.jsonl`` and the bag stay readable,
-and the run ends with one line naming the first kill (exit 3). The soak (20+ kills):
-``bench/bench_chaos.py``."""
+"""Chaos (issue 23): short twin runs in which the base's sender is SIGKILLed while the
+robot drives, and another random node after it (seeded): in lock-step the navigation
+node, at real time the velocity gate between navigation and the base. The base stops
+within its timeout, ``steps.jsonl`` and the bag stay readable, and the run ends with
+one line naming the first kill (exit 3). The soak (20+ kills): ``bench/bench_chaos.py``."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from vigil.chaos import base_holds, chaos_files, check_run, run_chaos
+from vigil.chaos import GATE_VICTIMS, base_holds, chaos_files, check_run, run_chaos
 from vigil.ending import EXIT_NODE
 
 
@@ -47,6 +47,42 @@ def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_tim
     # braked by itself once its timeout passed
     assert sum(b["silences"] for b in holds) >= 1, result
     assert max(b["excess"] for b in holds) <= 0.03, result  # odometry noise: ~0.02
+
+
+@pytest.mark.slow
+def test_killing_the_velocity_gate_at_real_time_stops_the_base_within_its_timeout(tmp_path):
+    """The hardware chain (navigation -> gate -> base) with the twin at real time: a
+    SIGKILLed gate sends no last zero, its last command stands at the base until the
+    base's own watchdog (the gate's heartbeat silent, or the command stale) stops it."""
+    scenario, config = chaos_files(tmp_path, steps=6, realtime=True)
+    run = run_chaos(
+        scenario,
+        config,
+        tmp_path / "run",
+        kills=2,
+        seed=3,
+        first_s=1.0,
+        gap_s=(5.0, 10.0),
+        victims=GATE_VICTIMS,
+        first="velocity_gate",
+        after_line=r"\[run\] step 3/",
+        when_driving=True,
+        timeout_s=600.0,
+        realtime=True,
+    )
+    assert [k.node for k in run.kills][:1] == ["velocity_gate"], (run.lines[-20:], run.stderr)
+    result = check_run(run.out)
+    assert run.returncode == EXIT_NODE, run.lines[-20:]
+    assert run.last_line.startswith("vigil run: velocity_gate exited (code -9, SIGKILL)")
+    assert result["run"]["cause"].startswith("velocity_gate exited (code -9, SIGKILL)")
+    assert result["steps"] == 6
+    holds = list(result["bags"].values())
+    assert holds and all(b["messages"] > 0 for b in holds)
+    # the gate's kill left a moving command standing, and the base braked by itself
+    assert sum(b["silences"] for b in holds) >= 1, result
+    assert max(b["excess"] for b in holds) <= 0.03, result
+    bridge_log = (run.out / "logs" / "twin_bridge.log").read_text()
+    assert "velocity_gate/heartbeat" in bridge_log  # it heard the gate go silent
 
 
 def _bag(path: Path, rows: list[tuple[float, str, float]]) -> Path:

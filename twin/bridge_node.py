@@ -8,7 +8,10 @@ from the lidar's mount) and ground truth under ``/twin/...``; subscribes to ``/c
 (geometry_msgs/Twist) and stops the base when the last command arrived more than
 ``cmd_timeout_s`` of simulated time ago (the base's own timeout,
 :class:`stack.hardware.base_watchdog.BaseWatchdog`, as diff_drive_controller's
-``cmd_vel_timeout``: a sender killed with SIGKILL sends no last zero).
+``cmd_vel_timeout``: a sender killed with SIGKILL sends no last zero); with
+``gate_heartbeat_timeout_s`` > 0 (a twin run with the velocity gate,
+``twin.velocity_gate``) it also stops when ``/velocity_gate/heartbeat`` has been silent
+that long: a dead gate, as a real base driver's watchdog would.
 
 Time, three modes:
     lock-step (``lockstep`` true, the default in CI and ``vigil run``): the bridge is the
@@ -51,7 +54,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo as CameraInfoMsg
 from sensor_msgs.msg import Image, LaserScan
-from std_msgs.msg import Int32
+from std_msgs.msg import Int32, UInt64
 from tf2_msgs.msg import TFMessage
 from vigil_interfaces.msg import LockstepAck, TwinTruth
 
@@ -59,8 +62,8 @@ import stack.topics as topic
 from stack import tf
 from stack.exits import EXIT_STALLED  # the lock-step stalled for good
 from stack.files import write_atomic
+from stack.hardware.base_watchdog import GATE_SILENT, STALE, BaseWatchdog, check_timeout
 from stack.hardware.base_watchdog import OK as WATCHDOG_OK
-from stack.hardware.base_watchdog import STALE, BaseWatchdog, check_timeout
 from stack.lockstep import (
     ABORT,
     ACK_TOPIC,
@@ -95,7 +98,8 @@ class TwinBridge(Releasing, Node):
     """Steps a :class:`Twin` and converts between it and ROS messages.
 
     Parameters: ``config`` (twin YAML, "" for defaults), ``task`` (task YAML with the
-    grid, "" for none), ``seed``, ``realtime``, ``cmd_timeout_s``, ``odom_rate_hz``
+    grid, "" for none), ``seed``, ``realtime``, ``cmd_timeout_s``,
+    ``gate_heartbeat_timeout_s`` (0: no gate watched), ``odom_rate_hz``
     (0: every control period), ``lockstep``, ``participants`` (node names that must
     be up before the first lock-step tick), ``stall_warn_s`` and ``stall_timeout_s``
     (wall-clock seconds: when to log a lock-step wait, and when to stop waiting for a
@@ -116,6 +120,7 @@ class TwinBridge(Releasing, Node):
             seed=0,
             realtime=False,
             cmd_timeout_s=0.5,
+            gate_heartbeat_timeout_s=0.0,
             odom_rate_hz=25.0,
             lockstep=False,
             participants=[""],
@@ -137,7 +142,10 @@ class TwinBridge(Releasing, Node):
             cfg = load_twin_config(v.config, v.task or None) if v.config else TwinConfig()
             twin = Twin(cfg, seed=v.seed)
         self.twin = twin
-        self.watchdog = BaseWatchdog(v.cmd_timeout_s)
+        beat_s = v.gate_heartbeat_timeout_s  # 0: no gate to watch
+        if beat_s != 0:
+            check_timeout("gate_heartbeat_timeout_s", beat_s)
+        self.watchdog = BaseWatchdog(v.cmd_timeout_s, beat_s or None)
         self.cmd_timeout_s = self.watchdog.cmd_timeout_s
         cfg = twin.config
         self._stopped_reason = self.watchdog.reason
@@ -175,6 +183,13 @@ class TwinBridge(Releasing, Node):
         self.pub_tf = self.create_publisher(TFMessage, topic.TF, TF_QOS)
         self.pub_tf_static = self.create_publisher(TFMessage, topic.TF_STATIC, TF_STATIC_QOS)
         self.create_subscription(Twist, topic.CMD_VEL, self._on_cmd_vel, 10)
+        if beat_s:
+            self.create_subscription(
+                UInt64,
+                topic.GATE_HEARTBEAT,
+                lambda _msg: self.watchdog.heartbeat(self.twin.time_s),
+                10,
+            )
         if self.lockstep:
             self.ledger.subscribe(topic.CMD_VEL)
             self.create_subscription(LockstepAck, ACK_TOPIC, self._on_ack, 200)
@@ -281,9 +296,16 @@ class TwinBridge(Releasing, Node):
         vx, vy, wz = self.watchdog.output(tw.time_s)
         reason = self.watchdog.reason
         if reason != self._stopped_reason:
-            if reason == STALE:
+            # a stop worth a line: a moving command timed out (an idle gate's zeros at
+            # 2 Hz, as old as the timeout, would log one twice a second)
+            if reason == STALE and any(self.watchdog.last_command):
                 self.get_logger().info(
                     f"no {topic.CMD_VEL} for {self.cmd_timeout_s:g} s: base stopped"
+                )
+            elif reason == GATE_SILENT:
+                self.get_logger().warning(
+                    f"no {topic.GATE_HEARTBEAT} for {self.watchdog.heartbeat_timeout_s:g} s "
+                    "(the velocity gate died?): base stopped"
                 )
             self._stopped_reason = reason
         tw.step(VelocityCommand(vx, vy, wz) if reason == WATCHDOG_OK else None)

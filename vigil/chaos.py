@@ -1,5 +1,6 @@
-"""Chaos: a twin run (``vigil run``, lock-step) in which seeded random nodes are
-SIGKILLed at seeded random times, and what must hold afterwards (issue 23).
+"""Chaos: a twin run (``vigil run``, lock-step, or at real time with the velocity gate
+between navigation and the base) in which seeded random nodes are SIGKILLed at seeded
+random times, and what must hold afterwards (issue 23).
 
 :func:`run_chaos` starts ``vigil run`` as a process of its own, learns each node's pid
 from the launcher's lines (``started <name> (pid N)``, ``restarting (k/m): pid N``),
@@ -8,15 +9,20 @@ to end. :func:`check_run` then reads the run folder:
 
 - the base never kept its last non-zero ``/cmd_vel`` longer than its command timeout
   (+ two odometry periods) after it arrived: from then on it brakes at its acceleration
-  limit to a standstill, measured in the bag's own (simulated, lock-step) time
-  (:func:`base_holds`); the navigation node, the sender, is among the victims and the
-  twin bridge stands in for the base;
+  limit to a standstill, measured in the bag's own time (simulated in lock-step, the
+  system clock at real time) (:func:`base_holds`); the base's sender is among the
+  victims (navigation; at real time the velocity gate, whose death the base also hears
+  as its heartbeat stopping) and the twin bridge stands in for the base;
 - ``steps.jsonl`` parses line by line and every bag folder opens with ``rosbags`` and
   reads to its end;
 - the run ended with one line naming a cause, and ``run.json`` holds it.
 
 The bridge and the recorder are not restarted (killing them ends the run), and a killed
 bag node leaves its bag without an index (node_bag.py): they are not victims.
+
+The gate runs only at real time (:func:`chaos_files` with ``realtime``): its stale
+timeout keeps the wall clock, and in a lock-step twin, slower than real time, it would
+send zeros between navigation's commands.
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ VICTIMS = (
     "speech",
     "markers",
 )
+GATE_VICTIMS = (*VICTIMS, "velocity_gate")  # at real time, with the gate in the chain
 ODOM_PERIOD_S = 0.04  # the twin's odometry (config/twin.yaml odom_rate_hz 25)
 STILL = 0.06  # m/s and rad/s: below this the base stands (its odometry's noise: ~0.02)
 _PID = re.compile(r"\[launch\] (?:started (\w+) \(pid (\d+)\)|(\w+) exited .*: pid (\d+))")
@@ -84,6 +91,7 @@ def run_chaos(
     after_line: str = r"\[run\] step 1/",
     when_driving: bool = False,
     timeout_s: float = 3600.0,
+    realtime: bool = False,
     say: Callable[[str], None] = lambda s: None,
 ) -> ChaosRun:
     """``vigil run SCENARIO --config CONFIG --out OUT`` with ``kills`` SIGKILLs: the
@@ -91,8 +99,8 @@ def run_chaos(
     decision step), then one every uniform ``gap_s``; the victims drawn uniformly
     (seeded by ``seed``) among those alive, the first one ``first`` if given; with
     ``when_driving`` the first kill waits (after its delay) until the recorder's trace
-    shows the robot driving (:func:`driving`). The run goes on (restarted nodes) until
-    its steps are made."""
+    shows the robot driving (:func:`driving`); ``realtime``: ``vigil run --realtime``.
+    The run goes on (restarted nodes) until its steps are made."""
     import numpy as np
 
     rng = np.random.default_rng(seed)
@@ -100,7 +108,7 @@ def run_chaos(
     env.pop("ROS_DOMAIN_ID", None)
     proc = subprocess.Popen(
         [sys.executable, "-u", "-m", "vigil.cli", "run", str(scenario), "--config", str(config),
-         "--out", str(out), "--timeout", str(timeout_s)],
+         "--out", str(out), "--timeout", str(timeout_s), *(["--realtime"] if realtime else [])],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
     pids: dict[str, int] = {}
@@ -261,13 +269,17 @@ def check_run(run_dir: Path) -> dict:
     return {"steps": len(steps), "bags": bags, "run": record}
 
 
-def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple[Path, Path]:
+def chaos_files(
+    folder: Path, steps: int, scenario: Path | None = None, realtime: bool = False
+) -> tuple[Path, Path]:
     """A scenario (5.1.1 by default: the robot drives east from step 3) cut to ``steps``
     steps, and the twin deployment with restarts to spare (``max_restarts`` 100) and a
     1 s lock-step stall timeout: a dead participant is excused after 1 s of wall time
     (not 30), so the twin runs on while a killed node restarts (3 s later) and only the
     base's own timeout can stop it; with 30 s the twin waits for the restarted
-    navigation and no simulated time passes without commands."""
+    navigation and no simulated time passes without commands. ``realtime``: the twin at
+    real time (no lock-step) with the velocity gate between navigation and the base
+    (``twin.velocity_gate``)."""
     source = scenario or REPO / "scenarios" / "5.1.1.yaml"
     data = load_yaml(read_text_capped(source))
     task = (source.parent / data["task"]).resolve()
@@ -275,6 +287,9 @@ def chaos_files(folder: Path, steps: int, scenario: Path | None = None) -> tuple
     write_text(folder / "chaos.yaml", dump_yaml(data))
     config = load_yaml(read_text_capped(REPO / "config" / "twin.yaml"))
     config["twin"].update(stall_timeout_s=1.0, stall_abort_s=120.0)
+    if realtime:
+        config["twin"].update(realtime=True, velocity_gate=True)
+        config["lockstep"] = False
     config["twin"]["scene"] = str(REPO / "config" / "twin-scene.yaml")
     # a killed node comes back 3 s later (not as soon as Python starts, ~1 s on an idle
     # machine): the twin excuses it after 1 s and runs on for 2 s of wall time without

@@ -14,7 +14,9 @@ Sections (all optional except ``mode`` and ``task``)::
     ros: {domain_id: null, localhost_only: true, interfaces: [], peers: []}
     hosts: {robot: [twin_bridge, ...], planner: [...]}  # the system over several hosts:
                                   # vigil launch FILE --host NAME starts that host's nodes
-    twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 25.0}
+    twin: {scene: twin-scene.yaml, seed: 0, realtime: false, odom_rate_hz: 25.0,
+           velocity_gate: false}  # true: navigation -> velocity gate -> the twin's
+                                  # base, as on a robot (real time only)
     perception: {config: "", calibration: ""}   # twin: calibrated from the twin if ""
     navigation: {config: "", pose_source: odom, pose_topic: "", control_rate_hz: 20.0,
                  drive: holonomic}        # or diff: the follower (and the twin's base)
@@ -114,6 +116,10 @@ class TwinSection(Config):
     odom_rate_hz: float = 25.0
     stall_timeout_s: float = 30.0
     stall_abort_s: float = 0.0  # 0: three stall timeouts (the bridge's default)
+    # the hardware chain: navigation -> velocity gate -> the twin's base (which then also
+    # watches the gate's heartbeat); only at real time, the gate's timing being on the
+    # monotonic clock (vigil.system.prepare refuses it in lock-step)
+    velocity_gate: bool = False
 
     _rules = {
         "seed": _within(0, MAX_SEED, low_open=False),

@@ -76,6 +76,27 @@ def policy_for(task_path: Path, say=print, iterations: int = 200) -> Path:
     return cached_task_policy(task_path, POLICY_CACHE, config, say)
 
 
+def _twin_gate(dep: Deployment, twin_cfg, run_dir: Path) -> dict[str, Any]:
+    """The velocity gate's parameters in a twin run (``twin.velocity_gate``): armed from
+    the start (no operator), capped at what the twin's base can do (its speeds and
+    accelerations), so the gate changes nothing but what a robot's gate adds: its stale
+    timeout, its heartbeat and a process between navigation and the base that can die."""
+    from stack.hardware.velocity_gate import GateConfig
+
+    robot = twin_cfg.robot
+    caps = {
+        "max_linear_mps": robot.max_linear_mps,
+        "max_angular_radps": robot.max_angular_radps,
+        "max_linear_accel_mps2": robot.max_linear_accel_mps2,
+        "max_angular_accel_radps2": robot.max_angular_accel_radps2,
+        "require_arming": False,
+    }
+    GateConfig.from_dict(caps, "velocity_gate")  # a base beyond the platform's limits: refused
+    gate_file = run_dir / "velocity_gate.yaml"
+    write_text(gate_file, dump_yaml({"velocity_gate": caps}, sort_keys=True))
+    return {"config_file": str(gate_file), "armed": True, **gate_topics(dep)}
+
+
 def _read_yaml(path: Path | None) -> dict[str, Any]:
     return {} if path is None else read_yaml(path)
 
@@ -94,6 +115,12 @@ def prepare(
     """
     from twin.config import TwinConfig
 
+    twin_gate = dep.mode == "twin" and dep.twin.velocity_gate
+    if twin_gate and not realtime_twin(dep):
+        raise ConfigError(
+            "twin.velocity_gate", True, "the gate keeps the wall clock: it needs the twin at "
+            "real time (vigil run --realtime, or lockstep: false and twin.realtime: true)",
+        )  # fmt: skip
     run_dir = Path(run_dir).resolve()
     run_dir.mkdir(parents=True, exist_ok=True)
     make_dir(run_dir / "speech")  # a link planted under the name is refused
@@ -170,6 +197,9 @@ def prepare(
             "stall_abort_s": dep.twin.stall_abort_s or 3 * dep.twin.stall_timeout_s,
             "sensor_outages": json.dumps(outages),
         }
+        if twin_gate:  # the hardware chain: navigation -> gate -> the twin's base
+            params["velocity_gate"] = _twin_gate(dep, twin_cfg, run_dir)
+            params["twin_bridge"]["gate_heartbeat_timeout_s"] = GATE_HEARTBEAT_TIMEOUT_S
     else:
         calibration = dep.resolve(dep.perception.calibration)
         hw_file = run_dir / "hardware.yaml"
@@ -223,7 +253,7 @@ def prepare(
         "pose_source": dep.navigation.pose_source,
         "pose_topic": dep.navigation.pose_topic,
         "control_rate_hz": dep.navigation.control_rate_hz,
-        "cmd_vel_topic": topic.CMD_VEL if twin_mode else topic.NAV_CMD_VEL,
+        "cmd_vel_topic": topic.CMD_VEL if twin_mode and not twin_gate else topic.NAV_CMD_VEL,
     }
     params["speech"] = {
         **common,
@@ -260,6 +290,7 @@ def prepare(
     }
 
     names = ["twin_bridge"] if twin_mode else ["camera_stream", "velocity_gate"]
+    names += ["velocity_gate"] if twin_gate else []
     names += ["localisation", "camera_people", "legs", "observations", "navigation", "speech"]
     names += ["planner"]
     names += ["recorder"]
@@ -370,6 +401,9 @@ def host_specs(system: System, dep: Deployment, host: str | None) -> list[Proces
         if unknown:
             raise ConfigError(f"hosts.{h}", unknown, f"not nodes of this system ({sorted(names)})")
     return [s for s in system.specs if s.name in dep.hosts[host]]
+
+
+GATE_HEARTBEAT_TIMEOUT_S = 0.25  # the twin's base with a gate: 5 of its 20 Hz beats missed
 
 
 def realtime_twin(dep: Deployment) -> bool:

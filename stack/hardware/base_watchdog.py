@@ -76,6 +76,11 @@ class BaseWatchdog:
         self._cmd_s = now_s
 
     @property
+    def last_command(self) -> tuple[float, float, float]:
+        """The last command that arrived (zeros: none yet)."""
+        return self._cmd  # type: ignore[return-value]
+
+    @property
     def last_command_s(self) -> float:
         """When the last command arrived (-inf: none yet)."""
         return self._cmd_s
