@@ -6,11 +6,18 @@ namespace, each running ``vigil launch FILE --host NAME`` with its own copy of t
 deployment (DDS on its own address only, the other two as peers), the twin on the wall
 clock. The namespaces and links are made by the test, on this machine only.
 
+Each host runs the same scenario (``vigil launch FILE --host NAME --scenario S``): the
+robot side's twin walks its person, the planner side makes its steps, then ends
+("finished") and writes the run's report; the other two stop on Ctrl-C. Two lengths: a
+short scenario (5.1.1 cut to 6 steps) and a whole one of the guarding set
+(``scenarios/guard/fast-walker.yaml``, its visit to cell 1).
+
 Checked: the planner decided from observations that joined the camera side's frames
 and the robot side's odometry, the person was seen, the robot side's twin kept the wall
-clock, the camera's images crossed the robot's link, and every host stopped cleanly on
-Ctrl-C. No delay or loss is added on the links: this machine's kernel has no ``netem``
-queueing discipline (the test says so when it cannot add one).
+clock, the camera's images crossed the robot's link, the report was written on the
+planner side, and every host stopped cleanly. No delay or loss is added on the links:
+this machine's kernel has no ``netem`` queueing discipline (the test says so when it
+cannot add one).
 
 Needs root and iproute2 (CI runs as root).
 """
@@ -45,7 +52,7 @@ HOSTS = {
     "camera": ["camera_people"],
     "planner": ["observations", "planner", "recorder", "bag", "markers"],
 }
-RUN_S = 45.0
+SHORT_STEPS = 6
 
 
 def sh(*args: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -88,6 +95,18 @@ def lan():
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
 
 
+def scenario_file(tmp_path: Path, length: str) -> Path:
+    """The short scenario (5.1.1 cut to SHORT_STEPS steps) or a whole guarding one."""
+    if length == "whole":
+        return REPO / "scenarios" / "guard" / "fast-walker.yaml"
+    source = REPO / "scenarios" / "5.1.1.yaml"
+    data = yaml.safe_load(source.read_text())
+    data.update(steps=SHORT_STEPS, task=str((source.parent / data["task"]).resolve()))
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
 def deployment(tmp_path: Path, host: str, addresses: dict[str, str], domain: int) -> Path:
     """The host's own copy of the twin deployment: DDS on its address, the others peers."""
     from vigil.system import policy_for
@@ -118,12 +137,15 @@ def link_bytes(ns: str) -> int:
     return int(stats["stats64"]["rx"]["bytes"]) + int(stats["stats64"]["tx"]["bytes"])
 
 
-def test_the_system_runs_across_three_hosts(lan, tmp_path):
+@pytest.mark.parametrize("length", ["short", "whole"])
+def test_a_scenario_runs_across_three_hosts(lan, tmp_path, length):
     names, addresses = lan
     netem = sh("ip", "netns", "exec", names["robot"], "tc", "qdisc", "add", "dev", "eth0",
                "root", "netem", "delay", "5ms", check=False)  # fmt: skip
     if netem.returncode != 0:
         print(f"no delay or loss on the links: {netem.stderr.strip()}")
+    scenario = scenario_file(tmp_path, length)
+    steps_to_make = yaml.safe_load(scenario.read_text())["steps"]
     domain = 100 + os.getpid() % 100
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "FAST", "RMW_"))}
     env.update(PYTHONPATH=str(REPO), MUJOCO_GL="egl")
@@ -135,14 +157,18 @@ def test_the_system_runs_across_three_hosts(lan, tmp_path):
             logs[host] = tmp_path / f"{host}.out"
             procs[host] = subprocess.Popen(
                 ["ip", "netns", "exec", names[host], sys.executable, "-m", "vigil.cli",
-                 "launch", str(dep), "--host", host, "--out", str(tmp_path / host)],
+                 "launch", str(dep), "--host", host, "--out", str(tmp_path / host),
+                 "--scenario", str(scenario)],
                 stdout=logs[host].open("w"), stderr=subprocess.STDOUT, env=env, cwd=REPO,
                 start_new_session=True,
             )  # fmt: skip
-        time.sleep(RUN_S)
-        assert all(p.poll() is None for p in procs.values()), {
-            h: logs[h].read_text()[-2000:] for h, p in procs.items() if p.poll() is not None
-        }
+        # the planner side ends by itself once its steps are made (at most 10 s a step)
+        deadline = time.monotonic() + 60 + 10 * steps_to_make
+        while procs["planner"].poll() is None and time.monotonic() < deadline:
+            assert all(procs[h].poll() is None for h in ("robot", "camera")), {
+                h: logs[h].read_text()[-2000:] for h in ("robot", "camera")
+            }
+            time.sleep(1.0)
         moved = link_bytes(names["robot"])
     finally:
         for p in procs.values():
@@ -161,16 +187,25 @@ def test_the_system_runs_across_three_hosts(lan, tmp_path):
         started = {line.split()[2] for line in out[host].splitlines() if "] started " in line}
         assert started == set(nodes), (host, started)
     # the planner side decided from the camera side's frames and the robot's odometry
+    run = json.loads((tmp_path / "planner" / "run.json").read_text())
+    assert run["ending"] == "finished" and run["report"] == "written", run
     steps = [json.loads(line) for line in (tmp_path / "planner" / "steps.jsonl").open()]
-    assert len(steps) >= 5, out["planner"][-2000:]
+    assert len(steps) == steps_to_make, out["planner"][-2000:]
     observed = [s["observation"] for s in steps if s.get("observation")]
     assert all(o["robot"].isdigit() for o in observed), observed
     assert sum("frame_stamp_s" in o for o in observed) >= len(observed) - 1
     assert any(o["person"].isdigit() for o in observed), observed  # the person was seen
     # the robot side's twin kept the wall clock; the images crossed its link
     realtime = json.loads((tmp_path / "robot" / "realtime.json").read_text())
-    assert realtime["factor"] > 0.95 and realtime["frames"] > 100, realtime
-    assert moved > 50e6, moved  # 10 frames of 768 kB a second for RUN_S, and the rest
+    # (how many of the frames due were delivered depends on the machine's load: a
+    # benchmark's figure, docs/BENCHMARKS.md; here only that they flowed)
+    assert realtime["factor"] > 0.95 and realtime["frames"] >= 50, realtime
+    assert moved > 20e6, moved  # 10 frames of 768 kB a second, and the rest
+    summary = json.loads((tmp_path / "planner" / "summary.json").read_text())
+    metrics = summary["metrics"]
+    if length == "whole":  # its visit to cell 1, seen from the planner side's records
+        assert metrics["n_visits"] == 1, metrics
     print(f"{len(steps)} steps, person seen in {sum(o['person'].isdigit() for o in observed)}, "
+          f"visits guarded {metrics['guarded']}/{metrics['n_visits']}, "
           f"robot link {moved / 1e6:.0f} MB, twin factor {realtime['factor']}, "
           f"frames {realtime['frames']}/{realtime['frames_due']}")  # fmt: skip

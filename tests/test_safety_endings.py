@@ -274,7 +274,7 @@ LAUNCH = textwrap.dedent(
     from pathlib import Path
     from types import SimpleNamespace
 
-    import vigil.launch as L
+    import vigil.launch_command as L
     from vigil.processes import ProcessSpec
     from vigil.system import System
 

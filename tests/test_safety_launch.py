@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from stack.cells import ConfigError
-from vigil import launch as vl
+from vigil import launch_command as vl
 from vigil.run_folder import RUN_MARK, fresh_run_dir
 
 REPO = Path(__file__).resolve().parents[1]
@@ -202,3 +202,24 @@ def test_a_hung_ros_teardown_ends_by_its_own_alarm_with_the_deployments_stop_tim
     assert codes == {"hung": -signal.SIGALRM}, log.read_text()
     assert la.failures == [] and la.warnings[0].startswith("hung: its ROS teardown hung")
     assert TEARDOWN_S <= time.monotonic() - t0 < TEARDOWN_S + 5.0
+
+
+def test_a_launch_with_a_scenario_walks_it_and_a_hardware_launch_refuses_one(tmp_path):
+    """``--scenario``: the twin's people and the planner's steps from the scenario (the
+    host with the planner ends after them); on a robot there is no scenario to walk."""
+    from vigil.scenario import load_scenario
+
+    scenario = load_scenario(REPO / "scenarios" / "guard" / "fast-walker.yaml")
+    _, system, _ = vl.prepare_launch(CONFIG, tmp_path / "twin", say=lambda _: None,
+                                     scenario=scenario)  # fmt: skip
+    assert system.params["planner"]["max_steps"] == scenario.steps
+    assert system.params["planner"]["initial_robot_cell"] == scenario.robot_cell
+    with pytest.raises(ConfigError, match="--scenario.*twin"):
+        vl.prepare_launch(REPO / "config" / "hardware.yaml", tmp_path / "hw",
+                          say=lambda _: None, scenario=scenario)  # fmt: skip
+    assert not (tmp_path / "hw").exists()
+    # the command line: a scenario that is no file is refused in one line, nothing made
+    proc = _cli("launch", str(CONFIG), "--out", str(tmp_path / "cli"), "--scenario",
+                str(tmp_path / "missing.yaml"))  # fmt: skip
+    assert proc.returncode == 2 and "missing.yaml" in proc.stderr, proc.stderr
+    assert not (tmp_path / "cli").exists()

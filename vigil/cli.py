@@ -34,8 +34,8 @@ from pathlib import Path
 
 import stack.topics as topic
 from stack.config import write_text
-from vigil.launch import DEFAULT_RESUME_MAX_AGE_S
 from vigil.replay import replay_json, replay_markdown, run_replay
+from vigil.resume import DEFAULT_RESUME_MAX_AGE_S
 from vigil.solving import (
     bounds_line,
     command_start,
@@ -504,6 +504,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="start only this host's nodes (the deployment's hosts: the system over "
         "several machines, each running vigil launch FILE --host NAME)",
     )
+    p.add_argument(
+        "--scenario",
+        default=None,
+        help="twin only: the scenario's walk, start and steps; the host with the planner "
+        "ends once its steps are made (and, with the recorder, writes the report)",
+    )
     p.set_defaults(func=cmd_launch)
 
     p = _command(
@@ -725,7 +731,7 @@ def cmd_security_check(args: argparse.Namespace) -> int:
 
 
 def cmd_launch(args: argparse.Namespace) -> int:
-    from vigil.launch import launch
+    from vigil.launch_command import launch
 
     return launch(
         args.config,
@@ -733,6 +739,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
         resume=args.resume,
         resume_max_age_s=args.resume_max_age_s,
         host=args.host,
+        scenario=args.scenario,
     )
 
 
