@@ -11,7 +11,8 @@ import pytest
 
 from stack.planning.delayed import DelayedBound, delayed_bound
 from stack.planning.momdp import MixedModel, _mdp_start, factored_fib
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.search_base import SearchConfig
 from tests.test_solver_momdp import _b0, _flat, _mixed
 
 REPO = Path(__file__).resolve().parents[1]

@@ -52,7 +52,7 @@ import numpy as np
 
 from stack.planning import clock
 from stack.planning.policy import AlphaPolicy
-from stack.planning.sarsop import SearchConfig, SearchResult, SearchStats, StoppingRules
+from stack.planning.search_base import SearchConfig, SearchResult, SearchStats, StoppingRules
 from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12
