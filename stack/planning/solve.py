@@ -294,7 +294,8 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     """The belief-tree search on the task's mixed-observability form, then (when
     ``config.dual_paths``) the dual upper bound at b0 in the time left."""
     from stack.planning.delayed import DelayedWorker
-    from stack.planning.momdp import MixedSearch, mixed_from_task
+    from stack.planning.momdp import MixedSearch
+    from stack.planning.momdp_model import mixed_from_task
 
     t0 = clock.now() if start is None else start
     alphas = np.vstack([blind_lower_bound(pomdp), seeds[0]])
