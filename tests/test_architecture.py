@@ -9,7 +9,8 @@
   typed messages are converted in ``stack/ros_msgs.py`` (issue 14) and the nodes;
 - a module over 500 lines says why in its docstring;
 - the planning library (``stack/planning``, issue 24) has no module over 500 lines, and
-  none of its modules imports a private name (``_x``) of another project module;
+  none of its modules imports a private name (``_x``) of another project module or
+  reads one of another object (``search._closure()``);
 - ROS topic names are written only in ``stack/topics.py``: anywhere else a string literal
   that looks like a topic name (``"/nav/result"``) fails.
 """
@@ -205,6 +206,8 @@ def test_private_import_check_finds_them(tmp_path):
         "stack.planning.probe:3 from stack.planning.policy import _attr",
         "stack.planning.probe:5 clock._private",
     ]
+    src.write_text("def f(search):\n    return search._closure() + super()._done() + self._x\n")
+    assert private_reads(src) == ["2 search._closure"]
 
 
 def test_planning_modules_import_no_private_names():
@@ -216,6 +219,36 @@ def test_planning_modules_import_no_private_names():
         if path.is_relative_to(PLANNING):
             bad.extend(private_imports(path, m, known))
     assert not bad, "private names imported across modules: " + "; ".join(bad)
+
+
+def private_reads(path: Path) -> list[str]:
+    """``x._y`` in ``path`` with x not ``self``, ``cls`` or ``super()``: another
+    object's private attribute or method (``search._closure()`` from another module)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.Attribute) or not node.attr.startswith("_"):
+            continue
+        if node.attr.startswith("__") and node.attr.endswith("__"):
+            continue
+        v = node.value
+        if isinstance(v, ast.Name) and v.id in ("self", "cls"):
+            continue
+        if isinstance(v, ast.Call) and isinstance(v.func, ast.Name) and v.func.id == "super":
+            continue
+        found.append(f"{node.lineno} {ast.unparse(node)}")
+    return found
+
+
+def test_planning_modules_read_no_private_attributes_of_other_objects():
+    """Issue 24: a module of the planning library uses another object through its
+    public names (``search.write_seconds_per_value()``, ``pomdp.noted(key)``), not its
+    private ones; its own object's (``self._x``) are its own business."""
+    bad = [
+        f"{path.relative_to(REPO)}:{hit}"
+        for path in sorted(PLANNING.rglob("*.py"))
+        for hit in private_reads(path)
+    ]
+    assert not bad, "private attributes of other objects read: " + "; ".join(bad)
 
 
 def test_planning_modules_under_500_lines():

@@ -457,10 +457,7 @@ class MixedSearch(SearchBase):
         stopped = self._done()
         if self.rounds > 0 and self.n_beliefs > 0 and not stopped:
             stopped = self._rounds()
-        while not stopped:
-            self._trial()
-            self._report()
-            stopped = self._done()
+        stopped = self._trials(stopped)
         if not self._late():
             for x in range(self.m.X):
                 self._prune(x)

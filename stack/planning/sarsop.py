@@ -307,10 +307,7 @@ class BeliefTreeSearch(BeliefExpansion):
         for r in self.roots:
             self._backup(r)
         stopped = self._done()
-        while not stopped:
-            self._trial()
-            self._report()
-            stopped = self._done()
+        stopped = self._trials(stopped)
         # the active set pruned to the vectors best at some backed-up belief, in the
         # time kept for it (fewer active vectors: fewer archived successors written)
         self._prune(until=self.deadline - self._values_to_write() * self.config.write_s_per_value)

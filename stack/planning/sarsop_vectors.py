@@ -33,30 +33,6 @@ from stack.planning.sarsop_nodes import BeliefNode
 from stack.planning.search_base import SearchBase
 
 
-def _written_share(search: VectorStore) -> float:
-    """The share of the active set's closure that the written policy holds: with
-    ``reached_only`` only the vectors the policy uses at the tree's nodes it reaches,
-    and their successors (RockSample_7_8: 1,146 of 2,624 vectors, so 60 s solves kept
-    18 s for writing and wrote in 5 s). Measured at each pruning; 1.0 before the tree
-    has nodes, or when every active vector is written."""
-    if not search.config.reached_only or not getattr(search, "nodes", None):
-        return 1.0
-    full = search.K + search._n_archived
-    return min(1.0, len(search.closure(reached=True)) / max(1, full))
-
-
-def _forget_unreachable(search: VectorStore, closure: list[int]) -> None:
-    """Release the archived vectors outside ``closure`` (the active set's closure).
-
-    A new vector's successors are active vectors, so an archived vector that no vector
-    of the closure leads to is never read again: its memory goes (one S-vector each;
-    RockSample_11_11: 2 MB a vector). Its id stays, holding None."""
-    keep = np.zeros(len(search._all_alpha), dtype=bool)
-    keep[closure] = True
-    for g in np.flatnonzero(~keep).tolist():
-        search._all_alpha[g] = None
-
-
 class VectorStore(SearchBase):
     """The lower bound's vectors of a flat belief-tree search (see the module
     docstring); the attributes below are set by the search's ``__init__``."""
@@ -266,13 +242,35 @@ class VectorStore(SearchBase):
         and what share of the closure of the active set the written policy holds."""
         closure = self.closure(reached=False)
         self._n_archived = len(closure) - self.K  # an upper bound
-        _forget_unreachable(self, closure)
+        self._forget_unreachable(closure)
         if self.config.write_s_per_value <= 0:
             return
-        self._write_share = _written_share(self)
+        self._write_share = self._written_share()
         # a sample block (at most 512 states x 64 vectors): the speed per value, cheaply
         per_value = seconds_per_value(self._sample_vectors())
         self._write_factor = max(1.0, per_value / self.config.write_s_per_value)
+
+    def _written_share(self) -> float:
+        """The share of the active set's closure that the written policy holds: with
+        ``reached_only`` only the vectors the policy uses at the tree's nodes it reaches,
+        and their successors (RockSample_7_8: 1,146 of 2,624 vectors, so 60 s solves kept
+        18 s for writing and wrote in 5 s). Measured at each pruning; 1.0 before the tree
+        has nodes, or when every active vector is written."""
+        if not self.config.reached_only or not getattr(self, "nodes", None):
+            return 1.0
+        full = self.K + self._n_archived
+        return min(1.0, len(self.closure(reached=True)) / max(1, full))
+
+    def _forget_unreachable(self, closure: list[int]) -> None:
+        """Release the archived vectors outside ``closure`` (the active set's closure).
+
+        A new vector's successors are active vectors, so an archived vector that no vector
+        of the closure leads to is never read again: its memory goes (one S-vector each;
+        RockSample_11_11: 2 MB a vector). Its id stays, holding None."""
+        keep = np.zeros(len(self._all_alpha), dtype=bool)
+        keep[closure] = True
+        for g in np.flatnonzero(~keep).tolist():
+            self._all_alpha[g] = None
 
     @property
     def n_alphas(self) -> int:

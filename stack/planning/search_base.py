@@ -11,8 +11,8 @@ and vectors differ; what is the same is written once here:
 - :class:`SearchResult`, what ``run()`` returns;
 - :class:`StoppingRules`, when a search stops (the roots' gaps met, the deadline less
   the time writing the policy will take, the trial budget);
-- :class:`SearchBase`, the clock and counters of a search, its progress reports and
-  the result it ends with.
+- :class:`SearchBase`, the clock and counters of a search, the loop of its trials,
+  its progress reports and the result it ends with.
 """
 
 from __future__ import annotations
@@ -186,9 +186,11 @@ class StoppingRules:
 
 class SearchBase(StoppingRules):
     """The part of a belief-tree search that does not depend on its beliefs: the clock
-    and counters (:meth:`_begin`), the progress reports (:meth:`_report`) and the
-    result (:meth:`_result`). A search says how many vectors and upper-bound points it
-    holds (``n_alphas``, ``n_points``) and has ``root`` (reported), ``nodes``."""
+    and counters (:meth:`_begin`), the trials until a stopping rule holds
+    (:meth:`_trials`; each search has its own :meth:`_trial`), the progress reports
+    (:meth:`_report`) and the result (:meth:`_result`). A search says how many vectors
+    and upper-bound points it holds (``n_alphas``, ``n_points``) and has ``root`` (the
+    node or start whose bounds are reported) and ``nodes`` (its tree)."""
 
     root: Any
     nodes: dict
@@ -224,6 +226,18 @@ class SearchBase(StoppingRules):
         self.trials = 0
         self.history = []
         self._last_report = -math.inf
+
+    def _trial(self) -> None:
+        raise NotImplementedError
+
+    def _trials(self, stopped: str) -> str:
+        """Trials from the roots, each followed by a progress report, until a stopping
+        rule holds (``stopped``: one already held); returns which."""
+        while not stopped:
+            self._trial()
+            self._report()
+            stopped = self._done()
+        return stopped
 
     def _report(self, force: bool = False) -> None:
         """One progress report, at most once per ``config.progress_every_s``: kept in
