@@ -57,7 +57,13 @@ from stack.planning.momdp_nodes import (
     PersonPoints,
 )
 from stack.planning.policy import AlphaPolicy
-from stack.planning.search_base import SearchBase, SearchConfig, SearchResult, SearchStats
+from stack.planning.search_base import (
+    SearchBase,
+    SearchConfig,
+    SearchResult,
+    SearchStats,
+    child_targets,
+)
 from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12
@@ -406,10 +412,7 @@ class MixedSearch(SearchBase):
     def _trial(self) -> None:
         g = self.g
         TX = self.m.TX
-        open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
-        root = max(open_roots, key=lambda r: r.ub - r.lb)
-        eps = self.config.trial_improvement * (root.ub - root.lb)
-        L, U = root.lb, root.lb + eps
+        root, eps, L, U = self._trial_root()
         path = [root.node]
         node, x = root.node, root.x
         t = 0
@@ -429,12 +432,19 @@ class MixedSearch(SearchBase):
             i, j = np.unravel_index(int(excess.argmax()), excess.shape)
             if w[i, j] <= 0:
                 break
-            Lp = max(L, float(q_lower.max()))
-            Up = max(U, float(q_lower.max()) + eps * g**-t)
             rest_l = float((w * lb).sum()) - w[i, j] * lb[i, j]
             rest_u = float((w * ub).sum()) - w[i, j] * ub[i, j]
-            L = (Lp - kids.reward[x, a] - g * rest_l) / (g * w[i, j])
-            U = (Up - kids.reward[x, a] - g * rest_u) / (g * w[i, j])
+            L, U = child_targets(
+                L,
+                U,
+                float(q_lower.max()),
+                eps * g**-t,
+                kids.reward[x, a],
+                g,
+                w[i, j],
+                rest_l,
+                rest_u,
+            )
             node, x = self._child(kids, int(j), M), int(i)
             path.append(node)
             t += 1

@@ -57,7 +57,7 @@ from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp, 
 from stack.planning.pomdp import POMDP
 from stack.planning.sarsop_expand import BeliefExpansion
 from stack.planning.sarsop_nodes import BeliefNode, NodeChildren, UpperPoints, canonical
-from stack.planning.search_base import SearchConfig, SearchResult, SearchStats
+from stack.planning.search_base import SearchConfig, SearchResult, SearchStats, child_targets
 from stack.planning.threads import blas_threads
 
 
@@ -229,11 +229,7 @@ class BeliefTreeSearch(BeliefExpansion):
     # -- the search -----------------------------------------------------------------
     def _trial(self) -> None:
         g = self.gamma
-        # the root furthest from its target (b0 first on ties)
-        open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
-        root = max(open_roots, key=lambda r: r.ub - r.lb)
-        eps = self.config.trial_improvement * (root.ub - root.lb)
-        L, U = root.lb, root.lb + eps
+        root, eps, L, U = self._trial_root()
         path = [root]
         node = root
         t = 0
@@ -259,12 +255,11 @@ class BeliefTreeSearch(BeliefExpansion):
             # level its depth needs, weighted by its probability
             j = int((k.pz * (ub - lb - eps * g ** -(t + 1))).argmax())
             # SARSOP's target levels for the chosen child
-            Lp = max(L, float(q_lower.max()))
-            Up = max(U, float(q_lower.max()) + eps * g**-t)
             rest_l = k.pz @ lb - k.pz[j] * lb[j]
             rest_u = k.pz @ ub - k.pz[j] * ub[j]
-            L = (Lp - k.reward - g * rest_l) / (g * k.pz[j])
-            U = (Up - k.reward - g * rest_u) / (g * k.pz[j])
+            L, U = child_targets(
+                L, U, float(q_lower.max()), eps * g**-t, k.reward, g, k.pz[j], rest_l, rest_u
+            )
             node = k.nodes[j]
             path.append(node)
             t += 1

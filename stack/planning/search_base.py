@@ -9,6 +9,7 @@ and vectors differ; what is the same is written once here:
 - :class:`SearchConfig`, the settings (time limit, gaps, trial budget, pruning);
 - :class:`SearchStats`, one progress report, and :func:`format_search_progress`;
 - :class:`SearchResult`, what ``run()`` returns;
+- :func:`child_targets`, SARSOP's target levels carried down a trial;
 - :class:`StoppingRules`, when a search stops (the roots' gaps met, the deadline less
   the time writing the policy will take, the trial budget);
 - :class:`SearchBase`, the clock and counters of a search, the loop of its trials,
@@ -130,6 +131,32 @@ class SearchResult(BoundedResult):
         }
 
 
+def child_targets(
+    L: float,
+    U: float,
+    best_lower: float,
+    eps_t: float,
+    reward: float,
+    gamma: float,
+    weight: float,
+    rest_l: float,
+    rest_u: float,
+) -> tuple[float, float]:
+    """SARSOP's target levels (L, U) carried from a node to the child a trial enters
+    (Kurniawati, Hsu and Lee 2008).
+
+    The node's levels are first raised to what its best lower-bound Q value already
+    guarantees (``best_lower``; and that plus ``eps_t``, the gap allowed at the node's
+    depth); the child's are the values it must reach for the node to reach them: less
+    the reward and the discounted share of the other children (``rest_l``, ``rest_u``:
+    their weights times their lower, upper bounds), over the child's discounted weight.
+    """
+    Lp = max(L, best_lower)
+    Up = max(U, best_lower + eps_t)
+    c = gamma * weight
+    return (Lp - reward - gamma * rest_l) / c, (Up - reward - gamma * rest_u) / c
+
+
 class StoppingRules:
     """When a belief-tree search stops (shared by the flat and the mixed search): the
     roots' gaps met (absolute or relative), the deadline less the time writing the
@@ -229,6 +256,15 @@ class SearchBase(StoppingRules):
 
     def _trial(self) -> None:
         raise NotImplementedError
+
+    def _trial_root(self) -> tuple[Any, float, float, float]:
+        """Where a trial starts: the root furthest from its target (b0 first on ties),
+        the gap ``eps`` the trial asks it to lose (``config.trial_improvement`` of its
+        gap), and SARSOP's target levels there, L = V_L(root), U = V_L(root) + eps."""
+        open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
+        root = max(open_roots, key=lambda r: r.ub - r.lb)
+        eps = self.config.trial_improvement * (root.ub - root.lb)
+        return root, eps, root.lb, root.lb + eps
 
     def _trials(self, stopped: str) -> str:
         """Trials from the roots, each followed by a progress report, until a stopping
