@@ -8,6 +8,9 @@
 - algorithm modules import no message package either (``*_msgs``, ``*_interfaces``):
   typed messages are converted in ``stack/ros_msgs.py`` (issue 14) and the nodes;
 - a module over 500 lines says why in its docstring;
+- the planning library (``stack/planning``, issue 24) has no module over 500 lines, and
+  none of its modules imports a private name (``_x``) of another project module or
+  reads one of another object (``search._closure()``);
 - ROS topic names are written only in ``stack/topics.py``: anywhere else a string literal
   that looks like a topic name (``"/nav/result"``) fails.
 """
@@ -139,6 +142,123 @@ def test_long_modules_say_why():
     assert not bad, "modules over 500 lines without a docstring sentence saying why: " + ", ".join(
         bad
     )
+
+
+PLANNING = REPO / "stack" / "planning"
+
+
+def private_imports(path: Path, name: str, known: dict[str, Path]) -> list[str]:
+    """The private names (``_x``, not dunders) module ``name`` takes from other project
+    modules: ``from m import _x``, ``import m._x``, and ``m._x`` read through a module
+    it imported (``from stack.planning import clock`` then ``clock._y``)."""
+    tree = ast.parse(path.read_text())
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+
+    def private(n: str) -> bool:
+        return n.startswith("_") and not (n.startswith("__") and n.endswith("__"))
+
+    found = []
+    aliases: set[str] = set()  # local names bound to project modules
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                parts = a.name.split(".")
+                if any(private(p) for p in parts) and parts[0] in PACKAGES:
+                    found.append(f"{name}:{node.lineno} import {a.name}")
+                if a.name in known:
+                    aliases.add(a.asname or parts[0])
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*up, base] if base else up)
+            if base.split(".")[0] not in PACKAGES or base == name:
+                continue
+            for a in node.names:
+                if private(a.name) or any(private(p) for p in base.split(".")):
+                    found.append(f"{name}:{node.lineno} from {base} import {a.name}")
+                elif f"{base}.{a.name}" in known:
+                    aliases.add(a.asname or a.name)
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id in aliases
+            and private(node.attr)
+        ):
+            found.append(f"{name}:{node.lineno} {node.value.id}.{node.attr}")
+    return found
+
+
+def test_private_import_check_finds_them(tmp_path):
+    """The check itself, on a probe module in a project package."""
+    known = modules()
+    src = tmp_path / "probe.py"
+    src.write_text(
+        "from stack.planning import clock\n"
+        "from stack.planning.sarsop import BeliefTreeSearch\n"
+        "from stack.planning.policy import _attr\n"
+        "import numpy as np\n"
+        "x = clock._private + np._NoValue.__class__ + clock.__name__\n"
+    )
+    got = private_imports(src, "stack.planning.probe", known)
+    assert got == [
+        "stack.planning.probe:3 from stack.planning.policy import _attr",
+        "stack.planning.probe:5 clock._private",
+    ]
+    src.write_text("def f(search):\n    return search._closure() + super()._done() + self._x\n")
+    assert private_reads(src) == ["2 search._closure"]
+
+
+def test_planning_modules_import_no_private_names():
+    """Issue 24: what one module of the planning library needs from another has a
+    public name (a newcomer can tell the library's interfaces from its details)."""
+    known = modules()
+    bad = []
+    for m, path in sorted(known.items()):
+        if path.is_relative_to(PLANNING):
+            bad.extend(private_imports(path, m, known))
+    assert not bad, "private names imported across modules: " + "; ".join(bad)
+
+
+def private_reads(path: Path) -> list[str]:
+    """``x._y`` in ``path`` with x not ``self``, ``cls`` or ``super()``: another
+    object's private attribute or method (``search._closure()`` from another module)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.Attribute) or not node.attr.startswith("_"):
+            continue
+        if node.attr.startswith("__") and node.attr.endswith("__"):
+            continue
+        v = node.value
+        if isinstance(v, ast.Name) and v.id in ("self", "cls"):
+            continue
+        if isinstance(v, ast.Call) and isinstance(v.func, ast.Name) and v.func.id == "super":
+            continue
+        found.append(f"{node.lineno} {ast.unparse(node)}")
+    return found
+
+
+def test_planning_modules_read_no_private_attributes_of_other_objects():
+    """Issue 24: a module of the planning library uses another object through its
+    public names (``search.write_seconds_per_value()``, ``pomdp.noted(key)``), not its
+    private ones; its own object's (``self._x``) are its own business."""
+    bad = [
+        f"{path.relative_to(REPO)}:{hit}"
+        for path in sorted(PLANNING.rglob("*.py"))
+        for hit in private_reads(path)
+    ]
+    assert not bad, "private attributes of other objects read: " + "; ".join(bad)
+
+
+def test_planning_modules_under_500_lines():
+    """Issue 24: every module of the planning library fits in 500 lines."""
+    bad = []
+    for path in sorted(PLANNING.rglob("*.py")):
+        n = path.read_text().count("\n")
+        if n > 500:
+            bad.append(f"{path.relative_to(REPO)} ({n} lines)")
+    assert not bad, "stack/planning modules over 500 lines: " + ", ".join(bad)
 
 
 TOPIC_LIKE = re.compile(r"(/[a-z][a-z0-9_]*)+")  # an absolute ROS name, as a whole string

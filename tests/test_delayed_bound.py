@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from stack.planning.delayed import DelayedBound, delayed_bound
-from stack.planning.momdp import MixedModel, _mdp_start, factored_fib
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.momdp_model import MixedModel, factored_fib, mdp_start
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.search_base import SearchConfig
 from tests.test_solver_momdp import _b0, _flat, _mixed
 
 REPO = Path(__file__).resolve().parents[1]
@@ -34,7 +35,7 @@ def test_the_bound_lies_between_v_star_and_the_fast_informed_bound(seed):
     Q = factored_fib(m, tol=1e-12, max_iterations=20000)
     b = _start(m)
     fib = float((b @ Q[0]).max())
-    qmdp = float((b @ _mdp_start(m, math.inf, sweeps=20000)[0]).max())
+    qmdp = float((b @ mdp_start(m, math.inf, sweeps=20000)[0]).max())
     r = delayed_bound(m, Q, [(0, b), (1, b)], plain=60, upward=200)
     assert r is not None
     # an upper bound on V* (above a near-optimal policy's value), never above the fast

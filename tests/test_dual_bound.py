@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from stack.planning.dual import default_horizon, dual_upper_bound
-from stack.planning.momdp import MixedModel, factored_fib
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.momdp_model import MixedModel, factored_fib
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.search_base import SearchConfig
 from tests.test_solver_momdp import _b0, _flat, _mixed
 
 

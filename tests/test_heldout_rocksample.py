@@ -234,7 +234,8 @@ def test_write_reserve_counts_the_vectors_the_policy_writes():
     """The time kept for writing the policy counts the vectors the written policy holds
     (reached_only: the closure of the vectors used at the reached nodes), not every
     active vector's closure (RockSample_7_8: 2.3 times as many, 11 s of a 60 s limit)."""
-    from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+    from stack.planning.sarsop import BeliefTreeSearch
+    from stack.planning.search_base import SearchConfig
 
     m = gen.RockSample(4, ((3, 1), (2, 1), (1, 3), (1, 0)), (0, 2), 20.0, True)
     pomdp = parse_pomdp(gen.format_rocksample(m))
@@ -285,7 +286,8 @@ def test_fast_informed_bound_matches_the_dense_operator(seed):
 def test_archived_vectors_no_policy_can_reach_are_released():
     """Pruned vectors outside the active set's closure are forgotten (memory), and the
     written policy, which reads only the closure, is the same as with all of them kept."""
-    from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+    from stack.planning.sarsop import BeliefTreeSearch
+    from stack.planning.search_base import SearchConfig
 
     m = gen.RockSample(4, ((3, 1), (2, 1), (1, 3), (1, 0)), (0, 2), 20.0, True)
     pomdp = parse_pomdp(gen.format_rocksample(m))
@@ -293,7 +295,7 @@ def test_archived_vectors_no_policy_can_reach_are_released():
     result = search.run()
     released = [g for g, v in enumerate(search._all_alpha) if v is None]
     assert released  # pruning dropped vectors that nothing leads to
-    closure = set(search._closure(reached=False))
+    closure = set(search.closure(reached=False))
     assert not closure & set(released)
     alphas, actions, succ = search._closed_policy()
     assert np.isfinite(alphas).all() and (succ < len(alphas)).all()

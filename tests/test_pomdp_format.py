@@ -1,4 +1,4 @@
-"""Tests for the Cassandra ``.pomdp`` reader and writer (stack/planning/pomdp_format.py)."""
+"""Tests for the Cassandra ``.pomdp`` reader and writer (stack/planning/pomdp_format/)."""
 
 from __future__ import annotations
 

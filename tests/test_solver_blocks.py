@@ -14,7 +14,8 @@ from test_heldout_rocksample import _random_factored
 from stack.planning.blocksearch import BlockTreeSearch, search_blocks
 from stack.planning.policy import AlphaPolicy, read_policy_xml
 from stack.planning.pomdpx import observed_blocks, read_pomdpx
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.search_base import SearchConfig
 from stack.planning.solve import SolverConfig, solve
 
 

@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, qmdp
-from stack.planning.momdp import MixedModel, MixedSearch, factored_fib, mixed_from_task
+from stack.planning.momdp import MixedSearch
+from stack.planning.momdp_model import MixedModel, factored_fib, mixed_from_task
 from stack.planning.pomdp import dense_to_pomdp
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.search_base import SearchConfig
 
 
 def _mixed(seed: int, X=3, Y=3, A=2, Z=2, discount=0.9) -> MixedModel:

@@ -13,7 +13,8 @@ from stack.planning.policy import AlphaPolicy, read_policy_xml, write_policy_xml
 from stack.planning.pomdp import dense_to_pomdp
 from stack.planning.pomdp_format import read_pomdp
 from stack.planning.pomdpx import read_pomdpx
-from stack.planning.sarsop import BeliefTreeSearch, SearchConfig
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.search_base import SearchConfig
 from stack.planning.solve import SolverConfig, solve
 from vigil.cli import main as vigil
 
@@ -471,7 +472,7 @@ def test_the_solve_pomdp_path_loads_no_robot_stack_and_no_sparse_solver(tmp_path
 def test_row_gather_equals_scipy_row_indexing():
     import scipy.sparse as sp
 
-    from stack.planning.sarsop import _canonical, _gather_rows
+    from stack.planning.sarsop_nodes import canonical, gather_rows
 
     rng = np.random.default_rng(3)
     m = sp.random(40, 9, density=0.3, format="csr", random_state=4)
@@ -479,9 +480,9 @@ def test_row_gather_equals_scipy_row_indexing():
     indptr[-1] += 1  # a duplicate (row 39, column 2): summed once made canonical
     m = sp.csr_matrix((np.r_[m.data, 1.0], np.r_[m.indices, 2], indptr), shape=(40, 9))
     want = m.toarray()
-    m = _canonical(m)
+    m = canonical(m)
     rows = np.sort(rng.choice(40, size=15, replace=False))
-    r, cols, vals = _gather_rows(m, rows)
+    r, cols, vals = gather_rows(m, rows)
     got = np.zeros((rows.size, 9))
     np.add.at(got, (r, cols), vals)
     np.testing.assert_allclose(got, want[rows])

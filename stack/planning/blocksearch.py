@@ -38,13 +38,9 @@ import numpy as np
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
 from stack.planning.pomdpx import observed_blocks
-from stack.planning.sarsop import (
-    BeliefNode,
-    BeliefTreeSearch,
-    NodeChildren,
-    SearchConfig,
-    SearchStats,
-)
+from stack.planning.sarsop import BeliefTreeSearch
+from stack.planning.sarsop_nodes import BeliefNode, NodeChildren
+from stack.planning.search_base import SearchConfig, SearchStats
 
 
 def search_blocks(pomdp: POMDP, b0: np.ndarray | None = None) -> np.ndarray | None:
@@ -306,7 +302,7 @@ class BlockTreeSearch(BeliefTreeSearch):
     def _policy(self) -> AlphaPolicy:
         """The active vectors (or, with ``config.reached_only``, those the policy uses
         at the tree's nodes) and the archived ones they lead to, each over its block."""
-        order = self._closure()
+        order = self.closure()
         where = {g: k for k, g in enumerate(order)}
         where[-1] = -1
         self.successors = np.array(

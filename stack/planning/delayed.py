@@ -1,6 +1,6 @@
 """A deterministic upper bound from delayed state revelation (issue 12).
 
-In the case study (a :class:`~stack.planning.momdp.MixedModel`) the person's dynamics
+In the case study (a :class:`~stack.planning.momdp_model.MixedModel`) the person's dynamics
 and observations depend neither on the robot nor on the action. Relax the problem by
 *telling* the robot, at every step t, the person's true state two steps back,
 y_{t-2}. A policy of the real problem is a policy of the relaxed one, so the relaxed
@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stack.planning import clock
-from stack.planning.momdp import MixedModel
+from stack.planning.momdp_model import MixedModel
 
 # a (y, z1, z2) whose probability P(z1, z2 | y) is below this is left out of the float32
 # sweeps (1 / P would overflow float32); the float64 certificate covers every J

@@ -1,7 +1,7 @@
 """An information-relaxation (dual) upper bound for exogenous-belief models (issue 12).
 
 In the case study the person's dynamics and observations depend neither on the robot
-nor on the action (:class:`~stack.planning.momdp.MixedModel`), so the person belief
+nor on the action (:class:`~stack.planning.momdp_model.MixedModel`), so the person belief
 b_t is an *exogenous* process, the same whatever the robot does; only the robot cell
 x_t is controlled. That makes the information-relaxation duality of Brown, Smith and
 Sun (Operations Research 58(4), 2010; for POMDPs Haugh and Lacedelli, IEEE TAC 2020)
@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stack.planning.momdp import MixedModel
+from stack.planning.momdp_model import MixedModel
 
 DUAL_BATCH = 16  # paths per batch of dual_batches (each batch seeded on its own)
 DUAL_FIB_TOL = 1e-6  # the fast informed bound behind dual_batches' penalty
@@ -255,7 +255,7 @@ def dual_batches(m: MixedModel, Q, x: int, b, config, deadline: float, progress)
     until config.dual_paths or the deadline; (DualBound or None, note). ``config`` is
     the solve's SolverConfig (dual_paths, seed)."""
     from stack.planning import clock
-    from stack.planning.momdp import factored_fib
+    from stack.planning.momdp_model import factored_fib
 
     t0 = clock.now()
     # the penalty's table: the search's fast informed bound iterated closer to its fixed

@@ -1,15 +1,12 @@
 """Belief-tree search on a mixed-observability model (SARSOP's MOMDP idea, issue 12).
 
-In the case study the robot's cell x is observed exactly; only the person factor y
-(position and direction, 65 values on the 12-cell grid) is hidden. A belief is then
-a pair (x, b) with b a distribution over y alone, and the value function a set of
-65-value alpha vectors *per robot cell* (Ong, Png, Hsu and Lee 2010). The task adds
-more structure that this module uses:
-
-- the person's dynamics P(y' | y) and observation P(z | y') depend neither on the
-  robot nor on the action, so the successor person beliefs of a node are the same
-  for every action and every next robot cell: one posterior per person observation;
-- the robot's dynamics P(x' | x, a) do not depend on the person.
+In the case study the robot's cell x is observed exactly; only the person factor y is
+hidden (the model: :mod:`stack.planning.momdp_model`). A belief is then a pair (x, b)
+with b a distribution over y alone, and the value function a set of alpha vectors over
+y *per robot cell* (Ong, Png, Hsu and Lee 2010). The person's dynamics and observation
+depend neither on the robot nor on the action, so the successor person beliefs of a
+node are the same for every action and every next robot cell: one posterior per
+person observation.
 
 A node of the search is therefore a person belief b alone, holding both bounds for
 every robot cell; a backup at b updates all cells at once:
@@ -27,7 +24,7 @@ every robot cell; a backup at b updates all cells at once:
 - **upper bound**: the fast informed bound computed on the factors (a sweep is one
   (X, Y, Y) x (Y, Z) product per action, milliseconds, against a second for the
   flat form), refined by the backups in the tree, and optionally (``sawtooth``) by
-  interpolating belief-value points (:class:`_Points`). Measured on the task: the
+  interpolating belief-value points (:class:`PersonPoints`). Measured on the task: the
   interpolation, and even a point-based value iteration of the upper bound over 550
   sampled beliefs to its fixed point, lowered V(b0)'s bound by less than 0.01; the
   bound's looseness is spread over the whole 100-step horizon (docs/BENCHMARKS.md).
@@ -37,22 +34,36 @@ vectors that hold the cell's values on its block and a lower bound of every stat
 value (min R / (1 - gamma)) elsewhere, so ``AlphaPolicy`` picks, at any belief
 over one robot cell, among that cell's vectors.
 
-The module is over 500 lines because the model, its fast informed bound and the
-search share the per-cell arrays; the flat search (sarsop.py) is kept separate as
-its beliefs and vectors are flat.
+The tree's types (nodes, per-cell vectors, points) are in
+:mod:`stack.planning.momdp_nodes`; what this search shares with the flat one
+(settings, reports, result, stopping rules) in :mod:`stack.planning.search_base`. The
+flat search (``sarsop.py``) is kept separate as its beliefs and vectors are flat.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from stack.planning import clock
+from stack.planning.momdp_model import MixedModel, factored_fib
+from stack.planning.momdp_nodes import (
+    CellVectors,
+    MixedChildren,
+    MixedNode,
+    MixedRoot,
+    PersonPoints,
+)
 from stack.planning.policy import AlphaPolicy
-from stack.planning.sarsop import SearchConfig, SearchResult, SearchStats, StoppingRules
+from stack.planning.search_base import (
+    SearchBase,
+    SearchConfig,
+    SearchResult,
+    SearchStats,
+    child_targets,
+)
 from stack.planning.threads import blas_threads
 
 _PROB_EPS = 1e-12
@@ -62,296 +73,7 @@ _PROB_EPS = 1e-12
 FIB_SHARE = 0.3
 
 
-@dataclass(frozen=True, eq=False)
-class MixedModel:
-    """A model with an observed factor x and a hidden factor y.
-
-    Attributes:
-        TX: (A, X, X) P(x' | x, a), independent of y.
-        TY: (Y, Y) P(y' | y), independent of x and a.
-        OY: (Y, Z) P(z | y'), independent of x' and a; x' is observed exactly.
-        R: (X, Y, A) reward.
-        discount: gamma < 1.
-    Flat state index: x * Y + y (the task model's order, robot slowest).
-    """
-
-    TX: np.ndarray
-    TY: np.ndarray
-    OY: np.ndarray
-    R: np.ndarray
-    discount: float
-
-    @property
-    def X(self) -> int:
-        return self.TX.shape[1]
-
-    @property
-    def Y(self) -> int:
-        return self.TY.shape[0]
-
-    @property
-    def A(self) -> int:
-        return self.TX.shape[0]
-
-    def split(self, b: np.ndarray) -> tuple[int, np.ndarray]:
-        """(x, person belief) of a flat belief that is certain about x."""
-        t = np.asarray(b, dtype=float).reshape(self.X, self.Y)
-        mass = t.sum(axis=1)
-        x = int(mass.argmax())
-        if mass[x] < 1.0 - 1e-9:
-            raise ValueError("the belief is not certain about the observed factor")
-        return x, t[x] / mass[x]
-
-
-def mixed_from_task(model) -> MixedModel:
-    """The task's factored model (one person) as a :class:`MixedModel`."""
-    if model.people != 1:
-        raise ValueError("the mixed-observability search handles one person")
-    X = model.n_cells + 1
-    R = model.reward_table().reshape(X, -1, model.reward_table().shape[-1])
-    return MixedModel(
-        TX=np.asarray(model.robot_T, dtype=float),
-        TY=model.person_transition(),
-        OY=model.person_observation(),
-        R=R,
-        discount=model.task.discount,
-    )
-
-
-def _mdp_start(m: MixedModel, deadline: float, sweeps: int = 4000) -> np.ndarray:
-    """A start for the fast informed bound: value iteration of the fully observable
-    MDP down from max R / (1 - gamma) (a sweep costs ~0.1 ms against ~10 ms for the
-    fast informed bound's). Every iterate Q satisfies M(Q) <= Q for the MDP operator M,
-    and the fast informed bound's operator H lies below M, so H(Q) <= Q: the start is
-    above the fast informed bound's fixed point, as its iteration needs."""
-    g = m.discount
-    Q = np.full(m.R.shape, float(m.R.max()) / (1 - g))
-    TYT = m.TY
-    for i in range(sweeps):
-        U = Q.max(axis=2) @ TYT.T  # (X', Y): sum_y' P(y'|y) max_a' Q(x', y', a')
-        new = np.minimum(m.R + g * np.einsum("axk,ky->xya", m.TX, U), Q)
-        done = float((Q - new).max()) < 1e-9
-        Q = new
-        if done or (i % 100 == 0 and clock.now() > deadline):
-            break
-    return Q
-
-
-def factored_fib(
-    m: MixedModel,
-    tol: float = 1e-3,
-    max_iterations: int = 5000,
-    deadline: float = math.inf,
-    start: np.ndarray | None = None,
-) -> np.ndarray:
-    """The fast informed bound on the factors, Q (X, Y, A).
-
-    H(Q)(x,y,a) = R(x,y,a) + gamma sum_x' P(x'|x,a) sum_z max_a' sum_y' P(y'|y) P(z|y') Q(x',y',a')
-
-    H is monotone and a contraction, so any Q with H(Q) <= Q lies above the fixed point
-    (H^n(Q) decreases to it). The iteration starts from the MDP's values (QMDP) and, as
-    gamma = 0.99 makes plain iteration slow (~600 sweeps), extrapolates each step
-    along the last decrease (Q - beta (Q_prev - Q)) and keeps the extrapolated table
-    only where that check H(Q) <= Q holds for the whole table; otherwise beta halves.
-    Every accepted table is an upper bound, so stopping at the deadline is safe.
-    ``start``: a table from an earlier call (H(Q) <= Q holds for it), to go on from it
-    to a smaller ``tol`` instead of starting again from the MDP's values.
-    """
-    g = m.discount
-
-    def H(Q: np.ndarray) -> np.ndarray:
-        # W[x', y, z, a'] = sum_y' TY[y, y'] OY[y', z] Q[x', y', a']
-        W = np.einsum("yk,kz,xka->xyza", m.TY, m.OY, Q, optimize=True)
-        U = W.max(axis=3).sum(axis=2)  # (X', Y)
-        return m.R + g * np.einsum("axk,ky->xya", m.TX, U)
-
-    Q = _mdp_start(m, deadline) if start is None else np.array(start, dtype=float)
-    HQ = np.minimum(H(Q), Q)  # H(Q) <= Q holds
-    beta = 1.0
-    for _ in range(max_iterations):
-        step = Q - HQ  # >= 0
-        if step.max() < tol or clock.now() > deadline:
-            return HQ
-        Qe = HQ - beta * step
-        HQe = H(Qe)
-        if (HQe <= Qe + 1e-12 * np.abs(Qe)).all():
-            Q, HQ = Qe, np.minimum(HQe, Qe)
-            beta = min(2.0 * beta, 1e4)
-        else:
-            HH = np.minimum(H(HQ), HQ)
-            Q, HQ = HQ, HH
-            beta = max(beta / 4.0, 1.0)
-    return HQ
-
-
-class _Node:
-    """A person belief b with the bounds of every robot cell at it: lb[x], ub[x]."""
-
-    __slots__ = ("b", "ub", "lb", "kids", "point", "group")
-
-    def __init__(self, b: np.ndarray, ub: np.ndarray, lb: np.ndarray, group: int = -1):
-        self.b = b
-        self.group = group  # the observation this belief followed (-1: a start)
-        self.ub = ub  # (X,)
-        self.lb = lb  # (X,) the best vector of each cell at b
-        self.kids: _Kids | None = None
-        self.point = -1  # row of the upper bound's points; -1 never backed up, -2 no point
-
-
-class _Kids:
-    """The successors of a node: one person posterior per observation z, shared by
-    every action and next cell. The posteriors (Y, nz) are recomputed from the parent's
-    belief when needed (cheap) rather than kept; the bounds of every (cell, z) pair
-    are kept, with the vectors and points already folded in, so a refresh only
-    evaluates what was added since."""
-
-    __slots__ = ("pz", "zs", "nodes", "reward", "lbv", "lbk", "lb_seen", "lb_gen", "ub", "seen")
-
-    def __init__(self, pz, zs, reward, X):
-        self.pz = pz  # (nz,) P(z | b)
-        self.zs = zs  # (nz,) the observations with P(z | b) > 0
-        self.nodes: dict[int, _Node] = {}  # j -> successor node (made when entered)
-        self.reward = reward  # (X, A) R(x, b, a)
-        nz = zs.size
-        self.lbv = np.full((X, nz), -np.inf)  # best vector value of cell x at posterior j
-        self.lbk = np.zeros((X, nz), dtype=np.int32)  # ... and its column in the cell
-        self.lb_seen = np.zeros(X, dtype=np.int64)  # columns of each cell evaluated
-        self.lb_gen = np.full(X, -1, dtype=np.int64)  # the cell's pruning generation
-        self.ub = np.empty((X, nz))
-        self.seen = 0  # upper-bound points folded into ub
-
-
-class _Vectors:
-    """One robot cell's lower-bound vectors (columns of G, over the person factor)."""
-
-    def __init__(self, alphas: np.ndarray, actions: np.ndarray):
-        Y = alphas.shape[1]
-        cap = max(64, 2 * len(actions))
-        self.G = np.empty((Y, cap))
-        self.G[:, : len(actions)] = alphas.T
-        self.act = np.empty(cap, dtype=int)
-        self.act[: len(actions)] = actions
-        self.n = len(actions)
-        self.gen = 0  # bumped by every pruning (column indices change)
-        self.pruned_at = self.n
-
-    @property
-    def cols(self) -> np.ndarray:
-        return self.G[:, : self.n]
-
-    def add(self, alpha: np.ndarray, action: int) -> None:
-        if self.n == self.G.shape[1]:
-            G = np.empty((self.G.shape[0], 2 * self.n))
-            G[:, : self.n] = self.G[:, : self.n]
-            act = np.empty(2 * self.n, dtype=int)
-            act[: self.n] = self.act[: self.n]
-            self.G, self.act = G, act
-        self.G[:, self.n] = alpha
-        self.act[self.n] = action
-        self.n += 1
-
-    def keep(self, idx: np.ndarray) -> None:
-        k = idx.size
-        self.G[:, :k] = self.G[:, idx]
-        self.act[:k] = self.act[idx]
-        self.n = self.pruned_at = k
-        self.gen += 1
-
-
-class _Points:
-    """Belief-value points of the upper bound, shared by every robot cell.
-
-    If b = r b_i + (1 - r) b' with b' a belief (any r <= min_y b(y) / b_i(y)), convexity
-    of V* gives V*(b) <= r v_i + (1 - r) U(b') for any upper bound U. The sawtooth of
-    Hauskrecht (2000) takes U linear (the corner values); here U is the fast informed
-    bound, max_a Q_a . b', so a point's term is
-
-        r v_i(x) + max_a (Q_xa . b - r Q_xa . b_i),
-
-    which is never above the fast informed bound at b's neighbour b' (with 65-value
-    beliefs the corner plane lies far above the fast informed bound and the plain
-    sawtooth never wins). A point is a person belief with a value per cell; a posterior
-    after observation z is compared only with the points that were themselves
-    posteriors after z (their *group*): the minimum may run over any subset of the
-    points, and those are the only ones near it.
-    """
-
-    def __init__(self, fib: np.ndarray, X: int):
-        self.fib = fib  # (X*A, Y) the fast informed bound's vectors
-        Y = fib.shape[1]
-        self.X = X
-        self.P = np.empty((0, Y))
-        self.Pinv = np.empty((0, Y))
-        self.v = np.empty((0, X))  # the upper bound at b_i per cell
-        self.QB = np.empty((0, fib.shape[0]))  # Q_xa . b_i
-        self.group = np.empty(0, dtype=np.int64)  # the observation that produced b_i
-        self.n = 0
-
-    def add(self, b: np.ndarray, v: np.ndarray, group: int) -> int:
-        if self.n == self.P.shape[0]:
-            cap = max(64, 2 * self.n)
-            for name in ("P", "Pinv", "v", "QB"):
-                old = getattr(self, name)
-                new = np.empty((cap, old.shape[1]))
-                new[: self.n] = old[: self.n]
-                setattr(self, name, new)
-            g = np.empty(cap, dtype=np.int64)
-            g[: self.n] = self.group[: self.n]
-            self.group = g
-        i = self.n
-        self.P[i] = b
-        # 1e300, not inf, where the point has no mass: 0 * inf would be nan
-        self.Pinv[i] = np.where(b > 0, 1.0 / np.where(b > 0, b, 1.0), 1e300)
-        self.v[i] = v
-        self.QB[i] = self.fib @ b
-        self.group[i] = group
-        self.n += 1
-        return i
-
-    def update(self, i: int, v: np.ndarray) -> None:
-        np.minimum(self.v[i], v, out=self.v[i])
-
-    def term(self, i: np.ndarray, ratio: np.ndarray, QM: np.ndarray) -> np.ndarray:
-        """The points' terms (X, p) at beliefs with fast-informed values QM (X*A, p)."""
-        X = self.X
-        d = (QM - ratio * self.QB[i].T).reshape(X, -1, i.size).max(axis=1)
-        return ratio * self.v[i].T + d
-
-    def correct(self, out: np.ndarray, B: np.ndarray, col_of_z: np.ndarray, start: int) -> None:
-        """Lower ``out`` (X, n), the bounds at the beliefs B (Y, n), by the points
-        start.. whose group is the observation of each column (col_of_z: observation ->
-        column, -1 if none)."""
-        if self.n <= start:
-            return
-        g = self.group[start : self.n]
-        j = np.where(g >= 0, col_of_z[g], -1)
-        i = np.flatnonzero(j >= 0) + start
-        if i.size == 0:
-            return
-        j = j[i - start]
-        Bj = B[:, j]
-        ratio = (self.Pinv[i] * Bj.T).min(axis=1)  # (p,)
-        vals = self.term(i, ratio, self.fib @ Bj)
-        np.minimum.at(out.T, j, vals.T)
-
-
-class _Root:
-    """A start: a node and the robot's cell there (lb/ub as the stopping rules read them)."""
-
-    def __init__(self, node: _Node, x: int):
-        self.node = node
-        self.x = x
-
-    @property
-    def lb(self) -> float:
-        return float(self.node.lb[self.x])
-
-    @property
-    def ub(self) -> float:
-        return float(self.node.ub[self.x])
-
-
-class MixedSearch(StoppingRules):
+class MixedSearch(SearchBase):
     """HSVI2/SARSOP-style search over person beliefs, every robot cell at once.
 
     A node of the tree is a person belief b; since the person's dynamics and
@@ -400,12 +122,7 @@ class MixedSearch(StoppingRules):
         self.rounds = rounds
         self.depth = depth
         self.rounds_done = 0
-        self.config = config
-        self.start = clock.now() if start is None else start
-        self.deadline = (
-            math.inf if config.time_limit_s is None else self.start + config.time_limit_s
-        )
-        self.progress = progress
+        self._begin(config, start, progress)
         self.g = m.discount
         X, Y = m.X, m.Y
         self.v_min = float(m.R.min()) / (1 - self.g)
@@ -419,25 +136,21 @@ class MixedSearch(StoppingRules):
         self.upper_initial = self.Q_upper
         # (X*A, Y): the fast informed bound's vectors, a row per (cell, action)
         self._fib = np.ascontiguousarray(self.Q_upper.transpose(0, 2, 1).reshape(X * m.A, Y))
-        self.points = _Points(self._fib, X)
+        self.points = PersonPoints(self._fib, X)
         alphas, actions = seed_alphas
         blocks = np.asarray(alphas, dtype=float).reshape(len(actions), X, Y)
-        self.cells = [_Vectors(blocks[:, x, :], np.asarray(actions)) for x in range(X)]
+        self.cells = [CellVectors(blocks[:, x, :], np.asarray(actions)) for x in range(X)]
         self.n_initial_alphas = len(actions)
         self.TYT = np.ascontiguousarray(m.TY.T)
         self.RT = np.ascontiguousarray(m.R.transpose(0, 2, 1))  # (X, A, Y)
-        self.nodes: dict[bytes, _Node] = {}
-        self.backed: list[_Node] = []  # nodes backed up at least once
+        self.nodes: dict[bytes, MixedNode] = {}
+        self.backed: list[MixedNode] = []  # nodes backed up at least once
         self._B = np.empty((0, Y))  # their beliefs, a row each (for pruning)
-        self.backups = 0
-        self.trials = 0
-        self.history: list[SearchStats] = []
-        self._last_report = -math.inf
-        self.roots: list[_Root] = []
+        self.roots: list[MixedRoot] = []
         for b in roots:
             x, by = m.split(b)
             if not any(r.x == x and np.array_equal(r.node.b, by) for r in self.roots):
-                self.roots.append(_Root(self._node(by), x))
+                self.roots.append(MixedRoot(self._node(by), x))
         self.root = self.roots[0]
         self.initial_lower = self.root.lb
         # upper bounds at the roots found elsewhere (delayed.DelayedWorker sets them from
@@ -459,30 +172,30 @@ class MixedSearch(StoppingRules):
     def _key(self, b: np.ndarray) -> bytes:
         return np.round(b, 10).tobytes()
 
-    def _node(self, b: np.ndarray) -> _Node:
+    def _node(self, b: np.ndarray) -> MixedNode:
         key = self._key(b)
         node = self.nodes.get(key)
         if node is None:
             ub = self._fib_at(b[:, None])[:, 0]
             lb = np.minimum(self._lower_all(b), ub)
-            node = _Node(b, ub, lb)
+            node = MixedNode(b, ub, lb)
             self.nodes[key] = node
         return node
 
-    def _posteriors(self, node: _Node, kids: _Kids) -> np.ndarray:
+    def _posteriors(self, node: MixedNode, kids: MixedChildren) -> np.ndarray:
         """The successor person beliefs (Y, nz); the same operations as in ``_expand``,
         so the same numbers."""
         joint = self.m.OY * (self.TYT @ node.b)[:, None]
         return joint[:, kids.zs] / kids.pz
 
-    def _expand(self, node: _Node) -> tuple[_Kids, np.ndarray]:
+    def _expand(self, node: MixedNode) -> tuple[MixedChildren, np.ndarray]:
         """The node's successors with their bounds up to date, and the posteriors."""
         kids = node.kids
         if kids is None:
             joint = self.m.OY * (self.TYT @ node.b)[:, None]
             pz = joint.sum(axis=0)
             zs = np.flatnonzero(pz > _PROB_EPS)
-            kids = _Kids(pz[zs], zs, np.einsum("xay,y->xa", self.RT, node.b), self.m.X)
+            kids = MixedChildren(pz[zs], zs, np.einsum("xay,y->xa", self.RT, node.b), self.m.X)
             M = joint[:, zs] / kids.pz
             kids.ub[:] = self._fib_at(M)
             node.kids = kids
@@ -515,14 +228,14 @@ class MixedSearch(StoppingRules):
             n.lb = np.minimum(kids.lbv[:, j], n.ub)
         return kids, M
 
-    def _child(self, kids: _Kids, j: int, M: np.ndarray) -> _Node:
+    def _child(self, kids: MixedChildren, j: int, M: np.ndarray) -> MixedNode:
         node = kids.nodes.get(j)
         if node is None:
             b = M[:, j].copy()
             key = self._key(b)
             node = self.nodes.get(key)
             if node is None:
-                node = _Node(
+                node = MixedNode(
                     b,
                     kids.ub[:, j].copy(),
                     np.minimum(kids.lbv[:, j], kids.ub[:, j]),
@@ -532,11 +245,11 @@ class MixedSearch(StoppingRules):
             kids.nodes[j] = node
         return node
 
-    def _q(self, kids: _Kids, v: np.ndarray) -> np.ndarray:
+    def _q(self, kids: MixedChildren, v: np.ndarray) -> np.ndarray:
         """Q(a, x) = R(x, b, a) + gamma sum_x' P(x'|x,a) sum_z P(z|b) v(x', z), (A, X)."""
         return kids.reward.T + self.g * (self.m.TX @ (v @ kids.pz))
 
-    def _backup(self, node: _Node) -> None:
+    def _backup(self, node: MixedNode) -> None:
         kids, M = self._expand(node)
         q_upper = self._q(kids, kids.ub)
         q_lower = self._q(kids, kids.lbv)
@@ -561,7 +274,9 @@ class MixedSearch(StoppingRules):
             cur[xs] = v[xs]
         node.lb = np.minimum(cur, node.ub)
 
-    def _add_alphas(self, node: _Node, kids: _Kids, a: np.ndarray, xs: np.ndarray) -> None:
+    def _add_alphas(
+        self, node: MixedNode, kids: MixedChildren, a: np.ndarray, xs: np.ndarray
+    ) -> None:
         """The backed-up vectors at ``node`` of the cells xs, each for its action a[x]:
 
         alpha(y) = R(x,y,a) + gamma sum_y' P(y'|y) sum_x' P(x'|x,a) sum_z P(z|y') alpha_x'z(y')
@@ -635,13 +350,13 @@ class MixedSearch(StoppingRules):
                 sampled = sampled + more
         return stopped
 
-    def sample_nodes(self, n_traj: int, depth: int, seed: int = 0) -> list[_Node]:
+    def sample_nodes(self, n_traj: int, depth: int, seed: int = 0) -> list[MixedNode]:
         """Person beliefs reached from the starts by simulated observations. The person
         evolves whatever the robot does, so these are the beliefs any policy meets;
         the nodes are made as the search would make them (with their groups)."""
         rng = np.random.default_rng(seed)
         m = self.m
-        out: list[_Node] = []
+        out: list[MixedNode] = []
         for t in range(n_traj):
             node = self.roots[t % len(self.roots)].node
             y = int(rng.choice(m.Y, p=node.b / node.b.sum()))
@@ -662,6 +377,10 @@ class MixedSearch(StoppingRules):
     @property
     def n_alphas(self) -> int:
         return sum(c.n for c in self.cells)
+
+    @property
+    def n_points(self) -> int:
+        return self.points.n
 
     def _values_to_write(self) -> int:
         return self.n_alphas * self.m.X * self.m.Y
@@ -693,10 +412,7 @@ class MixedSearch(StoppingRules):
     def _trial(self) -> None:
         g = self.g
         TX = self.m.TX
-        open_roots = [r for r in self.roots if not self._met(r)] or [self.root]
-        root = max(open_roots, key=lambda r: r.ub - r.lb)
-        eps = self.config.trial_improvement * (root.ub - root.lb)
-        L, U = root.lb, root.lb + eps
+        root, eps, L, U = self._trial_root()
         path = [root.node]
         node, x = root.node, root.x
         t = 0
@@ -716,12 +432,19 @@ class MixedSearch(StoppingRules):
             i, j = np.unravel_index(int(excess.argmax()), excess.shape)
             if w[i, j] <= 0:
                 break
-            Lp = max(L, float(q_lower.max()))
-            Up = max(U, float(q_lower.max()) + eps * g**-t)
             rest_l = float((w * lb).sum()) - w[i, j] * lb[i, j]
             rest_u = float((w * ub).sum()) - w[i, j] * ub[i, j]
-            L = (Lp - kids.reward[x, a] - g * rest_l) / (g * w[i, j])
-            U = (Up - kids.reward[x, a] - g * rest_u) / (g * w[i, j])
+            L, U = child_targets(
+                L,
+                U,
+                float(q_lower.max()),
+                eps * g**-t,
+                kids.reward[x, a],
+                g,
+                w[i, j],
+                rest_l,
+                rest_u,
+            )
             node, x = self._child(kids, int(j), M), int(i)
             path.append(node)
             t += 1
@@ -734,25 +457,6 @@ class MixedSearch(StoppingRules):
             self._backup(n)
         self.trials += 1
 
-    def _report(self, force: bool = False) -> None:
-        now = clock.now()
-        if not force and now - self._last_report < self.config.progress_every_s:
-            return
-        self._last_report = now
-        stats = SearchStats(
-            trials=self.trials,
-            lower=self.root.lb,
-            upper=self.root.ub,
-            n_alphas=self.n_alphas,
-            n_points=self.points.n,
-            n_nodes=len(self.nodes),
-            backups=self.backups,
-            elapsed_s=now - self.start,
-        )
-        self.history.append(stats)
-        if self.progress:
-            self.progress(stats)
-
     def run(self) -> SearchResult:
         with blas_threads(self.config.blas_threads):
             return self._run()
@@ -763,28 +467,14 @@ class MixedSearch(StoppingRules):
         stopped = self._done()
         if self.rounds > 0 and self.n_beliefs > 0 and not stopped:
             stopped = self._rounds()
-        while not stopped:
-            self._trial()
-            self._report()
-            stopped = self._done()
+        stopped = self._trials(stopped)
         if not self._late():
             for x in range(self.m.X):
                 self._prune(x)
         self._report(force=True)
         alphas, actions = self.flat_vectors()
         policy = AlphaPolicy(alphas, actions, meta={"solver": "sarsop-momdp"})
-        result = SearchResult(
-            policy=policy,
-            lower_bound=self.root.lb,
-            upper_bound=self.root.ub,
-            seconds=clock.now() - self.start,
-            history=self.history,
-            trials=self.trials,
-            backups=self.backups,
-            stopped=stopped,
-        )
-        policy.meta.update(result.summary())
-        return result
+        return self._result(policy, stopped)
 
     def flat_vectors(self) -> tuple[np.ndarray, np.ndarray]:
         """Each cell's vectors as flat vectors: the cell's values on its block, the

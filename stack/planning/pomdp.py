@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -120,6 +121,15 @@ class POMDP:
             h.update(np.ascontiguousarray(self.b0, dtype=float).tobytes())
             self._cache["fingerprint"] = h.hexdigest()
         return self._cache["fingerprint"]
+
+    def note(self, key: str, value: Any) -> None:
+        """Keep ``value`` with the model under ``key``: what a reader learnt from the
+        file beyond the flat tables (a ``.pomdpx``'s observed blocks)."""
+        self._cache[key] = value
+
+    def noted(self, key: str) -> Any:
+        """The value kept by :meth:`note` under ``key`` (None if none)."""
+        return self._cache.get(key)
 
     # -- derived quantities (cached; the model is immutable) -----------------
     def obs_independent_of_action(self) -> bool:

@@ -390,7 +390,7 @@ def read_pomdpx(path: str | os.PathLike) -> POMDP:
     if seen_rows is not None:  # SARSOP's policies for the file index states this way
         by_value = np.argsort(seen_rows.indices, kind="stable")
         cut = np.searchsorted(seen_rows.indices[by_value], np.arange(seen_rows.shape[1] + 1))
-        pomdp._cache[_BLOCKS] = [by_value[lo:hi] for lo, hi in zip(cut, cut[1:], strict=False)]
+        pomdp.note(_BLOCKS, [by_value[lo:hi] for lo, hi in zip(cut, cut[1:], strict=False)])
     return pomdp
 
 
@@ -402,7 +402,7 @@ def observed_blocks(pomdp: POMDP) -> list[np.ndarray] | None:
     value x of those variables, the flat states that have it, in the order of the
     other variables' joint value -- the layout of SARSOP's vectors ``obsValue=x``
     (:func:`stack.planning.policy.read_policy_xml`). None for any other model."""
-    return pomdp._cache.get(_BLOCKS)
+    return pomdp.noted(_BLOCKS)
 
 
 def _joint_names(value_lists: list[list[str]]) -> list[str]:

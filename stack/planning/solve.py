@@ -279,7 +279,7 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
 
 def _search_config(config: SolverConfig):
     """The belief-tree searches' settings from the solver's (flat and mixed alike)."""
-    from stack.planning.sarsop import SearchConfig
+    from stack.planning.search_base import SearchConfig
 
     return SearchConfig(
         time_limit_s=config.time_limit_s,
@@ -294,7 +294,8 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
     """The belief-tree search on the task's mixed-observability form, then (when
     ``config.dual_paths``) the dual upper bound at b0 in the time left."""
     from stack.planning.delayed import DelayedWorker
-    from stack.planning.momdp import MixedSearch, mixed_from_task
+    from stack.planning.momdp import MixedSearch
+    from stack.planning.momdp_model import mixed_from_task
 
     t0 = clock.now() if start is None else start
     alphas = np.vstack([blind_lower_bound(pomdp), seeds[0]])
@@ -332,7 +333,7 @@ def _solve_mixed(model, pomdp, config, seeds, progress, start) -> SolveResult:
         deadline = math.inf
         if config.time_limit_s is not None:
             # the time the search kept for writing the policy stays kept
-            write_s = r.policy.alphas.size * search._write_s_per_value()
+            write_s = r.policy.alphas.size * search.write_seconds_per_value()
             deadline = t0 + config.time_limit_s - write_s
         x, b = m.split(pomdp.b0)
         with blas_threads(1):  # a second BLAS thread costs 2-6x on these small products
@@ -360,7 +361,7 @@ def format_progress(stats) -> str:
     if isinstance(stats, str):
         return stats
     if not isinstance(stats, IterationStats):
-        from stack.planning.sarsop import format_search_progress
+        from stack.planning.search_base import format_search_progress
 
         return format_search_progress(stats)
     gap = "" if stats.gap is None else f"  gap {stats.gap:9.3f}"
