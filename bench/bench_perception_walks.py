@@ -25,8 +25,9 @@ over the last ``TRUTH_WINDOW_S`` (0.5 s, the direction estimator's window); the
 instantaneous velocity and "steady" frames (true velocity unchanged for 1 s) are
 reported beside it.
 
-``--shadows on|off`` and ``--antialias N`` render the twin's camera otherwise (the
-real-time twin's cost). ``--quick`` runs two short walks and the 640 x 400 timing only
+``--shadows on|off``, ``--antialias N`` and ``--blur SIGMA`` render the twin's camera
+otherwise (the real-time twin's cost; ``--antialias 0 --blur 0.7``: the lens's blur in
+place of the multisampling). ``--quick`` runs two short walks and the 640 x 400 timing only
 (about a minute);
 ``--no-short-box`` runs the pipeline without the short-box foot refinement
 (``CameraConfig.short_box_ratio=None``), as it was before, for comparison.
@@ -362,12 +363,20 @@ def main() -> None:
         default=None,
         help="the twin's camera.antialias_samples (default: the twin's default)",
     )
+    ap.add_argument(
+        "--blur",
+        type=float,
+        default=None,
+        help="the twin's camera.blur_sigma_px, the lens's blur (default: the twin's default)",
+    )
     args = ap.parse_args()
     render = {}
     if args.shadows is not None:
         render["shadows"] = args.shadows == "on"
     if args.antialias is not None:
         render["antialias_samples"] = args.antialias
+    if args.blur is not None:
+        render["blur_sigma_px"] = args.blur
     walks = QUICK_WALKS if args.quick else WALKS
     camera_cfg = CameraConfig(short_box_ratio=None) if args.no_short_box else CameraConfig()
     setting = "short_box_ratio=None" if args.no_short_box else "default"

@@ -184,3 +184,42 @@ def test_the_twin_s_async_camera_renders_what_render_camera_renders():
             cam.close()
     assert t_s == pytest.approx(0.5)
     assert np.array_equal(img, direct)
+
+
+def test_the_lens_blur_renders_the_sharp_image_blurred_on_both_camera_paths():
+    """camera.blur_sigma_px: the rendered image through a Gaussian of that sigma, the
+    same from render_camera() and from the real-time twin's render thread."""
+    import dataclasses
+
+    import cv2
+    import numpy as np
+
+    from twin.config import TwinConfig
+    from twin.twin import Twin
+
+    sharp_cfg = TwinConfig()
+    sharp_cfg = dataclasses.replace(
+        sharp_cfg, camera=dataclasses.replace(sharp_cfg.camera, antialias_samples=0)
+    )
+    blur_cfg = dataclasses.replace(
+        sharp_cfg, camera=dataclasses.replace(sharp_cfg.camera, blur_sigma_px=0.7)
+    )
+    images = []
+    for cfg in (sharp_cfg, blur_cfg):
+        with Twin(cfg, seed=0) as tw:
+            for _ in range(25):
+                tw.step(None)
+            direct = tw.render_camera()
+            cam = tw.async_camera()
+            try:
+                assert cam.capture(tw.data, tw.time_s)
+                _, threaded = cam.collect(wait=True)
+            finally:
+                cam.close()
+        assert np.array_equal(threaded, direct)
+        images.append(direct)
+    sharp, blurred = images
+    assert not np.array_equal(sharp, blurred)
+    assert np.array_equal(blurred, cv2.GaussianBlur(sharp, (0, 0), 0.7))
+    with pytest.raises(ValueError, match="blur_sigma_px"):
+        TwinConfig.from_dict({"camera": {"blur_sigma_px": -1.0}})

@@ -131,3 +131,21 @@ class AsyncCamera:
                     self._done.put(err)
         finally:
             self._renderer.close()
+
+
+class LensBlur:
+    """A renderer whose images pass through the lens's blur: a Gaussian of ``sigma_px``
+    pixels (OpenCV), as a real camera's optics soften edges. Wraps ``mujoco.Renderer``
+    (``update_scene``, ``render``, ``close`` and the rest pass through)."""
+
+    def __init__(self, renderer: Any, sigma_px: float):
+        self._renderer = renderer
+        self.sigma_px = float(sigma_px)
+
+    def render(self, *args: Any, **kwargs: Any) -> np.ndarray:
+        import cv2
+
+        return cv2.GaussianBlur(self._renderer.render(*args, **kwargs), (0, 0), self.sigma_px)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._renderer, name)

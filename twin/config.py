@@ -105,6 +105,10 @@ class CameraConfig(_FromDict):
     lateral_offset_m: float = 0.0  # along +y from the region's mid-line
     rate_hz: float = 10.0
     antialias_samples: int = 4
+    # the lens's blur: a Gaussian of this many pixels (sigma) over the rendered image, 0:
+    # none. With antialias_samples 0 it stands in for the multisampling at a third of
+    # the render's CPU (docs/BENCHMARKS.md, perception)
+    blur_sigma_px: float = 0.0
     # the key light casts shadows only when asked: they triple the render time on the
     # CPU and change neither detection nor cells (docs/BENCHMARKS.md, perception)
     shadows: bool = False
@@ -118,6 +122,7 @@ class CameraConfig(_FromDict):
         "distance_behind_m": POSITIVE,
         "rate_hz": POSITIVE,
         "antialias_samples": (lambda v: v in (0, 1, 2, 4, 8, 16), "must be 0, 1, 2, 4, 8 or 16"),
+        "blur_sigma_px": (lambda v: 0.0 <= v <= 5.0, "must be in [0, 5] px"),
     }
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from stack.geometry import Pose2D
 from stack.nav.occupancy import OccupancyMap, save_map_yaml
-from twin.camera_thread import AsyncCamera
+from twin.camera_thread import AsyncCamera, LensBlur
 from twin.config import TwinConfig
 from twin.occupancy import occupancy_from_model
 from twin.person import PersonPose, PersonScript, default_waypoints
@@ -435,18 +435,20 @@ class Twin:
             (height, width, 3) uint8 RGB image.
         """
         if self._renderer is None:
-            c = self.config.camera
-            self._renderer = mujoco.Renderer(self.model, c.height_px, c.width_px)
+            self._renderer = self._camera_renderer()
         self._renderer.update_scene(self.data, camera=self._camera)
         return self._renderer.render().copy()
+
+    def _camera_renderer(self) -> mujoco.Renderer | LensBlur:
+        """The ceiling camera's renderer: MuJoCo's, and the lens's blur if configured."""
+        c = self.config.camera
+        renderer = mujoco.Renderer(self.model, c.height_px, c.width_px)
+        return LensBlur(renderer, c.blur_sigma_px) if c.blur_sigma_px > 0 else renderer
 
     def async_camera(self) -> AsyncCamera:
         """The ceiling camera on a render thread of its own (the real-time twin's:
         :mod:`twin.camera_thread`); the caller closes it."""
-        c = self.config.camera
-        return AsyncCamera(
-            lambda: mujoco.Renderer(self.model, c.height_px, c.width_px), self._camera
-        )
+        return AsyncCamera(self._camera_renderer, self._camera)
 
     def render_segmentation(self) -> np.ndarray:
         """Render which geom each ceiling-camera pixel sees (ground truth for perception).
