@@ -136,7 +136,7 @@ def prepare_launch(
     return dep, system, run_id
 
 
-def _lines(path: Path) -> int:
+def count_lines(path: Path) -> int:
     """Complete lines of a file that may not exist yet (the planner's steps)."""
     try:
         return path.read_bytes().count(b"\n")
@@ -246,7 +246,7 @@ def launch(
         steps_to_make = plan.steps if plan is not None and "planner" in names else 0
         while signals.first is None and launcher.poll():
             watch.poll()
-            if steps_to_make and _lines(run_dir / "steps.jsonl") >= steps_to_make:
+            if steps_to_make and count_lines(run_dir / "steps.jsonl") >= steps_to_make:
                 ending = Ending("finished", f"finished: {steps_to_make} steps")
                 break
             time.sleep(0.2)
