@@ -155,6 +155,11 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
+def _clip(v: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one finite value (bounds lo < hi)."""
+    return lo if v < lo else hi if v > hi else v
+
+
 def _segment_quat(u: np.ndarray) -> np.ndarray:
     """Unit quaternion turning +z onto the unit vector u."""
     w = 1.0 + u[2]
@@ -237,9 +242,10 @@ class Twin:
         yaw = self.config.robot.start_yaw_rad
         for adr, v in zip(self._qadr, (x, y, yaw), strict=True):
             self._data.qpos[adr] = v
-        self._cmd = np.zeros(3)  # the rate-limited command actually applied (body frame)
-        self._odom = np.array([x, y, yaw])
-        self._odom_vel = np.zeros(3)
+        # the rate-limited command actually applied (body frame)
+        self._cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._odom: tuple[float, float, float] = (float(x), float(y), float(yaw))
+        self._odom_vel: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._place_person(force=True)  # mj_resetData moved the mocap bodies back
         self._people_stale = False
         mujoco.mj_forward(self.model, self._data)
@@ -253,9 +259,9 @@ class Twin:
         for adr, v in zip(self._qadr, (pose.x_m, pose.y_m, pose.yaw_rad), strict=True):
             self._data.qpos[adr] = v
         self._data.qvel[list(self._dadr)] = 0.0
-        self._cmd = np.zeros(3)
-        self._odom = np.array([pose.x_m, pose.y_m, pose.yaw_rad])
-        self._odom_vel = np.zeros(3)
+        self._cmd = (0.0, 0.0, 0.0)
+        self._odom = (float(pose.x_m), float(pose.y_m), float(pose.yaw_rad))
+        self._odom_vel = (0.0, 0.0, 0.0)
         mujoco.mj_forward(self.model, self._data)
 
     def close(self) -> None:
@@ -290,32 +296,37 @@ class Twin:
         rc = self.config.robot
         dt = self.config.control_period_s
         diff = rc.drive == "diff"
-        want = np.array([command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps])
-        lin = np.hypot(want[0], want[1])
+        # on Python floats, the operations of the numpy version in its order (the same
+        # numbers; a tenth of the time for three values)
+        wx, wy, wz = command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps
+        lin = np.hypot(wx, wy)
         if lin > rc.max_linear_mps:
-            want[:2] *= rc.max_linear_mps / lin
-        want[2] = np.clip(want[2], -rc.max_angular_radps, rc.max_angular_radps)
-        delta = want - self._cmd
-        dlin = np.hypot(delta[0], delta[1])
+            k = rc.max_linear_mps / lin
+            wx, wy = wx * k, wy * k
+        wz = _clip(wz, -rc.max_angular_radps, rc.max_angular_radps)
+        c0, c1, c2 = self._cmd
+        dx, dy, dz = wx - c0, wy - c1, wz - c2
+        dlin = np.hypot(dx, dy)
         if dlin > rc.max_linear_accel_mps2 * dt:
-            delta[:2] *= rc.max_linear_accel_mps2 * dt / dlin
-        delta[2] = np.clip(
-            delta[2], -rc.max_angular_accel_radps2 * dt, rc.max_angular_accel_radps2 * dt
-        )
-        self._cmd = self._cmd + delta
+            k = rc.max_linear_accel_mps2 * dt / dlin
+            dx, dy = dx * k, dy * k
+        dz = _clip(dz, -rc.max_angular_accel_radps2 * dt, rc.max_angular_accel_radps2 * dt)
+        self._cmd = (float(c0 + dx), float(c1 + dy), float(c2 + dz))
+        moving = any(self._cmd)
 
-        before = self._robot_pose_array()
+        before = self._robot_pose()
         data = self._data
-        if not self._cmd.any() and data.ncon == 0 and np.abs(data.qvel).max() < REST_SPEED_MPS:
+        if not moving and data.ncon == 0 and np.abs(data.qvel).max() < REST_SPEED_MPS:
             # at rest (most of an episode): nothing pushes the base and it touches nothing,
             # so the physics steps would change only the time (the base's last crawl,
             # below REST_SPEED_MPS, moves it less than a rounding step of its pose)
             data.ctrl[self._act_idx] = 0.0
             data.qvel[:] = 0.0
-            ts = self.model.opt.timestep
+            ts, t = self.model.opt.timestep, data.time
             for _ in range(self._n_substeps):
-                data.time += ts  # as mj_step adds it
-        elif not diff and not self._cmd.any():
+                t += ts  # as mj_step adds it, step by step
+            data.time = t
+        elif not diff and not moving:
             # coming to rest: the world-frame command is zero at every yaw, so the
             # substeps run in one call (the same steps, without Python between)
             data.ctrl[self._act_idx] = 0.0
@@ -327,7 +338,7 @@ class Twin:
         # at that instant's pose (a scan at 10 Hz, not every 20 ms period)
         self._people_stale = bool(self.people)
         mujoco.mj_kinematics(self.model, self._data)
-        self._integrate_odometry(before, self._robot_pose_array(), dt)
+        self._integrate_odometry(before, self._robot_pose(), dt)
 
     def _substeps(self, diff: bool) -> None:
         """The control period's physics steps, the command turned into the world frame
@@ -352,31 +363,36 @@ class Twin:
             self.step(command)
 
     def _robot_pose_array(self) -> np.ndarray:
+        return np.array(self._robot_pose())
+
+    def _robot_pose(self) -> tuple[float, float, float]:
         # read the pose from the body (FEASIBILITY/issue 3: never from the slide values)
         pos = self._data.xpos[self._robot_body]
         mat = self._data.xmat[self._robot_body]
-        return np.array([pos[0], pos[1], math.atan2(mat[3], mat[0])])
+        return float(pos[0]), float(pos[1]), math.atan2(mat[3], mat[0])
 
-    def _integrate_odometry(self, before: np.ndarray, after: np.ndarray, dt: float) -> None:
+    def _integrate_odometry(
+        self, before: tuple[float, float, float], after: tuple[float, float, float], dt: float
+    ) -> None:
         dyaw = _wrap(after[2] - before[2])
         mid = before[2] + dyaw / 2
         c, s = math.cos(mid), math.sin(mid)
         dx, dy = after[0] - before[0], after[1] - before[1]
         # the true body-frame velocity over the period, then the wheel-encoder noise
-        v = np.array([(c * dx + s * dy) / dt, (-s * dx + c * dy) / dt, dyaw / dt])
         oc = self.config.odometry
-        noise = self.rng.normal(0.0, 1.0, 3) * (
-            oc.linear_noise_std_mps,
-            oc.linear_noise_std_mps,
-            oc.angular_noise_std_radps,
-        )
-        v = v + noise
-        oyaw = self._odom[2] + v[2] * dt / 2
+        n0, n1, n2 = self.rng.normal(0.0, 1.0, 3).tolist()
+        v0 = (c * dx + s * dy) / dt + n0 * oc.linear_noise_std_mps
+        v1 = (-s * dx + c * dy) / dt + n1 * oc.linear_noise_std_mps
+        v2 = dyaw / dt + n2 * oc.angular_noise_std_radps
+        x, y, yaw = self._odom
+        oyaw = yaw + v2 * dt / 2
         oc_, os_ = math.cos(oyaw), math.sin(oyaw)
-        self._odom[0] += (oc_ * v[0] - os_ * v[1]) * dt
-        self._odom[1] += (os_ * v[0] + oc_ * v[1]) * dt
-        self._odom[2] = _wrap(self._odom[2] + v[2] * dt)
-        self._odom_vel = v
+        self._odom = (
+            x + (oc_ * v0 - os_ * v1) * dt,
+            y + (os_ * v0 + oc_ * v1) * dt,
+            _wrap(yaw + v2 * dt),
+        )
+        self._odom_vel = (v0, v1, v2)
 
     @property
     def end_time_s(self) -> float:
