@@ -198,9 +198,13 @@ class PersonScript:
         """Where the pelvis is at ``t``, the heading and the velocity: ``pose(t)``'s
         ``position_m``, ``heading_rad`` and ``velocity_mps`` (the same numbers) without
         the body's segments (the ground truth needs only these, at 25 Hz)."""
-        ph, f, u, vel = self._along(t)
-        pelvis_xy = ph.start + u * f
-        return (float(pelvis_xy[0]), float(pelvis_xy[1])), ph.heading, vel
+        # :meth:`_along` and ``start + u * f`` on floats (the same operations, no arrays)
+        ph = self._phases[max(0, bisect.bisect_right(self._starts, t) - 1)]
+        f0, f1 = math.cos(ph.heading), math.sin(ph.heading)
+        u = 0.0 if ph.speed == 0.0 else (t - ph.t0) * ph.speed
+        vel = (0.0, 0.0) if ph.speed == 0.0 else (f0 * ph.speed, f1 * ph.speed)
+        x0, y0 = ph.start.tolist()
+        return (x0 + u * f0, y0 + u * f1), ph.heading, vel
 
     def _along(self, t: float) -> tuple[_Phase, np.ndarray, float, tuple[float, float]]:
         """The phase at ``t``, its unit direction, the distance walked along it and the

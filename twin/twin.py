@@ -19,6 +19,7 @@ one random generator, and splitting them would pass both around.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ import mujoco
 import numpy as np
 
 from stack.geometry import Pose2D
+from stack.memo import Memo
 from stack.nav.occupancy import OccupancyMap, save_map_yaml
 from twin.camera_thread import AsyncCamera
 from twin.config import TwinConfig
@@ -166,9 +168,39 @@ def _segment_quat(u: np.ndarray) -> np.ndarray:
     if w < 1e-9:
         return np.array([0.0, 1.0, 0.0, 0.0])
     q = np.array([w, -u[1], u[0], 0.0])
-    return q / np.linalg.norm(q)
+    return q / _norm(q)
 
 
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a vector, as it computes it (the square root of v . v)
+    without its checks (the walkers' placement asks 70 times a scan)."""
+    return math.sqrt(v.dot(v))
+
+
+class _Scene:
+    """A compiled scene and what follows from its static geometry alone."""
+
+    def __init__(self, config: TwinConfig):
+        self.spec, self.layout = build_spec(config)
+        self.model = self.spec.compile()
+        self.occupancy: OccupancyMap | None = None  # made on first use
+
+
+def _scene_key(config: TwinConfig) -> str:
+    """What builds the scene: the config without the walkers' waypoints (they only
+    script where the walkers go; their bodies, clothes and number stay in)."""
+    return repr(
+        dataclasses.replace(
+            config,
+            person=dataclasses.replace(config.person, waypoints=()),
+            people=tuple(dataclasses.replace(p, waypoints=()) for p in config.people),
+        )
+    )
+
+
+# the scenes a process has compiled: a study's episodes differ in the walks only, so
+# each compiles the same scene (about a tenth of an episode's set-up); a twin copies it
+_SCENES = Memo(4)
 # a walker beyond the first without waypoints takes the default tour this much later
 DEFAULT_TOUR_STAGGER_S = 4.0
 # a base slower than this (m/s, rad/s) with no command and no contact is at rest: its
@@ -191,9 +223,10 @@ class Twin:
     def __init__(self, config: TwinConfig | None = None, seed: int | np.random.Generator = 0):
         self.config = config if config is not None else TwinConfig()
         self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        spec, self.layout = build_spec(self.config)
-        self.spec = spec
-        self.model = spec.compile()
+        scene = _SCENES.get(_scene_key(self.config), lambda: _Scene(self.config))
+        self._scene = scene
+        self.spec, self.layout = scene.spec, scene.layout  # shared: never change them
+        self.model = copy.copy(scene.model)  # this twin's own (it sets the actuators' gains)
         self._data = mujoco.MjData(self.model)
         self._people_stale = False  # the walkers moved on since they were last placed
         m = self.model
@@ -438,7 +471,7 @@ class Twin:
                 i = mocap[f"{name}_{side}"]
                 seg = a - b  # +z of the segment body points from the far end to the near
                 mp[i] = (a + b) / 2
-                mq[i] = _segment_quat(seg / np.linalg.norm(seg))
+                mq[i] = _segment_quat(seg / _norm(seg))
             f = mocap[f"foot_{side}"]
             mp[f] = p.ankles_m[k]
             mq[f] = mq[t]
@@ -509,15 +542,16 @@ class Twin:
 
     def ground_truth(self) -> GroundTruth:
         """The true state of the robot and every person."""
-        x, y, yaw = self._robot_pose_array()
-        d = self._dadr
-        vw = self._data.qvel[list(d)]
+        x, y, yaw = self._robot_pose()
+        qvel, (ix, iy, iyaw) = self._data.qvel, self._dadr
+        vx, vy = float(qvel[ix]), float(qvel[iy])
         c, s = math.cos(yaw), math.sin(yaw)
-        vel = (float(c * vw[0] + s * vw[1]), float(-s * vw[0] + c * vw[1]), float(vw[2]))
+        vel = (c * vx + s * vy, -s * vx + c * vy, float(qvel[iyaw]))
         grid = self.config.grid
         people = []
+        now = self.time_s
         for script in self.people:
-            (px, py), heading, velocity = script.motion(self.time_s)
+            (px, py), heading, velocity = script.motion(now)
             people.append(
                 PersonTruth(
                     pose=Pose2D(px, py, heading),
@@ -528,7 +562,7 @@ class Twin:
             )
         return GroundTruth(
             time_s=self.time_s,
-            robot=Pose2D(float(x), float(y), float(yaw)),
+            robot=Pose2D(x, y, yaw),
             robot_velocity=vel,
             robot_cell=grid.cell_at(x, y),
             person=people[0] if people else None,
@@ -549,14 +583,16 @@ class Twin:
     # -- map ----------------------------------------------------------------
     def occupancy_map(self) -> OccupancyMap:
         """The room's occupancy grid, made from the static geometry (config.map)."""
-        mc = self.config.map
-        return occupancy_from_model(
-            self.model,
-            self._data,
-            self.layout.room,
-            mc.resolution_m,
-            (mc.z_min_m, mc.z_max_m),
-        )
+        if self._scene.occupancy is None:  # static geoms only: the same for the scene's twins
+            mc = self.config.map
+            self._scene.occupancy = occupancy_from_model(
+                self.model,
+                self._data,
+                self.layout.room,
+                mc.resolution_m,
+                (mc.z_min_m, mc.z_max_m),
+            )
+        return self._scene.occupancy
 
     def save_map(self, directory: str | Path, name: str = "lrm") -> tuple[Path, Path]:
         """Write the occupancy map as ``name.pgm`` + ``name.yaml`` (map_server format).

@@ -266,6 +266,18 @@ class CameraVisibility:
             return None
         return whole, legs
 
+    def behind_robot_possible(self, x: float, y: float, robot_xy: tuple[float, float]) -> bool:
+        """Whether :meth:`point` at (x, y) would look at the robot's mask (some of the
+        silhouette is in the image and the robot at ``robot_xy`` is nearer the camera);
+        if not, its answer is the same without the mask."""
+        sil = self._silhouettes.get((x, y), lambda: self._silhouette(x, y))
+        return sil is not None and sil.inside > 0 and self._nearer(robot_xy, x, y)
+
+    def _nearer(self, robot_xy: tuple[float, float] | None, x: float, y: float) -> bool:
+        return robot_xy is None or (
+            math.dist(robot_xy, self.centre_m[:2]) < math.dist((x, y), self.centre_m[:2])
+        )
+
     def point(self, x: float, y: float, robot: np.ndarray | None, robot_xy=None) -> PointVisibility:
         """How a person at floor point (x, y) is seen; ``robot`` from :meth:`robot_mask`."""
         cfg = self.config
@@ -273,10 +285,7 @@ class CameraVisibility:
         if sil is None:
             return PointVisibility(1.0, 1.0, 0.0, True)
         covered = legs_covered = 0.0
-        nearer = robot_xy is None or (
-            math.dist(robot_xy, self.centre_m[:2]) < math.dist((x, y), self.centre_m[:2])
-        )
-        if robot is not None and sil.inside > 0 and nearer:
+        if robot is not None and sil.inside > 0 and self._nearer(robot_xy, x, y):
             r0, r1, c0, c1 = sil.window
             under = robot[r0:r1, c0:c1]
             covered = float((sil.whole & under).sum()) / sil.inside
