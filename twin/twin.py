@@ -231,6 +231,9 @@ class Twin:
         self._people_stale = False  # the walkers moved on since they were last placed
         m = self.model
         self._robot_body = m.body(ROBOT_BODY).id
+        # views of the robot body's pose in the data (its arrays never move)
+        self._robot_xpos = self._data.xpos[self._robot_body]
+        self._robot_xmat = self._data.xmat[self._robot_body]
         self._lidar_site = m.site(LIDAR_SITE).id
         self._camera = m.camera(CAMERA_NAME).id
         jx, jy, jyaw = (m.joint(ROBOT_PREFIX + n) for n in ("x", "y", "yaw"))
@@ -270,6 +273,7 @@ class Twin:
     # -- lifecycle ----------------------------------------------------------
     def reset(self) -> None:
         """Put the robot at its start cell, the person at the script's start, time at 0."""
+        self._truth: GroundTruth | None = None  # the state's, until it changes
         mujoco.mj_resetData(self.model, self._data)
         x, y = self.config.grid.center(self.config.robot.start_cell)
         yaw = self.config.robot.start_yaw_rad
@@ -289,6 +293,7 @@ class Twin:
         Args:
             pose: the new pose in the map frame.
         """
+        self._truth = None
         for adr, v in zip(self._qadr, (pose.x_m, pose.y_m, pose.yaw_rad), strict=True):
             self._data.qpos[adr] = v
         self._data.qvel[list(self._dadr)] = 0.0
@@ -325,6 +330,7 @@ class Twin:
         Args:
             command: body-frame velocity; None stops the base.
         """
+        self._truth = None
         command = command or VelocityCommand()
         rc = self.config.robot
         dt = self.config.control_period_s
@@ -332,14 +338,15 @@ class Twin:
         # on Python floats, the operations of the numpy version in its order (the same
         # numbers; a tenth of the time for three values)
         wx, wy, wz = command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps
-        lin = np.hypot(wx, wy)
+        # np.hypot(0, 0) is 0: skipped at rest (most periods), as the one below
+        lin = np.hypot(wx, wy) if wx or wy else 0.0
         if lin > rc.max_linear_mps:
             k = rc.max_linear_mps / lin
             wx, wy = wx * k, wy * k
         wz = _clip(wz, -rc.max_angular_radps, rc.max_angular_radps)
         c0, c1, c2 = self._cmd
         dx, dy, dz = wx - c0, wy - c1, wz - c2
-        dlin = np.hypot(dx, dy)
+        dlin = np.hypot(dx, dy) if dx or dy else 0.0
         if dlin > rc.max_linear_accel_mps2 * dt:
             k = rc.max_linear_accel_mps2 * dt / dlin
             dx, dy = dx * k, dy * k
@@ -400,8 +407,7 @@ class Twin:
 
     def _robot_pose(self) -> tuple[float, float, float]:
         # read the pose from the body (FEASIBILITY/issue 3: never from the slide values)
-        pos = self._data.xpos[self._robot_body]
-        mat = self._data.xmat[self._robot_body]
+        pos, mat = self._robot_xpos, self._robot_xmat
         return float(pos[0]), float(pos[1]), math.atan2(mat[3], mat[0])
 
     def _integrate_odometry(
@@ -436,6 +442,7 @@ class Twin:
     def data(self) -> mujoco.MjData:
         """The simulation's state, the walkers placed at the current time (they move
         only when something looks: :meth:`_sync_people`)."""
+        self._truth = None  # whoever has the data may change the state
         self._sync_people()
         return self._data
 
@@ -541,7 +548,13 @@ class Twin:
         return Odometry(self.time_s, Pose2D(*map(float, o)), float(v[0]), float(v[1]), float(v[2]))
 
     def ground_truth(self) -> GroundTruth:
-        """The true state of the robot and every person."""
+        """The true state of the robot and every person (kept until the state changes:
+        the truth record and the camera model ask at the same instants)."""
+        if self._truth is None:
+            self._truth = self._ground_truth()
+        return self._truth
+
+    def _ground_truth(self) -> GroundTruth:
         x, y, yaw = self._robot_pose()
         qvel, (ix, iy, iyaw) = self._data.qvel, self._dadr
         vx, vy = float(qvel[ix]), float(qvel[iy])
