@@ -233,7 +233,6 @@ class GuardTask(control.Task):
         self.schedule: SensorSchedule | None = None
         self.due_now: tuple[str, ...] = ()  # sensors due at the last step (outages included)
         self._obs: dict[str, np.ndarray] = {}
-        self._stamps: tuple[str, ...] = ()
         self._end_s = math.inf
 
     # -- dm_control hooks ---------------------------------------------------------------
@@ -248,7 +247,6 @@ class GuardTask(control.Task):
         }
         self.schedule = SensorSchedule(periods, self.outages)
         self._obs = self._buffers(cfg)
-        self._stamps = tuple(k for k, v in self._obs.items() if v.ndim == 0)
         self._end_s = twin.end_time_s + self.tail_s  # the scripts are fixed for the episode
         self._read_sensors(twin)
 
@@ -272,10 +270,9 @@ class GuardTask(control.Task):
         self._read_sensors(physics.twin)
 
     def get_observation(self, physics: TwinPhysics) -> OrderedDict:
-        obs = OrderedDict(self._obs)
-        for k in self._stamps:  # the scalars by value, the arrays as they are
-            obs[k] = obs[k].copy()
-        return obs
+        # the time and the stamps are new arrays when they change (as copies), the
+        # sensors' buffers are shared (overwritten at their next reading)
+        return OrderedDict(self._obs)
 
     def get_reward(self, physics: TwinPhysics) -> float:
         if not self.reward:
@@ -316,20 +313,20 @@ class GuardTask(control.Task):
         assert sched is not None, "initialize_episode first"
         t = twin.time_s
         o = self._obs
-        o["time"][...] = t
+        o["time"] = np.array(t)
         self.due_now = sched.due_now(SENSORS, t)
         if "odometry" in self.due_now:
             od = twin.odometry()
             o["odometry"][:] = (od.pose.x_m, od.pose.y_m, od.pose.yaw_rad, od.vx_mps, od.vy_mps,
                                 od.wz_radps)  # fmt: skip
-            o["odometry_stamp"][...] = t
+            o["odometry_stamp"] = np.array(t)
         if "scan" in self.due_now and not sched.out("lidar", t):
             o["scan"][:] = twin.scan().ranges_m
-            o["scan_stamp"][...] = t
+            o["scan_stamp"] = np.array(t)
         if "camera" in self.due_now and not sched.out("camera", t):
             if self.render:
                 o["camera"][:] = twin.render_camera()
-            o["camera_stamp"][...] = t
+            o["camera_stamp"] = np.array(t)
 
 
 def make_environment(

@@ -198,7 +198,9 @@ class CameraVisibility:
     # -- projection --------------------------------------------------------------
     def _project(self, pts: np.ndarray) -> np.ndarray | None:
         """(N, 3) map points to (N, 2) raster pixels; None if any is behind the camera."""
-        q = np.column_stack((pts, np.ones(len(pts)))) @ self.P.T
+        h = np.ones((len(pts), 4))  # homogeneous (as np.column_stack makes them)
+        h[:, :3] = pts
+        q = h @ self.P.T
         if np.any(q[:, 2] <= 1e-6):
             return None
         return q[:, :2] / q[:, 2:3] * self._scale
