@@ -34,7 +34,7 @@ from stack.nav.occupancy import OccupancyMap, save_map_yaml
 from twin.camera_thread import AsyncCamera
 from twin.config import TwinConfig
 from twin.occupancy import occupancy_from_model
-from twin.person import PersonPose, PersonScript, default_waypoints
+from twin.person import PersonPose, PersonScript, default_waypoints, vector_norm
 from twin.scene import (
     CAMERA_NAME,
     LIDAR_SITE,
@@ -168,13 +168,7 @@ def _segment_quat(u: np.ndarray) -> np.ndarray:
     if w < 1e-9:
         return np.array([0.0, 1.0, 0.0, 0.0])
     q = np.array([w, -u[1], u[0], 0.0])
-    return q / _norm(q)
-
-
-def _norm(v: np.ndarray) -> float:
-    """``np.linalg.norm`` of a vector, as it computes it (the square root of v . v)
-    without its checks (the walkers' placement asks 70 times a scan)."""
-    return math.sqrt(v.dot(v))
+    return q / vector_norm(q)
 
 
 class _Scene:
@@ -478,7 +472,7 @@ class Twin:
                 i = mocap[f"{name}_{side}"]
                 seg = a - b  # +z of the segment body points from the far end to the near
                 mp[i] = (a + b) / 2
-                mq[i] = _segment_quat(seg / _norm(seg))
+                mq[i] = _segment_quat(seg / vector_norm(seg))
             f = mocap[f"foot_{side}"]
             mp[f] = p.ankles_m[k]
             mq[f] = mq[t]

@@ -123,7 +123,8 @@ class _Silhouette:
 class _SampleTable:
     """The sample points' silhouettes, for :meth:`CameraVisibility.hidden_fractions`."""
 
-    spans: dict[int, tuple[int, int]]  # cell -> its rows
+    spans: dict[int, tuple[int, int]]  # cell -> its rows (consecutive, in order)
+    starts: np.ndarray  # (cells,) each span's first row
     whole: np.ndarray  # (P, H*W) float32 0/1 silhouette masks
     legs: np.ndarray  # (P, H*W) their legs
     inside: np.ndarray  # (P,) silhouette pixels in the image
@@ -181,6 +182,11 @@ class CameraVisibility:
         # the robot's silhouettes of the last few poses: the camera model asks at the
         # true pose, the observations at the odometry's, in turns (one slot thrashed)
         self._masks = Memo(MASKS_KEPT)
+        # each robot box's floor corners in the base frame, and its heights
+        self._robot_corners = [
+            (np.array([[x, y] for x in (x0, x1) for y in (y0, y1)]), z0, z1)
+            for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes
+        ]
         # a person's silhouette at a floor point, robot aside (people stand still a lot)
         self._silhouettes = Memo(SILHOUETTES_KEPT)
         # what does not depend on the robot is the same for every instance of the same
@@ -231,8 +237,7 @@ class CameraVisibility:
 
     def _draw_robot(self, pose: Pose2D) -> np.ndarray:
         mask = np.zeros(self.shape, np.uint8)
-        for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes:
-            corners = np.array([[x, y] for x in (x0, x1) for y in (y0, y1)])
+        for corners, z0, z1 in self._robot_corners:
             xy = pose.transform(corners)
             pts = np.empty((8, 3))
             pts[:4, :2], pts[4:, :2], pts[:4, 2], pts[4:, 2] = xy, xy, z0, z1
@@ -364,7 +369,12 @@ class CameraVisibility:
         hidden = (
             t.static_hidden | (covered > cfg.max_covered_frac) | (legs > cfg.max_legs_covered_frac)
         )
-        return {cell: float(hidden[i0:i1].sum()) / (i1 - i0) for cell, (i0, i1) in t.spans.items()}
+        # each cell's hidden samples counted at once (exact integers, as the slices' sums)
+        counts = np.add.reduceat(hidden.astype(np.intp), t.starts).tolist()
+        return {
+            cell: float(n) / (i1 - i0)
+            for n, (cell, (i0, i1)) in zip(counts, t.spans.items(), strict=True)
+        }
 
     def _sample_table(self) -> _SampleTable:
         """Every cell's sample silhouettes as stacked raster masks (made once a process)."""
@@ -396,6 +406,7 @@ class CameraVisibility:
                 spans[cell] = (i0, len(whole))
             self._shared.table = _SampleTable(
                 spans=spans,
+                starts=np.array([i0 for i0, _ in spans.values()], np.intp),
                 whole=np.array(whole, np.float32),
                 legs=np.array(legs, np.float32),
                 inside=np.array(inside, float),
