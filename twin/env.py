@@ -26,13 +26,16 @@ the twin's noise generator at every reset.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 from dm_control import mujoco as dm_mujoco
+from dm_control.mujoco import engine, index
 from dm_control.mujoco.wrapper import MjData
 from dm_control.rl import control
 from dm_env import specs
@@ -73,6 +76,8 @@ class TwinPhysics(dm_mujoco.Physics):
 
     twin: Twin
     command: VelocityCommand
+    _command_bits = b""  # the last action's bytes (its command is kept while they hold)
+    _named_structs = None
 
     @classmethod
     def of_twin(cls, twin: Twin) -> TwinPhysics:
@@ -82,22 +87,64 @@ class TwinPhysics(dm_mujoco.Physics):
         physics.command = VelocityCommand()
         return physics
 
+    def _reload_from_data(self, data: MjData) -> None:
+        """dm_control's, but the named indexers (``physics.named``) are made on first
+        use: the twin's code never asks, and making them was a tenth of an in-process
+        episode's set-up."""
+        if not isinstance(data, MjData):
+            raise TypeError(f"Expected wrapper.MjData. Got: {type(data)}.")
+        self._data = data
+        self._warnings = self.data.warning.number
+        self._warnings_before = np.empty_like(self._warnings)
+        self._new_warnings = np.empty(dtype=bool, shape=(len(self._warnings),))
+        with self._contexts_lock:
+            if self._contexts:
+                self._free_rendering_contexts()
+        try:
+            self.after_reset()
+        except control.PhysicsError as e:
+            logging.warning(e)
+        self._named_structs = None
+
+    @property
+    def named(self) -> engine.NamedIndexStructs:
+        if self._named_structs is None:
+            axis_indexers = index.make_axis_indexers(self.model)
+            self._named_structs = engine.NamedIndexStructs(
+                model=index.struct_indexer(self.model, "mjmodel", axis_indexers),
+                data=index.struct_indexer(self.data, "mjdata", axis_indexers),
+            )
+        return self._named_structs
+
     def timestep(self) -> float:
         """One step is the twin's control period [s] (physics substeps inside)."""
         return self.twin.config.control_period_s
 
     def set_control(self, control_: np.ndarray) -> None:
-        vx, vy, wz = (float(v) for v in np.asarray(control_, float).reshape(3))
-        self.command = VelocityCommand(vx, vy, wz)
+        action = np.asarray(control_, float).reshape(3)
+        bits = action.tobytes()  # exact, signed zeros too: the same action, the same command
+        if bits != self._command_bits:
+            vx, vy, wz = (float(v) for v in action)
+            self.command = VelocityCommand(vx, vy, wz)
+            self._command_bits = bits
 
     def step(self, nstep: int = 1) -> None:
-        with self.check_invalid_state():
-            for _ in range(nstep):
-                self.twin.step(self.command)
+        # dm_control's check_invalid_state, inline (a context manager every 20 ms period)
+        np.copyto(self._warnings_before, self._warnings)
+        for _ in range(nstep):
+            self.twin.step(self.command)
+        np.greater(self._warnings, self._warnings_before, out=self._new_warnings)
+        if self._new_warnings.any():
+            names = np.compress(self._new_warnings, list(mujoco.mjtWarning.__members__))
+            message = f"Physics state is invalid. Warning(s) raised: {', '.join(names)}"
+            if self._warnings_cause_exception:
+                raise control.PhysicsError(message)
+            logging.warning(message)
 
     def reset(self, keyframe_id=None) -> None:  # noqa: ARG002 - the twin has one start
         self.twin.reset()
         self.command = VelocityCommand()
+        self._command_bits = b""
 
 
 class SensorSchedule:
@@ -123,6 +170,12 @@ class SensorSchedule:
         while self.next_s[name] <= t + 1e-9:
             self.next_s[name] += self.periods_s[name]
         return True
+
+    def due_now(self, names: Sequence[str], t: float) -> tuple[str, ...]:
+        """Those of ``names`` due at ``t`` (:meth:`due` of each, in order)."""
+        if t + 1e-9 < min(self.next_s.values()):
+            return ()  # most control periods: no sensor reads
+        return tuple(name for name in names if self.due(name, t))
 
     def out(self, sensor: str, t: float) -> bool:
         return any(o.sensor == sensor and o.t0_s <= t < o.t1_s for o in self.outages)
@@ -180,6 +233,7 @@ class GuardTask(control.Task):
         self.schedule: SensorSchedule | None = None
         self.due_now: tuple[str, ...] = ()  # sensors due at the last step (outages included)
         self._obs: dict[str, np.ndarray] = {}
+        self._end_s = math.inf
 
     # -- dm_control hooks ---------------------------------------------------------------
     def initialize_episode(self, physics: TwinPhysics) -> None:
@@ -193,6 +247,7 @@ class GuardTask(control.Task):
         }
         self.schedule = SensorSchedule(periods, self.outages)
         self._obs = self._buffers(cfg)
+        self._end_s = twin.end_time_s + self.tail_s  # the scripts are fixed for the episode
         self._read_sensors(twin)
 
     @staticmethod
@@ -215,7 +270,9 @@ class GuardTask(control.Task):
         self._read_sensors(physics.twin)
 
     def get_observation(self, physics: TwinPhysics) -> OrderedDict:
-        return OrderedDict((k, v.copy() if v.ndim == 0 else v) for k, v in self._obs.items())
+        # the time and the stamps are new arrays when they change (as copies), the
+        # sensors' buffers are shared (overwritten at their next reading)
+        return OrderedDict(self._obs)
 
     def get_reward(self, physics: TwinPhysics) -> float:
         if not self.reward:
@@ -225,9 +282,8 @@ class GuardTask(control.Task):
         )
 
     def get_termination(self, physics: TwinPhysics) -> float | None:
-        twin = physics.twin
-        end = twin.end_time_s  # the last walker's end (0 without people)
-        return 1.0 if twin.time_s >= end + self.tail_s - 1e-9 else None
+        # the last walker's end (0 without people) and the tail
+        return 1.0 if physics.twin.time_s >= self._end_s - 1e-9 else None
 
     def action_spec(self, physics: TwinPhysics) -> specs.BoundedArray:
         rc = physics.twin.config.robot
@@ -257,20 +313,20 @@ class GuardTask(control.Task):
         assert sched is not None, "initialize_episode first"
         t = twin.time_s
         o = self._obs
-        o["time"][...] = t
-        self.due_now = tuple(name for name in SENSORS if sched.due(name, t))
+        o["time"] = np.array(t)
+        self.due_now = sched.due_now(SENSORS, t)
         if "odometry" in self.due_now:
             od = twin.odometry()
             o["odometry"][:] = (od.pose.x_m, od.pose.y_m, od.pose.yaw_rad, od.vx_mps, od.vy_mps,
                                 od.wz_radps)  # fmt: skip
-            o["odometry_stamp"][...] = t
+            o["odometry_stamp"] = np.array(t)
         if "scan" in self.due_now and not sched.out("lidar", t):
             o["scan"][:] = twin.scan().ranges_m
-            o["scan_stamp"][...] = t
+            o["scan_stamp"] = np.array(t)
         if "camera" in self.due_now and not sched.out("camera", t):
             if self.render:
                 o["camera"][:] = twin.render_camera()
-            o["camera_stamp"][...] = t
+            o["camera_stamp"] = np.array(t)
 
 
 def make_environment(

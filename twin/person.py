@@ -198,9 +198,13 @@ class PersonScript:
         """Where the pelvis is at ``t``, the heading and the velocity: ``pose(t)``'s
         ``position_m``, ``heading_rad`` and ``velocity_mps`` (the same numbers) without
         the body's segments (the ground truth needs only these, at 25 Hz)."""
-        ph, f, u, vel = self._along(t)
-        pelvis_xy = ph.start + u * f
-        return (float(pelvis_xy[0]), float(pelvis_xy[1])), ph.heading, vel
+        # :meth:`_along` and ``start + u * f`` on floats (the same operations, no arrays)
+        ph = self._phases[max(0, bisect.bisect_right(self._starts, t) - 1)]
+        f0, f1 = math.cos(ph.heading), math.sin(ph.heading)
+        u = 0.0 if ph.speed == 0.0 else (t - ph.t0) * ph.speed
+        vel = (0.0, 0.0) if ph.speed == 0.0 else (f0 * ph.speed, f1 * ph.speed)
+        x0, y0 = ph.start.tolist()
+        return (x0 + u * f0, y0 + u * f1), ph.heading, vel
 
     def _along(self, t: float) -> tuple[_Phase, np.ndarray, float, tuple[float, float]]:
         """The phase at ``t``, its unit direction, the distance walked along it and the
@@ -267,7 +271,7 @@ class PersonScript:
             direction = np.array([math.sin(swing) * f[0], math.sin(swing) * f[1], -math.cos(swing)])
             # hands a little away from the hips, as a relaxed arm hangs
             direction[:2] += side[k] * 0.12 * left
-            hands[k] = shoulders[k] + d.arm_m * direction / np.linalg.norm(direction)
+            hands[k] = shoulders[k] + d.arm_m * direction / vector_norm(direction)
         return PersonPose(
             time_s=t,
             position_m=(float(pelvis_xy[0]), float(pelvis_xy[1])),
@@ -299,7 +303,7 @@ def _feet_along(
         above the ground [m], both indexed (left, right).
     """
     del speed
-    length = float(np.linalg.norm(delta))
+    length = vector_norm(delta)
     step = length / n
     s = min(max(s, 0.0), length)
     # swing k (0-based) moves the pelvis over [a_k, b_k]: half a step first and last
@@ -333,17 +337,23 @@ def _feet_along(
     return feet, lift
 
 
+def vector_norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a float vector, as it computes it (the square root of
+    v . v) without its checks: the walkers' poses ask a dozen times a scan."""
+    return math.sqrt(v.dot(v))
+
+
 def _knee(hip: np.ndarray, ankle: np.ndarray, a: float, b: float, fwd: np.ndarray) -> np.ndarray:
     """Two-link inverse kinematics: the knee, bending forward, for thigh a and shin b."""
     d_vec = ankle - hip
-    d = float(np.linalg.norm(d_vec))
+    d = vector_norm(d_vec)
     u = d_vec / d
     if d >= a + b:
         return hip + u * a
     x = (a * a - b * b + d * d) / (2.0 * d)
     h = math.sqrt(max(a * a - x * x, 0.0))
     p = fwd - np.dot(fwd, u) * u
-    norm = float(np.linalg.norm(p))
+    norm = vector_norm(p)
     p = p / norm if norm > 1e-9 else np.array([0.0, 0.0, 1.0])
     return hip + x * u + h * p
 

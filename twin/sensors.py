@@ -153,6 +153,7 @@ class Lidar:
         self.increment = fov / n if config.fov_deg >= 360.0 else fov / (n - 1)
         self.angles = (-fov / 2.0 + self.increment * np.arange(n)).astype(np.float64)
         self._dist = np.zeros(n)
+        self._vec = np.zeros((n, 3))
         self._geomid = np.zeros(n, np.int32)
 
     def scan(
@@ -176,13 +177,15 @@ class Lidar:
         """
         c = self.config
         world = self.angles + yaw_rad
-        vec = np.column_stack([np.cos(world), np.sin(world), np.zeros_like(world)]).ravel()
+        vec = self._vec  # (beams, 3) directions, z 0 (as np.column_stack made them)
+        vec[:, 0] = np.cos(world)
+        vec[:, 1] = np.sin(world)
         # flg_static=1: without it the walls and furniture are invisible to the rays
         mujoco.mj_multiRay(
             model,
             data,
             np.asarray(origin_m, np.float64),
-            vec,
+            vec.ravel(),
             None,
             1,
             self.exclude_body,

@@ -19,6 +19,7 @@ one random generator, and splitting them would pass both around.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -28,11 +29,12 @@ import mujoco
 import numpy as np
 
 from stack.geometry import Pose2D
+from stack.memo import Memo
 from stack.nav.occupancy import OccupancyMap, save_map_yaml
 from twin.camera_thread import AsyncCamera, LensBlur
 from twin.config import TwinConfig
 from twin.occupancy import occupancy_from_model
-from twin.person import PersonPose, PersonScript, default_waypoints
+from twin.person import PersonPose, PersonScript, default_waypoints, vector_norm
 from twin.scene import (
     CAMERA_NAME,
     LIDAR_SITE,
@@ -155,15 +157,44 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
+def _clip(v: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one finite value (bounds lo < hi)."""
+    return lo if v < lo else hi if v > hi else v
+
+
 def _segment_quat(u: np.ndarray) -> np.ndarray:
     """Unit quaternion turning +z onto the unit vector u."""
     w = 1.0 + u[2]
     if w < 1e-9:
         return np.array([0.0, 1.0, 0.0, 0.0])
     q = np.array([w, -u[1], u[0], 0.0])
-    return q / np.linalg.norm(q)
+    return q / vector_norm(q)
 
 
+class _Scene:
+    """A compiled scene and what follows from its static geometry alone."""
+
+    def __init__(self, config: TwinConfig):
+        self.spec, self.layout = build_spec(config)
+        self.model = self.spec.compile()
+        self.occupancy: OccupancyMap | None = None  # made on first use
+
+
+def _scene_key(config: TwinConfig) -> str:
+    """What builds the scene: the config without the walkers' waypoints (they only
+    script where the walkers go; their bodies, clothes and number stay in)."""
+    return repr(
+        dataclasses.replace(
+            config,
+            person=dataclasses.replace(config.person, waypoints=()),
+            people=tuple(dataclasses.replace(p, waypoints=()) for p in config.people),
+        )
+    )
+
+
+# the scenes a process has compiled: a study's episodes differ in the walks only, so
+# each compiles the same scene (about a tenth of an episode's set-up); a twin copies it
+_SCENES = Memo(4)
 # a walker beyond the first without waypoints takes the default tour this much later
 DEFAULT_TOUR_STAGGER_S = 4.0
 # a base slower than this (m/s, rad/s) with no command and no contact is at rest: its
@@ -186,13 +217,17 @@ class Twin:
     def __init__(self, config: TwinConfig | None = None, seed: int | np.random.Generator = 0):
         self.config = config if config is not None else TwinConfig()
         self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        spec, self.layout = build_spec(self.config)
-        self.spec = spec
-        self.model = spec.compile()
+        scene = _SCENES.get(_scene_key(self.config), lambda: _Scene(self.config))
+        self._scene = scene
+        self.spec, self.layout = scene.spec, scene.layout  # shared: never change them
+        self.model = copy.copy(scene.model)  # this twin's own (it sets the actuators' gains)
         self._data = mujoco.MjData(self.model)
         self._people_stale = False  # the walkers moved on since they were last placed
         m = self.model
         self._robot_body = m.body(ROBOT_BODY).id
+        # views of the robot body's pose in the data (its arrays never move)
+        self._robot_xpos = self._data.xpos[self._robot_body]
+        self._robot_xmat = self._data.xmat[self._robot_body]
         self._lidar_site = m.site(LIDAR_SITE).id
         self._camera = m.camera(CAMERA_NAME).id
         jx, jy, jyaw = (m.joint(ROBOT_PREFIX + n) for n in ("x", "y", "yaw"))
@@ -232,14 +267,16 @@ class Twin:
     # -- lifecycle ----------------------------------------------------------
     def reset(self) -> None:
         """Put the robot at its start cell, the person at the script's start, time at 0."""
+        self._truth: GroundTruth | None = None  # the state's, until it changes
         mujoco.mj_resetData(self.model, self._data)
         x, y = self.config.grid.center(self.config.robot.start_cell)
         yaw = self.config.robot.start_yaw_rad
         for adr, v in zip(self._qadr, (x, y, yaw), strict=True):
             self._data.qpos[adr] = v
-        self._cmd = np.zeros(3)  # the rate-limited command actually applied (body frame)
-        self._odom = np.array([x, y, yaw])
-        self._odom_vel = np.zeros(3)
+        # the rate-limited command actually applied (body frame)
+        self._cmd: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._odom: tuple[float, float, float] = (float(x), float(y), float(yaw))
+        self._odom_vel: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._place_person(force=True)  # mj_resetData moved the mocap bodies back
         self._people_stale = False
         mujoco.mj_forward(self.model, self._data)
@@ -250,12 +287,13 @@ class Twin:
         Args:
             pose: the new pose in the map frame.
         """
+        self._truth = None
         for adr, v in zip(self._qadr, (pose.x_m, pose.y_m, pose.yaw_rad), strict=True):
             self._data.qpos[adr] = v
         self._data.qvel[list(self._dadr)] = 0.0
-        self._cmd = np.zeros(3)
-        self._odom = np.array([pose.x_m, pose.y_m, pose.yaw_rad])
-        self._odom_vel = np.zeros(3)
+        self._cmd = (0.0, 0.0, 0.0)
+        self._odom = (float(pose.x_m), float(pose.y_m), float(pose.yaw_rad))
+        self._odom_vel = (0.0, 0.0, 0.0)
         mujoco.mj_forward(self.model, self._data)
 
     def close(self) -> None:
@@ -286,36 +324,43 @@ class Twin:
         Args:
             command: body-frame velocity; None stops the base.
         """
+        self._truth = None
         command = command or VelocityCommand()
         rc = self.config.robot
         dt = self.config.control_period_s
         diff = rc.drive == "diff"
-        want = np.array([command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps])
-        lin = np.hypot(want[0], want[1])
+        # on Python floats, the operations of the numpy version in its order (the same
+        # numbers; a tenth of the time for three values)
+        wx, wy, wz = command.vx_mps, 0.0 if diff else command.vy_mps, command.wz_radps
+        # np.hypot(0, 0) is 0: skipped at rest (most periods), as the one below
+        lin = np.hypot(wx, wy) if wx or wy else 0.0
         if lin > rc.max_linear_mps:
-            want[:2] *= rc.max_linear_mps / lin
-        want[2] = np.clip(want[2], -rc.max_angular_radps, rc.max_angular_radps)
-        delta = want - self._cmd
-        dlin = np.hypot(delta[0], delta[1])
+            k = rc.max_linear_mps / lin
+            wx, wy = wx * k, wy * k
+        wz = _clip(wz, -rc.max_angular_radps, rc.max_angular_radps)
+        c0, c1, c2 = self._cmd
+        dx, dy, dz = wx - c0, wy - c1, wz - c2
+        dlin = np.hypot(dx, dy) if dx or dy else 0.0
         if dlin > rc.max_linear_accel_mps2 * dt:
-            delta[:2] *= rc.max_linear_accel_mps2 * dt / dlin
-        delta[2] = np.clip(
-            delta[2], -rc.max_angular_accel_radps2 * dt, rc.max_angular_accel_radps2 * dt
-        )
-        self._cmd = self._cmd + delta
+            k = rc.max_linear_accel_mps2 * dt / dlin
+            dx, dy = dx * k, dy * k
+        dz = _clip(dz, -rc.max_angular_accel_radps2 * dt, rc.max_angular_accel_radps2 * dt)
+        self._cmd = (float(c0 + dx), float(c1 + dy), float(c2 + dz))
+        moving = any(self._cmd)
 
-        before = self._robot_pose_array()
+        before = self._robot_pose()
         data = self._data
-        if not self._cmd.any() and data.ncon == 0 and np.abs(data.qvel).max() < REST_SPEED_MPS:
+        if not moving and data.ncon == 0 and np.abs(data.qvel).max() < REST_SPEED_MPS:
             # at rest (most of an episode): nothing pushes the base and it touches nothing,
             # so the physics steps would change only the time (the base's last crawl,
             # below REST_SPEED_MPS, moves it less than a rounding step of its pose)
             data.ctrl[self._act_idx] = 0.0
             data.qvel[:] = 0.0
-            ts = self.model.opt.timestep
+            ts, t = self.model.opt.timestep, data.time
             for _ in range(self._n_substeps):
-                data.time += ts  # as mj_step adds it
-        elif not diff and not self._cmd.any():
+                t += ts  # as mj_step adds it, step by step
+            data.time = t
+        elif not diff and not moving:
             # coming to rest: the world-frame command is zero at every yaw, so the
             # substeps run in one call (the same steps, without Python between)
             data.ctrl[self._act_idx] = 0.0
@@ -327,7 +372,7 @@ class Twin:
         # at that instant's pose (a scan at 10 Hz, not every 20 ms period)
         self._people_stale = bool(self.people)
         mujoco.mj_kinematics(self.model, self._data)
-        self._integrate_odometry(before, self._robot_pose_array(), dt)
+        self._integrate_odometry(before, self._robot_pose(), dt)
 
     def _substeps(self, diff: bool) -> None:
         """The control period's physics steps, the command turned into the world frame
@@ -352,31 +397,35 @@ class Twin:
             self.step(command)
 
     def _robot_pose_array(self) -> np.ndarray:
-        # read the pose from the body (FEASIBILITY/issue 3: never from the slide values)
-        pos = self._data.xpos[self._robot_body]
-        mat = self._data.xmat[self._robot_body]
-        return np.array([pos[0], pos[1], math.atan2(mat[3], mat[0])])
+        return np.array(self._robot_pose())
 
-    def _integrate_odometry(self, before: np.ndarray, after: np.ndarray, dt: float) -> None:
+    def _robot_pose(self) -> tuple[float, float, float]:
+        # read the pose from the body (FEASIBILITY/issue 3: never from the slide values)
+        pos, mat = self._robot_xpos, self._robot_xmat
+        return float(pos[0]), float(pos[1]), math.atan2(mat[3], mat[0])
+
+    def _integrate_odometry(
+        self, before: tuple[float, float, float], after: tuple[float, float, float], dt: float
+    ) -> None:
         dyaw = _wrap(after[2] - before[2])
         mid = before[2] + dyaw / 2
         c, s = math.cos(mid), math.sin(mid)
         dx, dy = after[0] - before[0], after[1] - before[1]
         # the true body-frame velocity over the period, then the wheel-encoder noise
-        v = np.array([(c * dx + s * dy) / dt, (-s * dx + c * dy) / dt, dyaw / dt])
         oc = self.config.odometry
-        noise = self.rng.normal(0.0, 1.0, 3) * (
-            oc.linear_noise_std_mps,
-            oc.linear_noise_std_mps,
-            oc.angular_noise_std_radps,
-        )
-        v = v + noise
-        oyaw = self._odom[2] + v[2] * dt / 2
+        n0, n1, n2 = self.rng.normal(0.0, 1.0, 3).tolist()
+        v0 = (c * dx + s * dy) / dt + n0 * oc.linear_noise_std_mps
+        v1 = (-s * dx + c * dy) / dt + n1 * oc.linear_noise_std_mps
+        v2 = dyaw / dt + n2 * oc.angular_noise_std_radps
+        x, y, yaw = self._odom
+        oyaw = yaw + v2 * dt / 2
         oc_, os_ = math.cos(oyaw), math.sin(oyaw)
-        self._odom[0] += (oc_ * v[0] - os_ * v[1]) * dt
-        self._odom[1] += (os_ * v[0] + oc_ * v[1]) * dt
-        self._odom[2] = _wrap(self._odom[2] + v[2] * dt)
-        self._odom_vel = v
+        self._odom = (
+            x + (oc_ * v0 - os_ * v1) * dt,
+            y + (os_ * v0 + oc_ * v1) * dt,
+            _wrap(yaw + v2 * dt),
+        )
+        self._odom_vel = (v0, v1, v2)
 
     @property
     def end_time_s(self) -> float:
@@ -387,6 +436,7 @@ class Twin:
     def data(self) -> mujoco.MjData:
         """The simulation's state, the walkers placed at the current time (they move
         only when something looks: :meth:`_sync_people`)."""
+        self._truth = None  # whoever has the data may change the state
         self._sync_people()
         return self._data
 
@@ -422,7 +472,7 @@ class Twin:
                 i = mocap[f"{name}_{side}"]
                 seg = a - b  # +z of the segment body points from the far end to the near
                 mp[i] = (a + b) / 2
-                mq[i] = _segment_quat(seg / np.linalg.norm(seg))
+                mq[i] = _segment_quat(seg / vector_norm(seg))
             f = mocap[f"foot_{side}"]
             mp[f] = p.ankles_m[k]
             mq[f] = mq[t]
@@ -494,16 +544,23 @@ class Twin:
         return Odometry(self.time_s, Pose2D(*map(float, o)), float(v[0]), float(v[1]), float(v[2]))
 
     def ground_truth(self) -> GroundTruth:
-        """The true state of the robot and every person."""
-        x, y, yaw = self._robot_pose_array()
-        d = self._dadr
-        vw = self._data.qvel[list(d)]
+        """The true state of the robot and every person (kept until the state changes:
+        the truth record and the camera model ask at the same instants)."""
+        if self._truth is None:
+            self._truth = self._ground_truth()
+        return self._truth
+
+    def _ground_truth(self) -> GroundTruth:
+        x, y, yaw = self._robot_pose()
+        qvel, (ix, iy, iyaw) = self._data.qvel, self._dadr
+        vx, vy = float(qvel[ix]), float(qvel[iy])
         c, s = math.cos(yaw), math.sin(yaw)
-        vel = (float(c * vw[0] + s * vw[1]), float(-s * vw[0] + c * vw[1]), float(vw[2]))
+        vel = (c * vx + s * vy, -s * vx + c * vy, float(qvel[iyaw]))
         grid = self.config.grid
         people = []
+        now = self.time_s
         for script in self.people:
-            (px, py), heading, velocity = script.motion(self.time_s)
+            (px, py), heading, velocity = script.motion(now)
             people.append(
                 PersonTruth(
                     pose=Pose2D(px, py, heading),
@@ -514,7 +571,7 @@ class Twin:
             )
         return GroundTruth(
             time_s=self.time_s,
-            robot=Pose2D(float(x), float(y), float(yaw)),
+            robot=Pose2D(x, y, yaw),
             robot_velocity=vel,
             robot_cell=grid.cell_at(x, y),
             person=people[0] if people else None,
@@ -535,14 +592,16 @@ class Twin:
     # -- map ----------------------------------------------------------------
     def occupancy_map(self) -> OccupancyMap:
         """The room's occupancy grid, made from the static geometry (config.map)."""
-        mc = self.config.map
-        return occupancy_from_model(
-            self.model,
-            self._data,
-            self.layout.room,
-            mc.resolution_m,
-            (mc.z_min_m, mc.z_max_m),
-        )
+        if self._scene.occupancy is None:  # static geoms only: the same for the scene's twins
+            mc = self.config.map
+            self._scene.occupancy = occupancy_from_model(
+                self.model,
+                self._data,
+                self.layout.room,
+                mc.resolution_m,
+                (mc.z_min_m, mc.z_max_m),
+            )
+        return self._scene.occupancy
 
     def save_map(self, directory: str | Path, name: str = "lrm") -> tuple[Path, Path]:
         """Write the occupancy map as ``name.pgm`` + ``name.yaml`` (map_server format).

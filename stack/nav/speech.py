@@ -25,7 +25,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from stack.files import PrivateOutput, open_write, write_text
+from stack.files import PrivateOutput, open_write, read_bytes_capped, write_bytes, write_text
 from stack.nav.config import SpeechConfig
 
 
@@ -178,6 +178,14 @@ def synthesize(
     check_voice(voice, config.espeak_path)
     wav_path = Path(wav_path)
     t0 = time.perf_counter()
+    # espeak-ng says the same words with the same settings into the same bytes: a
+    # warning repeated (every episode of a study, every visit) is synthesised once
+    key = (tuple(_espeak_args(exe, config, voice)), text)
+    said = _SAID.get(key)
+    if said is not None:
+        with PrivateOutput(wav_path) as out:  # as espeak-ng's: moved into place when whole
+            write_bytes(out.path, said[0])
+        return Utterance(text, voice, wav_path, said[1], time.perf_counter() - t0)
     # espeak-ng -w opens the name and follows a link there: it writes into a folder of
     # its own, and the finished WAV is moved to wav_path (a link there is refused)
     with PrivateOutput(wav_path) as out:
@@ -200,9 +208,17 @@ def synthesize(
             raise SpeechError(f"espeak-ng exited with {proc.returncode}: {err}")
         try:
             duration = wav_duration_s(out.path)
-        except (OSError, wave.Error, EOFError) as exc:
+            audio = read_bytes_capped(out.path)
+        except (OSError, ValueError, wave.Error, EOFError) as exc:
             raise SpeechError(f"espeak-ng wrote no readable WAV at {wav_path}: {exc}") from exc
+    if len(_SAID) >= SAID_KEPT:
+        _SAID.clear()
+    _SAID[key] = (audio, duration)
     return Utterance(text, voice, wav_path, duration, synth_s)
+
+
+SAID_KEPT = 16  # texts whose audio a process keeps (a few warnings)
+_SAID: dict[tuple[tuple[str, ...], str], tuple[bytes, float]] = {}
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 
 from stack.config import dump_yaml, load_yaml, read_text_capped, write_text
+from stack.memo import Memo
 from stack.perception.errors import CalibrationError
 
 MIN_POINTS = 4
@@ -336,8 +337,22 @@ def load_calibration(path: str | Path) -> Calibration:
     if not path.is_file():
         raise CalibrationError(f"calibration file {str(path)!r} does not exist")
     try:
-        data = load_yaml(read_text_capped(path))
-    except (OSError, ValueError, yaml.YAMLError) as err:
+        text = read_text_capped(path)
+    except (OSError, ValueError) as err:
+        raise CalibrationError(f"cannot read calibration file {str(path)!r}: {err}") from err
+    # a study's episodes each read their own copy of the same text, twice (the camera and
+    # the observations): parsed and fitted once a process (the result is immutable)
+    return _CALIBRATIONS.get(text, lambda: _parse_calibration(text, path))
+
+
+_CALIBRATIONS = Memo(8)  # calibration file text -> its calibration
+
+
+def _parse_calibration(text: str, path: Path) -> Calibration:
+    """:func:`load_calibration` of the file's ``text``."""
+    try:
+        data = load_yaml(text)
+    except (ValueError, yaml.YAMLError) as err:
         raise CalibrationError(f"cannot read calibration file {str(path)!r}: {err}") from err
     if not isinstance(data, dict) or not isinstance(data.get("points"), list):
         raise CalibrationError(f"{str(path)!r}: needs a 'points' list of image_px/map_m pairs")

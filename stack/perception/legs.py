@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
 
 from stack.config import Config, require
 from stack.geometry import Pose2D
+from stack.memo import Memo
 from stack.perception.errors import BadScanError
 
 
@@ -63,22 +65,44 @@ class Scan:
         r.setflags(write=False)
         object.__setattr__(self, "ranges_m", r)
 
-    @property
+    @cached_property
     def valid(self) -> np.ndarray:
-        """(N,) True where the beam returned a usable range."""
+        """(N,) True where the beam returned a usable range (read-only)."""
         r = self.ranges_m
         with np.errstate(invalid="ignore"):
-            return np.isfinite(r) & (r >= self.range_min_m) & (r <= self.range_max_m)
+            ok = np.isfinite(r) & (r >= self.range_min_m) & (r <= self.range_max_m)
+        ok.setflags(write=False)
+        return ok
 
     @property
     def angles_rad(self) -> np.ndarray:
-        return self.angle_min_rad + self.angle_increment_rad * np.arange(self.ranges_m.size)
+        """(N,) the beams' angles (read-only)."""
+        return _beams(self.angle_min_rad, self.angle_increment_rad, self.ranges_m.size)[0]
 
     def points(self) -> np.ndarray:
         """(N, 2) beam end points in the laser frame; NaN where invalid."""
         r = np.where(self.valid, self.ranges_m, np.nan)
-        a = self.angles_rad
-        return np.c_[r * np.cos(a), r * np.sin(a)]
+        _, cos, sin = _beams(self.angle_min_rad, self.angle_increment_rad, r.size)
+        out = np.empty((r.size, 2))
+        np.multiply(r, cos, out=out[:, 0])
+        np.multiply(r, sin, out=out[:, 1])
+        return out
+
+
+_BEAMS = Memo(8)  # a scanner's beam angles, their cosines and sines (the same every scan)
+
+
+def _beams(angle_min_rad: float, increment_rad: float, n: int) -> tuple[np.ndarray, ...]:
+    """(angles, cos, sin) of ``n`` beams, read-only, made once a process."""
+
+    def make() -> tuple[np.ndarray, ...]:
+        a = angle_min_rad + increment_rad * np.arange(n)
+        out = (a, np.cos(a), np.sin(a))
+        for v in out:
+            v.setflags(write=False)
+        return out
+
+    return _BEAMS.get((angle_min_rad, increment_rad, n), make)
 
 
 @dataclass(frozen=True)
@@ -293,13 +317,15 @@ def segment_features(points: np.ndarray) -> tuple[float, float]:
 
 def _bulge(points: np.ndarray, chord: np.ndarray, width: float) -> float:
     """:func:`segment_features`'s bulge, the chord and its length given."""
-    if len(points) < 3 or width == 0.0:
+    n = len(points)
+    if n < 3 or width == 0.0:
         return 0.0
     p0 = points[0]
-    normal = np.array([-chord[1], chord[0]]) / width
+    normal = np.array([-chord[1] / width, chord[0] / width])
     if np.dot(normal, -p0) < 0:  # point the normal towards the sensor
         normal = -normal
-    return float(np.mean((points[1:-1] - p0) @ normal))
+    # the mean as np.mean makes it (one sum, then the division), without its checks
+    return float(((points[1:-1] - p0) @ normal).sum() / (n - 2))
 
 
 def detect_legs(
@@ -388,13 +414,12 @@ def pair_legs(
         People, paired ones first.
     """
     centers = np.array([leg.center_m for leg in legs]).reshape(-1, 2)
-    pairs = []
-    for i in range(len(legs)):
-        for j in range(i + 1, len(legs)):
-            d = float(np.hypot(*(centers[i] - centers[j])))
-            if d <= max_distance_m:
-                pairs.append((d, i, j))
-    pairs.sort()
+    pairs: list[tuple[float, int, int]] = []
+    if len(legs) > 1:  # every pair i < j at once (the same np.hypot of the same differences)
+        a, b = np.triu_indices(len(legs), 1)
+        d = np.hypot(centers[a, 0] - centers[b, 0], centers[a, 1] - centers[b, 1])
+        close = d <= max_distance_m
+        pairs = sorted(zip(d[close].tolist(), a[close].tolist(), b[close].tolist(), strict=True))
     used: set[int] = set()
     people = []
     for _, i, j in pairs:

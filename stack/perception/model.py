@@ -216,9 +216,11 @@ class ModelCamera:
     def frame(self, people: Sequence[PersonFrame], robot: Pose2D) -> list[tuple[float, float]]:
         """The frame's detections as floor points, the people's first (in their order),
         then the false positives."""
-        m, rng = self.model, self.rng
-        mask = self.visibility.robot_mask(robot)
+        m, rng, vis = self.model, self.rng, self.visibility
         rxy = (robot.x_m, robot.y_m)
+        # the robot's mask only when someone could be behind it (no mask: the same answer)
+        behind = any(vis.behind_robot_possible(p.x_m, p.y_m, rxy) for p in people)
+        mask = vis.robot_mask(robot) if behind else None
         out: list[tuple[float, float]] = []
         for i, p in enumerate(people):
             f = features_of(p, self.visibility, mask, rxy, self._seen.get(i, False))

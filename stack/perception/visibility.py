@@ -107,11 +107,24 @@ class PointVisibility:
     hidden: bool
 
 
+@dataclass(frozen=True)
+class _Silhouette:
+    """A person's silhouette at one floor point in the raster, robot aside."""
+
+    window: tuple[int, int, int, int]  # raster rows r0:r1, columns c0:c1 holding it
+    whole: np.ndarray  # (r1 - r0, c1 - c0) uint8 0/1: the silhouette in the window
+    legs: np.ndarray  # its legs (empty when nothing of it is in the image)
+    inside: int  # the silhouette's pixels in the image
+    n_legs: int  # the legs' pixels
+    in_image: float  # the share of the silhouette in the image
+
+
 @dataclass
 class _SampleTable:
     """The sample points' silhouettes, for :meth:`CameraVisibility.hidden_fractions`."""
 
-    spans: dict[int, tuple[int, int]]  # cell -> its rows
+    spans: dict[int, tuple[int, int]]  # cell -> its rows (consecutive, in order)
+    starts: np.ndarray  # (cells,) each span's first row
     whole: np.ndarray  # (P, H*W) float32 0/1 silhouette masks
     legs: np.ndarray  # (P, H*W) their legs
     inside: np.ndarray  # (P,) silhouette pixels in the image
@@ -129,6 +142,8 @@ class _Shared:
 
 
 _SHARED = Memo(8)  # cameras remembered by a process
+MASKS_KEPT = 4  # robot silhouettes an instance keeps (by pose)
+SILHOUETTES_KEPT = 64  # person silhouettes an instance keeps (by floor point)
 
 
 class CameraVisibility:
@@ -164,8 +179,16 @@ class CameraVisibility:
         w, h = homography.image_size_px
         self.shape = (max(1, round(h * s)), max(1, round(w * s)))
         self._scale = s
-        self._mask_pose: Pose2D | None = None
-        self._mask = np.zeros(self.shape, np.uint8)
+        # the robot's silhouettes of the last few poses: the camera model asks at the
+        # true pose, the observations at the odometry's, in turns (one slot thrashed)
+        self._masks = Memo(MASKS_KEPT)
+        # each robot box's floor corners in the base frame, and its heights
+        self._robot_corners = [
+            (np.array([[x, y] for x in (x0, x1) for y in (y0, y1)]), z0, z1)
+            for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes
+        ]
+        # a person's silhouette at a floor point, robot aside (people stand still a lot)
+        self._silhouettes = Memo(SILHOUETTES_KEPT)
         # what does not depend on the robot is the same for every instance of the same
         # camera, cells and settings (a study makes one an episode): made once a process
         key = (
@@ -181,7 +204,9 @@ class CameraVisibility:
     # -- projection --------------------------------------------------------------
     def _project(self, pts: np.ndarray) -> np.ndarray | None:
         """(N, 3) map points to (N, 2) raster pixels; None if any is behind the camera."""
-        q = np.column_stack((pts, np.ones(len(pts)))) @ self.P.T
+        h = np.ones((len(pts), 4))  # homogeneous (as np.column_stack makes them)
+        h[:, :3] = pts
+        q = h @ self.P.T
         if np.any(q[:, 2] <= 1e-6):
             return None
         return q[:, :2] / q[:, 2:3] * self._scale
@@ -208,22 +233,18 @@ class CameraVisibility:
     def robot_mask(self, pose: Pose2D) -> np.ndarray:
         """The robot's silhouette in the raster image (uint8 0/1; read-only: the last
         pose's is kept, for a robot at rest and a step that asks twice)."""
-        if self._mask_pose != pose:
-            mask = self._draw_robot(pose)
-            mask.setflags(write=False)
-            self._mask, self._mask_pose = mask, pose
-        return self._mask
+        return self._masks.get(pose, lambda: self._draw_robot(pose))
 
     def _draw_robot(self, pose: Pose2D) -> np.ndarray:
         mask = np.zeros(self.shape, np.uint8)
-        for x0, x1, y0, y1, z0, z1 in self.config.robot_boxes:
-            corners = np.array([[x, y] for x in (x0, x1) for y in (y0, y1)])
+        for corners, z0, z1 in self._robot_corners:
             xy = pose.transform(corners)
             pts = np.empty((8, 3))
             pts[:4, :2], pts[4:, :2], pts[:4, 2], pts[4:, 2] = xy, xy, z0, z1
             px = self._project(pts)
             if px is not None:
                 self._fill(mask, px)
+        mask.setflags(write=False)
         return mask
 
     def _person_quads(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -252,40 +273,63 @@ class CameraVisibility:
             return None
         return whole, legs
 
+    def behind_robot_possible(self, x: float, y: float, robot_xy: tuple[float, float]) -> bool:
+        """Whether :meth:`point` at (x, y) would look at the robot's mask (some of the
+        silhouette is in the image and the robot at ``robot_xy`` is nearer the camera);
+        if not, its answer is the same without the mask."""
+        sil = self._silhouettes.get((x, y), lambda: self._silhouette(x, y))
+        return sil is not None and sil.inside > 0 and self._nearer(robot_xy, x, y)
+
+    def _nearer(self, robot_xy: tuple[float, float] | None, x: float, y: float) -> bool:
+        return robot_xy is None or (
+            math.dist(robot_xy, self.centre_m[:2]) < math.dist((x, y), self.centre_m[:2])
+        )
+
     def point(self, x: float, y: float, robot: np.ndarray | None, robot_xy=None) -> PointVisibility:
         """How a person at floor point (x, y) is seen; ``robot`` from :meth:`robot_mask`."""
         cfg = self.config
-        quads = self._person_quads(x, y)
-        if quads is None:
+        sil = self._silhouettes.get((x, y), lambda: self._silhouette(x, y))
+        if sil is None:
             return PointVisibility(1.0, 1.0, 0.0, True)
-        whole, legs = quads
-        area = abs(cv2.contourArea(whole.astype(np.float32)))
-        # the silhouette's window of the raster only: the same pixels, a fraction of the work
-        window = self._window(whole, legs)
-        inside = 0
-        if window is not None:
-            r0, r1, c0, c1 = window
-            mask = np.zeros((r1 - r0, c1 - c0), np.uint8)
-            self._fill(mask, whole, (r0, c0))
-            inside = int(mask.sum())
-        in_image = min(1.0, inside / area) if area > 1e-9 else 0.0
         covered = legs_covered = 0.0
-        nearer = robot_xy is None or (
-            math.dist(robot_xy, self.centre_m[:2]) < math.dist((x, y), self.centre_m[:2])
-        )
-        if robot is not None and inside > 0 and nearer:
+        if robot is not None and sil.inside > 0 and self._nearer(robot_xy, x, y):
+            r0, r1, c0, c1 = sil.window
             under = robot[r0:r1, c0:c1]
-            covered = float((mask & under).sum()) / inside
-            lmask = np.zeros(mask.shape, np.uint8)
-            self._fill(lmask, legs, (r0, c0))
-            n_legs = int(lmask.sum())
-            legs_covered = float((lmask & under).sum()) / n_legs if n_legs else 0.0
+            covered = float((sil.whole & under).sum()) / sil.inside
+            legs_covered = float((sil.legs & under).sum()) / sil.n_legs if sil.n_legs else 0.0
+        in_image = sil.in_image
         hidden = (
             in_image < cfg.min_in_image_frac
             or covered > cfg.max_covered_frac
             or legs_covered > cfg.max_legs_covered_frac
         )
         return PointVisibility(covered, legs_covered, in_image, hidden)
+
+    def _silhouette(self, x: float, y: float) -> _Silhouette | None:
+        """:meth:`point`'s raster work that does not depend on the robot; None when
+        the point is under the camera or the person is behind it."""
+        quads = self._person_quads(x, y)
+        if quads is None:
+            return None
+        whole, legs = quads
+        area = abs(cv2.contourArea(whole.astype(np.float32)))
+        # the silhouette's window of the raster only: the same pixels, a fraction of the work
+        window = self._window(whole, legs)
+        inside = n_legs = 0
+        mask = lmask = np.zeros((0, 0), np.uint8)
+        if window is not None:
+            r0, r1, c0, c1 = window
+            mask = np.zeros((r1 - r0, c1 - c0), np.uint8)
+            self._fill(mask, whole, (r0, c0))
+            inside = int(mask.sum())
+            if inside > 0:
+                lmask = np.zeros(mask.shape, np.uint8)
+                self._fill(lmask, legs, (r0, c0))
+                n_legs = int(lmask.sum())
+        in_image = min(1.0, inside / area) if area > 1e-9 else 0.0
+        for m in (mask, lmask):
+            m.setflags(write=False)
+        return _Silhouette(window or (0, 0, 0, 0), mask, lmask, inside, n_legs, in_image)
 
     def _samples(self, cell: int) -> list[tuple[float, float]]:
         x0, y0, x1, y1 = self.grid.bounds(cell)
@@ -325,7 +369,12 @@ class CameraVisibility:
         hidden = (
             t.static_hidden | (covered > cfg.max_covered_frac) | (legs > cfg.max_legs_covered_frac)
         )
-        return {cell: float(hidden[i0:i1].sum()) / (i1 - i0) for cell, (i0, i1) in t.spans.items()}
+        # each cell's hidden samples counted at once (exact integers, as the slices' sums)
+        counts = np.add.reduceat(hidden.astype(np.intp), t.starts).tolist()
+        return {
+            cell: float(n) / (i1 - i0)
+            for n, (cell, (i0, i1)) in zip(counts, t.spans.items(), strict=True)
+        }
 
     def _sample_table(self) -> _SampleTable:
         """Every cell's sample silhouettes as stacked raster masks (made once a process)."""
@@ -357,6 +406,7 @@ class CameraVisibility:
                 spans[cell] = (i0, len(whole))
             self._shared.table = _SampleTable(
                 spans=spans,
+                starts=np.array([i0 for i0, _ in spans.values()], np.intp),
                 whole=np.array(whole, np.float32),
                 legs=np.array(legs, np.float32),
                 inside=np.array(inside, float),
