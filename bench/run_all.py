@@ -129,6 +129,16 @@ LONG = (
         "~10-20 min",
     ),
     (
+        "bench/bench_chaos.py --realtime --kills 24 --steps 80",
+        "chaos soak at real time with the velocity gate among the victims",
+        "~6 min",
+    ),
+    (
+        "bench/bench_hosts.py scenarios/guard",
+        "the guarding set across three hosts (network namespaces; run as root)",
+        "~16 min",
+    ),
+    (
         "bench/repeat_under_load.py",
         "the twin repeatability test beside CPU hogs (loads the machine on purpose)",
         "the length of that test",
