@@ -67,12 +67,11 @@ from scipy.optimize import linear_sum_assignment
 from stack.cells import CellGrid, Direction
 from stack.config import Config, require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
-from stack.perception.errors import BadScanError
 from stack.perception.observation import speed_class
 from stack.perception.tracker import (
-    ConstantVelocityKalman,
     TrackerConfig,
     TrackEstimate,
+    TrackSet,
     measurements,
 )
 from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
@@ -114,15 +113,6 @@ class MultiTrackerConfig(Config):
                 self.max_position_sigma_m, "must be > 0")  # fmt: skip
 
 
-class _Track:
-    def __init__(self, track_id: int, z: tuple[float, float], stamp_s: float, cfg: TrackerConfig):
-        self.id = track_id
-        self.kf = ConstantVelocityKalman(z, cfg)
-        self.hits = 1
-        self.first_s = stamp_s
-        self.last_update_s = stamp_s
-
-
 def gnn_assign(
     means: np.ndarray, covariances: np.ndarray, detections: np.ndarray, gate_sigma: float
 ) -> list[tuple[int, int]]:
@@ -152,7 +142,7 @@ def gnn_assign(
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FAR]
 
 
-class MultiTracker:
+class MultiTracker(TrackSet):
     """Every person over time, with identities kept by prediction and joint assignment.
 
     Args:
@@ -160,14 +150,8 @@ class MultiTracker:
     """
 
     def __init__(self, config: MultiTrackerConfig = MultiTrackerConfig()):
+        super().__init__()
         self.config = config
-        self._tracks: list[_Track] = []
-        self._next_id = 1
-        self._stamp_s = -math.inf
-
-    @property
-    def stamp_s(self) -> float:
-        return self._stamp_s
 
     def update(self, stamp_s: float, detections: Iterable) -> tuple[TrackEstimate, ...]:
         """Predict every track to ``stamp_s`` and correct them with the frame's people.
@@ -183,13 +167,8 @@ class MultiTracker:
         Raises:
             BadScanError: a stamp not later than the previous one.
         """
-        if stamp_s <= self._stamp_s:
-            raise BadScanError(f"stamp {stamp_s} is not after the previous {self._stamp_s}")
         cfg = self.config.filter
-        dt = stamp_s - self._stamp_s if math.isfinite(self._stamp_s) else 0.0
-        self._stamp_s = stamp_s
-        for t in self._tracks:
-            t.kf.predict(dt)
+        self._predict_to(stamp_s, "stamp")
         zs, sigmas = measurements(detections, cfg.single_leg_sigma_m, cfg.measurement_sigma_m)
         z = np.array(zs, dtype=float).reshape(-1, 2)
         means = np.array([t.kf.x[:2] for t in self._tracks]).reshape(-1, 2)
@@ -203,14 +182,8 @@ class MultiTracker:
             used.add(di)
             if di in ambiguous:
                 continue
-            track = self._tracks[ti]
-            track.kf.update(zs[di], sigmas[di])
-            track.hits += 1
-            track.last_update_s = stamp_s
-        for di, zz in enumerate(zs):
-            if di not in used:
-                self._tracks.append(_Track(self._next_id, zz, stamp_s, cfg))
-                self._next_id += 1
+            self._tracks[ti].correct(zs[di], sigmas[di], stamp_s)
+        self._start_tracks(zs, used, stamp_s, cfg)
         limit = self.config.max_position_sigma_m**2
         self._tracks = [
             t
@@ -245,18 +218,7 @@ class MultiTracker:
 
     def tracks(self) -> tuple[TrackEstimate, ...]:
         """Snapshots of the live tracks (at the latest update's time)."""
-        return tuple(
-            TrackEstimate(
-                track_id=t.id,
-                position_m=(float(t.kf.x[0]), float(t.kf.x[1])),
-                velocity_mps=(float(t.kf.x[2]), float(t.kf.x[3])),
-                speed_mps=t.kf.speed_mps,
-                hits=t.hits,
-                last_update_s=t.last_update_s,
-                confirmed=t.hits >= self.config.filter.min_hits,
-            )
-            for t in self._tracks
-        )
+        return self._snapshots(self.config.filter.min_hits)
 
 
 def associate(

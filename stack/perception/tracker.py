@@ -143,12 +143,75 @@ class ConstantVelocityKalman:
         return float(math.hypot(self.x[2], self.x[3]))
 
 
-class _Track:
+class Track:
+    """One person's track: its filter, its updates and their times (both trackers')."""
+
     def __init__(self, track_id: int, position_m: tuple[float, float], stamp_s: float, cfg):
         self.id = track_id
         self.kf = ConstantVelocityKalman(position_m, cfg)
         self.hits = 1
         self.last_update_s = stamp_s
+
+    def correct(self, z_m: tuple[float, float], sigma_m: float | None, stamp_s: float) -> None:
+        """The filter's update with a detection assigned to the track at ``stamp_s``."""
+        self.kf.update(z_m, sigma_m)
+        self.hits += 1
+        self.last_update_s = stamp_s
+
+    def estimate(self, min_hits: int) -> TrackEstimate:
+        """The track's snapshot (confirmed after ``min_hits`` updates)."""
+        x = self.kf.x
+        return TrackEstimate(
+            track_id=self.id,
+            position_m=(float(x[0]), float(x[1])),
+            velocity_mps=(float(x[2]), float(x[3])),
+            speed_mps=self.kf.speed_mps,
+            hits=self.hits,
+            last_update_s=self.last_update_s,
+            confirmed=self.hits >= min_hits,
+        )
+
+
+class TrackSet:
+    """What every tracker of people does around its association (:class:`LegTracker`,
+    and :class:`stack.perception.multi.MultiTracker` for several people): the live
+    tracks and their ids, the latest stamp, predicting every track to a new stamp,
+    starting a track for each detection no track took, and the snapshots."""
+
+    def __init__(self) -> None:
+        self._tracks: list[Track] = []
+        self._next_id = 1
+        self._stamp_s = -math.inf
+
+    @property
+    def stamp_s(self) -> float:
+        """Time of the latest update [s] (-inf before the first)."""
+        return self._stamp_s
+
+    def _predict_to(self, stamp_s: float, what: str) -> None:
+        """Predict every track to ``stamp_s``, the new latest stamp.
+
+        Raises:
+            BadScanError: a stamp not later than the previous one (``what``: "scan stamp").
+        """
+        if stamp_s <= self._stamp_s:
+            raise BadScanError(f"{what} {stamp_s} is not after the previous {self._stamp_s}")
+        dt = stamp_s - self._stamp_s if math.isfinite(self._stamp_s) else 0.0
+        self._stamp_s = stamp_s
+        for t in self._tracks:
+            t.kf.predict(dt)
+
+    def _start_tracks(
+        self, zs: list[tuple[float, float]], used: set[int], stamp_s: float, cfg: TrackerConfig
+    ) -> None:
+        """A new track for every detection whose index is not in ``used``."""
+        for i, z in enumerate(zs):
+            if i not in used:
+                self._tracks.append(Track(self._next_id, z, stamp_s, cfg))
+                self._next_id += 1
+
+    def _snapshots(self, min_hits: int) -> tuple[TrackEstimate, ...]:
+        return tuple(t.estimate(min_hits) for t in self._tracks)
 
 
 def measurements(
@@ -167,7 +230,7 @@ def measurements(
     return meas, sigmas
 
 
-class LegTracker:
+class LegTracker(TrackSet):
     """Tracks the laser's people over successive scans.
 
     Args:
@@ -175,15 +238,8 @@ class LegTracker:
     """
 
     def __init__(self, config: TrackerConfig = TrackerConfig()):
+        super().__init__()
         self.config = config
-        self._tracks: list[_Track] = []
-        self._next_id = 1
-        self._stamp_s = -math.inf
-
-    @property
-    def stamp_s(self) -> float:
-        """Time of the latest scan processed [s] (-inf before the first)."""
-        return self._stamp_s
 
     def update(
         self, stamp_s: float, positions_m: Iterable[tuple[float, float] | Any]
@@ -202,12 +258,7 @@ class LegTracker:
         Raises:
             BadScanError: a stamp not later than the previous scan's.
         """
-        if stamp_s <= self._stamp_s:
-            raise BadScanError(f"scan stamp {stamp_s} is not after the previous {self._stamp_s}")
-        dt = stamp_s - self._stamp_s if math.isfinite(self._stamp_s) else 0.0
-        self._stamp_s = stamp_s
-        for t in self._tracks:
-            t.kf.predict(dt)
+        self._predict_to(stamp_s, "scan stamp")
         meas, sigmas = measurements(positions_m, self.config.single_leg_sigma_m)
         pairs = []
         for ti, t in enumerate(self._tracks):
@@ -223,14 +274,8 @@ class LegTracker:
                 continue
             used_t.add(ti)
             used_m.add(mi)
-            track = self._tracks[ti]
-            track.kf.update(meas[mi], sigmas[mi])
-            track.hits += 1
-            track.last_update_s = stamp_s
-        for mi, z in enumerate(meas):
-            if mi not in used_m:
-                self._tracks.append(_Track(self._next_id, z, stamp_s, self.config))
-                self._next_id += 1
+            self._tracks[ti].correct(meas[mi], sigmas[mi], stamp_s)
+        self._start_tracks(meas, used_m, stamp_s, self.config)
         self._tracks = [
             t for t in self._tracks if stamp_s - t.last_update_s <= self.config.max_coast_s
         ]
@@ -238,21 +283,7 @@ class LegTracker:
 
     def tracks(self) -> tuple[TrackEstimate, ...]:
         """Snapshots of the live tracks (at the latest scan's time)."""
-        out = []
-        for t in self._tracks:
-            x = t.kf.x
-            out.append(
-                TrackEstimate(
-                    track_id=t.id,
-                    position_m=(float(x[0]), float(x[1])),
-                    velocity_mps=(float(x[2]), float(x[3])),
-                    speed_mps=t.kf.speed_mps,
-                    hits=t.hits,
-                    last_update_s=t.last_update_s,
-                    confirmed=t.hits >= self.config.min_hits,
-                )
-            )
-        return tuple(out)
+        return self._snapshots(self.config.min_hits)
 
 
 def nearest_track(

@@ -12,7 +12,6 @@ it stopped instead of from the initial belief.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,32 +19,27 @@ from typing import Any
 
 import numpy as np
 
-from stack.config import read_text_capped
-from stack.files import write_atomic
 from stack.planning import belief as belief_ops
-from stack.planning.anticipate import Anticipating, Anticipator, PeopleAnticipator
+from stack.planning.agent_state import (
+    DO_NOTHING,
+    RESTARTED_NOTE,
+    AgentCore,
+    beyond_move_note,
+    direction_labelled,
+    labelled,
+)
+from stack.planning.agent_state import StateFileError as StateFileError
+from stack.planning.agent_state import read_state as read_state
+from stack.planning.anticipate import Anticipator, PeopleAnticipator
 from stack.planning.model import FactoredModel
 from stack.planning.policy import AlphaPolicy
 from stack.planning.pomdp import POMDP
 from stack.planning.replay import TIE_TOLERANCE, policy_chooser
-from stack.vocabulary import (
-    ACTIONS,
-    DIRECTIONS,
-    NO_PERSON,
-    NOT_MOVING,
-    OUT_OF_MAP,
-    UNSEEN,
-    VELOCITIES,
-    parse_hidden,
-)
+from stack.vocabulary import NO_PERSON, NOT_MOVING, OUT_OF_MAP, UNSEEN, VELOCITIES, parse_hidden
 
 
 class ObservationError(ValueError):
     """An observation the planner cannot use (unknown label), named in the message."""
-
-
-class StateFileError(ValueError):
-    """A planner state file that does not belong to this model or is unreadable."""
 
 
 @dataclass(frozen=True)
@@ -160,42 +154,41 @@ def parse_cell(label: str, none_label: str, what: str, cells: tuple[int, ...]) -
     )
 
 
-def save_state(path: str | Path, state: dict[str, Any]) -> None:
-    """Write a planner's state atomically (a crash mid-write leaves the old file intact)."""
-    write_atomic(path, json.dumps(state))
-
-
-def read_state(path: Path) -> dict[str, Any] | None:
-    """A planner's state file as a JSON object; None when there is none.
+def parse_person(person: str, velocity: str, cells: tuple[int, ...]) -> tuple[int | None, str]:
+    """A person's labels, checked: the person's cell (None: "No person" or "Unseen") and
+    the direction of the velocity ("Not moving", "East", ...).
 
     Raises:
-        StateFileError: unreadable, or not a JSON object.
+        ObservationError: an unknown person cell or velocity.
     """
-    if not path.exists():
+    cell = None if person == UNSEEN else parse_cell(person, NO_PERSON, "person cell", cells)
+    if velocity not in VELOCITIES:
+        raise ObservationError(f"unknown velocity {velocity!r}; known: {VELOCITIES}")
+    return cell, velocity.split(" ")[0] if velocity != NOT_MOVING else NOT_MOVING
+
+
+def hidden_person(
+    model: FactoredModel, person: str, velocity: str, hidden: tuple[tuple[int, float], ...]
+) -> tuple[np.ndarray, float] | None:
+    """What the camera could not see of a person it labelled ``person``, for every agent
+    (:meth:`PlannerAgent.likelihood`): None when the label is a cell or the camera saw
+    every cell; else the fraction h of each person position hidden (``hidden``, and 1
+    everywhere for "Unseen"), and P("No person", ``velocity`` | the person absent)."""
+    if person not in (NO_PERSON, UNSEEN):
         return None
-    try:
-        data = json.loads(read_text_capped(path))
-    except (OSError, ValueError) as err:
-        raise StateFileError(f"{path}: unreadable planner state ({err})") from None
-    if not isinstance(data, dict):
-        raise StateFileError(f"{path}: unreadable planner state (not a JSON object)")
-    return data
-
-
-def check_progress(path: Path, step: int, phase: str, action: Any, n_actions: int) -> None:
-    """The step, phase and action of a state file (both agents' states share them).
-
-    Raises:
-        StateFileError: naming the bad field.
-    """
-    if phase not in ("start", "acting", "observing", "done"):
-        raise StateFileError(f"{path}: unknown phase {phase!r}")
-    if step < 0:
-        raise StateFileError(f"{path}: negative step {step}")
-    if action is not None and (
-        isinstance(action, bool) or not isinstance(action, int) or not 0 <= action < n_actions
-    ):
-        raise StateFileError(f"{path}: unknown action {action!r}")
+    h = np.zeros(model.n_cells + 1)
+    if person == UNSEEN:
+        h[: model.n_cells] = 1.0
+    for cell, frac in hidden:
+        if cell in model.task.grid.cells:
+            k = model.position_index(cell)
+            h[k] = max(h[k], frac)
+    if not h.any():
+        return None
+    absent = model.n_cells
+    # the same for every direction
+    v = VELOCITIES.index(velocity)
+    return h, float(model.obs_position[absent, absent] * model.obs_velocity[absent, 0, v])
 
 
 def model_fingerprint(pomdp: POMDP) -> str:
@@ -206,12 +199,7 @@ def model_fingerprint(pomdp: POMDP) -> str:
     return h.hexdigest()[:16]
 
 
-def beyond_move_note(robot: int) -> str:
-    """The step record's note when the robot was seen beyond its action's one move."""
-    return f"robot observed in cell {robot}, beyond the action's move: belief moved there"
-
-
-class PlannerAgent(Anticipating):
+class PlannerAgent(AgentCore):
     """Belief tracking and action choice for one deployment.
 
     Args:
@@ -236,8 +224,8 @@ class PlannerAgent(Anticipating):
         self.model, self.pomdp, self.policy = model, pomdp, policy
         self.anticipator: Anticipator | PeopleAnticipator | None = anticipator
         self.grid = model.task.grid
-        self.robot_cell: int | None = None  # the last observed robot cell
-        self.anticipated: dict[str, Any] | None = None  # the last decision's layer note
+        self.start()
+        self.n_actions = pomdp.n_actions
         self._choose = policy_chooser(
             policy, pomdp, lookahead=True, tie_tolerance=tie_tolerance, blocks=model.robot_blocks()
         )
@@ -245,42 +233,27 @@ class PlannerAgent(Anticipating):
         if b0.shape != (pomdp.n_states,) or not np.isclose(b0.sum(), 1.0):
             raise ValueError(f"initial belief must be {pomdp.n_states} probabilities summing to 1")
         self.belief = b0.copy()
-        self.step = 0  # steps completed (observed)
-        self.phase = "start"  # start | acting | observing | done
-        self.action: int | None = None  # the action of the step under way (the model's)
-        # what navigation is asked to do for it: the action's name, or a trip ("To 1")
-        # whose first move is ``action``
-        self.command: str | None = None
-        self.values: list[float] = []
         self.fingerprint = model_fingerprint(pomdp)
         idx = np.unravel_index(np.arange(pomdp.n_states), model.state_shape)
         self._robot_of_state = idx[0]
         self._person_of_state = idx[1] if model.people >= 1 else np.zeros_like(idx[0])
 
     # -- deciding --------------------------------------------------------------------
-    def decide(self) -> int:
-        """Choose the next action from the current belief; the step is now under way."""
-        a, q = self._choose(self.belief)
-        self.action, self.values = self.advised(int(a)), [float(v) for v in q]
-        self.phase = "acting"
-        return self.action
+    def search(self) -> tuple[int, Any]:
+        """The policy's action for the current belief, and every action's value."""
+        return self._choose(self.belief)
 
-    def observe(self, observed: Observed) -> dict[str, Any]:
-        """Update the belief with the observations that followed the current action.
+    def update_belief(self, observed: Observed) -> str | None:
+        """The belief after the action under way and ``observed`` (see :meth:`observe`).
 
         An observation the model gives zero probability (e.g. the person seen two cells
         from where it could be) does not stop the robot: the belief restarts from what
         was observed, and the record says so.
 
-        Returns:
-            The step's record (see :meth:`record`).
-
         Raises:
             ObservationError: a label the model does not know; the belief is unchanged.
-            RuntimeError: no action is under way.
         """
-        if self.action is None:
-            raise RuntimeError("observe() without an action under way; call decide() first")
+        assert self.action is not None
         z, robot, person, direction = self._observation_index(observed)
         if robot is None and self._robot_probability(None) == 0.0:
             raise ObservationError(
@@ -292,20 +265,17 @@ class PlannerAgent(Anticipating):
             # the robot went further than the action's one move (a trip crossing cells,
             # a push): it is observed exactly and the people move whatever it does, so
             # the belief moves it to where it is and the update is Do nothing's
-            belief, action = self._relocated(robot), ACTIONS.index("Do nothing")
+            belief, action = self._relocated(robot), DO_NOTHING
             note = beyond_move_note(robot)
         try:
             lik = self.likelihood(observed, z)
             self.belief = belief_ops.update_with_likelihood(self.pomdp, belief, action, lik)
         except belief_ops.ZeroProbabilityObservation:
-            note = "observation impossible under the model: belief restarted from it"
+            note = RESTARTED_NOTE
             self.belief = self.model.initial_belief(
                 robot, [(person, direction)] * self.model.people
             )
-        self.step += 1
-        record = self.record(observed, note)
-        self.phase = "observing"  # until the next decide()
-        return record
+        return note
 
     def _relocated(self, robot: int) -> np.ndarray:
         """The belief with all its robot mass in ``robot``'s cell."""
@@ -335,23 +305,14 @@ class PlannerAgent(Anticipating):
         if z is None:
             z = self._observation_index(observed)[0]
         lik = self.pomdp.O[self.action][:, z].toarray().ravel()
-        if observed.person not in (NO_PERSON, UNSEEN) or self.model.people != 1:
-            return lik
-        cells = self.model.task.grid.cells
-        h = np.zeros(self.model.n_cells + 1)
-        if observed.person == UNSEEN:
-            h[: self.model.n_cells] = 1.0
-        for cell, frac in observed.hidden:
-            if cell in cells:
-                h[self.model.position_index(cell)] = max(h[self.model.position_index(cell)], frac)
-        if not h.any():
-            return lik
-        absent = self.model.n_cells
-        # P(No person, velocity | person absent) (the same for every direction)
-        l_absent = float(
-            self.model.obs_position[absent, absent]
-            * self.model.obs_velocity[absent, 0, VELOCITIES.index(observed.velocity)]
+        hidden = (
+            None
+            if self.model.people != 1
+            else hidden_person(self.model, observed.person, observed.velocity, observed.hidden)
         )
+        if hidden is None:
+            return lik
+        h, l_absent = hidden
         # the robot's cell is observed exactly
         robot_ok = self._robot_of_state == np.unravel_index(z, self.model.obs_shape)[0]
         hs = h[self._person_of_state]
@@ -360,12 +321,7 @@ class PlannerAgent(Anticipating):
     def _observation_index(self, o: Observed) -> tuple[int, int | None, int | None, str]:
         cells = self.model.task.grid.cells
         robot = parse_cell(o.robot, OUT_OF_MAP, "robot cell", cells)
-        person = (
-            None if o.person == UNSEEN else parse_cell(o.person, NO_PERSON, "person cell", cells)
-        )
-        if o.velocity not in VELOCITIES:
-            raise ObservationError(f"unknown velocity {o.velocity!r}; known: {VELOCITIES}")
-        direction = o.velocity.split(" ")[0] if o.velocity != NOT_MOVING else NOT_MOVING
+        person, direction = parse_person(o.person, o.velocity, cells)
         z = self.model.observation_index(robot, [(person, o.velocity)] * self.model.people)
         return z, robot, person, direction
 
@@ -382,72 +338,35 @@ class PlannerAgent(Anticipating):
                 t.sum(axis=tuple(a for a in axes if a != pa)), "person"
             )
             d = t.sum(axis=tuple(a for a in axes if a != da))
-            out["direction" + suffix] = {DIRECTIONS[k]: round(float(d[k]), 6) for k in range(5)}
+            out["direction" + suffix] = direction_labelled(d)
         return out
 
     def _labelled(self, p: np.ndarray, what: str) -> dict[str, float]:
         label = self.model.robot_label if what == "robot" else self.model.position_label
-        return {label(i): round(float(v), 6) for i, v in enumerate(p)}
-
-    def record(self, observed: Observed | None, note: str | None = None) -> dict[str, Any]:
-        """The step's record: step, action, observations, belief after them, values."""
-        out = {
-            "step": self.step,
-            "action": ACTIONS[self.action] if self.action is not None else None,
-            "observation": observed.to_dict() if observed else None,
-            "belief": self.marginals(),
-            "values": [round(v, 4) for v in self.values],
-            "note": note,
-        }
-        if self.anticipated is not None:  # person_model: goal only (other records unchanged)
-            out["anticipation"] = self.anticipated
-        return out
+        return labelled(label, p)
 
     # -- persistence ------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
-        return {
-            "fingerprint": self.fingerprint,
-            "step": self.step,
-            "phase": self.phase,
-            "action": self.action,
-            "command": self.command,
-            "values": self.values,
-            "belief": [float(v) for v in self.belief],
-        }
+    def belief_state(self) -> dict[str, Any]:
+        return {"belief": [float(v) for v in self.belief]}
 
-    def save(self, path: str | Path) -> None:
-        """Write the state atomically (a crash mid-write leaves the old file intact)."""
-        save_state(path, self.state())
+    def read_belief(self, data: dict[str, Any]) -> np.ndarray:
+        return np.asarray(data["belief"], float)
 
-    def restore(self, path: str | Path) -> bool:
-        """Resume from a state file; False when there is none.
+    def read_values(self, data: dict[str, Any]) -> Any:
+        return data.get("values", [])
+
+    def check_belief(self, path: Path, belief: np.ndarray, values: Any) -> list[float]:
+        """The state file's belief and values, checked (see :meth:`restore`).
 
         Raises:
-            StateFileError: unreadable, or written for another model.
+            StateFileError: not a distribution over the states, or values not numbers.
         """
-        path = Path(path)
-        data = read_state(path)
-        if data is None:
-            return False
-        try:
-            belief = np.asarray(data["belief"], float)
-            step, phase, action = int(data["step"]), str(data["phase"]), data["action"]
-        except (OSError, ValueError, KeyError, TypeError) as err:
-            raise StateFileError(f"{path}: unreadable planner state ({err})") from None
-        if data.get("fingerprint") != self.fingerprint:
-            raise StateFileError(f"{path}: planner state of another model")
         if belief.shape != (self.pomdp.n_states,) or not np.isclose(belief.sum(), 1.0):
             raise StateFileError(f"{path}: the belief is not a distribution over the states")
-        check_progress(path, step, phase, action, self.pomdp.n_actions)
         if not np.all(np.isfinite(belief)) or np.any(belief < 0):
             raise StateFileError(f"{path}: the belief holds negative or non-finite numbers")
-        values = data.get("values", [])
         if not isinstance(values, list) or not all(
             isinstance(v, int | float) and not isinstance(v, bool) for v in values
         ):
             raise StateFileError(f"{path}: values must be a list of numbers")
-        self.belief, self.step, self.phase = belief, step, phase
-        self.action = None if action is None else int(action)
-        self.restore_command(data.get("command"))
-        self.values = [float(v) for v in values]
-        return True
+        return [float(v) for v in values]

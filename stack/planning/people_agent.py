@@ -35,27 +35,25 @@ import numpy as np
 from stack.planning.agent import (
     ObservationError,
     Observed,
+    hidden_person,
+    parse_cell,
+    parse_person,
+)
+from stack.planning.agent_state import (
+    DO_NOTHING,
+    RESTARTED_NOTE,
+    AgentCore,
     StateFileError,
     beyond_move_note,
-    check_progress,
-    parse_cell,
-    read_state,
-    save_state,
+    direction_labelled,
+    labelled,
 )
-from stack.planning.anticipate import Anticipating, PeopleAnticipator
+from stack.planning.anticipate import PeopleAnticipator
 from stack.planning.belief import ZeroProbabilityObservation
 from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.model import direction_index
 from stack.planning.online import OnlineConfig, OnlinePlanner
-from stack.vocabulary import (
-    ACTIONS,
-    DIRECTIONS,
-    NO_PERSON,
-    NOT_MOVING,
-    OUT_OF_MAP,
-    UNSEEN,
-    VELOCITIES,
-)
+from stack.vocabulary import NO_PERSON, NOT_MOVING, OUT_OF_MAP, UNSEEN, VELOCITIES
 
 
 def people_fingerprint(pm: PeopleModel) -> str:
@@ -64,7 +62,7 @@ def people_fingerprint(pm: PeopleModel) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-class PeopleAgent(Anticipating):
+class PeopleAgent(AgentCore):
     """Factored belief and online decisions for one deployment with n >= 2 people.
 
     Args:
@@ -86,43 +84,33 @@ class PeopleAgent(Anticipating):
         self.pm = pm
         self.anticipator = anticipator
         self.grid = pm.task.grid
-        self.robot_cell: int | None = None
-        self.anticipated: dict[str, Any] | None = None
-        self.command: str | None = None
+        self.start()
+        self.state_of = "task"
         self.config = config
         self.planner = OnlinePlanner(pm, config)
         self.belief = PeopleBelief.initial(pm) if initial is None else initial
         if self.belief.persons.shape != (pm.people, pm.n_person):
             raise ValueError(f"initial belief must be {pm.people} x {pm.n_person} probabilities")
-        self.step = 0
-        self.phase = "start"
-        self.action: int | None = None
-        self.values: list[float] = []
         self.depth = 0
         self.fingerprint = people_fingerprint(pm)
 
     # -- deciding --------------------------------------------------------------------
-    def decide(self) -> int:
-        """The next action from the current belief; the step is now under way."""
+    def search(self) -> tuple[int, Any]:
+        """The online planner's action for the current belief, and the actions' values;
+        the search's depth goes into the step's record."""
         self.planner.reset(self.config.seed * 1_000_003 + self.step)
         d = self.planner.decide(self.belief)
-        self.action = self.advised(int(d.action))
-        self.values, self.depth = [float(v) for v in d.values], d.depth
-        self.phase = "acting"
-        return self.action
+        self.depth = d.depth
+        return d.action, d.values
 
-    def observe(self, observed: Observed) -> dict[str, Any]:
-        """Update the belief with the step's observations (see the module docstring).
-
-        Returns:
-            The step's record.
+    def update_belief(self, observed: Observed) -> str | None:
+        """The belief after the action under way and the step's observations (see the
+        module docstring), as :meth:`PlannerAgent.update_belief` for one person.
 
         Raises:
             ObservationError: a label the model does not know; the belief is unchanged.
-            RuntimeError: no action is under way.
         """
-        if self.action is None:
-            raise RuntimeError("observe() without an action under way; call decide() first")
+        assert self.action is not None
         cells = self.pm.task.grid.cells
         robot = parse_cell(observed.robot, OUT_OF_MAP, "robot cell", cells)
         slots = self.slot_labels(observed)
@@ -130,22 +118,16 @@ class PeopleAgent(Anticipating):
         note = None
         belief, action, r = self.belief, self.action, self.pm.model.robot_index(robot)
         if robot is not None and not self.pm.robot_T[action, belief.robot, r] > 0.0:
-            # further than the action's one move (a trip): as PlannerAgent.observe
-            belief, action = PeopleBelief(r, belief.persons), ACTIONS.index("Do nothing")
+            # further than the action's one move (a trip): as PlannerAgent.update_belief
+            belief, action = PeopleBelief(r, belief.persons), DO_NOTHING
             note = beyond_move_note(robot)
         try:
             self.belief = belief.update_likelihood(self.pm, action, r, lik)
         except ZeroProbabilityObservation:
-            note = "observation impossible under the model: belief restarted from it"
-            persons = []
-            for p, v in slots:
-                cell = None if p in (NO_PERSON, UNSEEN) else int(p)
-                persons.append((cell, v.split(" ")[0] if v != NOT_MOVING else NOT_MOVING))
+            note = RESTARTED_NOTE
+            persons = [parse_person(p, v, cells) for p, v in slots]
             self.belief = PeopleBelief.certain(self.pm, robot, persons)
-        self.step += 1
-        record = self.record(observed, note)
-        self.phase = "observing"
-        return record
+        return note
 
     def slot_labels(self, observed: Observed) -> list[tuple[str, str]]:
         """(person, velocity) per slot, checked (an observation without ``people``:
@@ -155,33 +137,22 @@ class PeopleAgent(Anticipating):
         if len(slots) > n:
             raise ObservationError(f"observation has {len(slots)} people, the task {n}")
         slots += [(UNSEEN, NOT_MOVING)] * (n - len(slots))
-        cells = self.pm.task.grid.cells
         for p, v in slots:
-            if p != UNSEEN:
-                parse_cell(p, NO_PERSON, "person cell", cells)
-            if v not in VELOCITIES:
-                raise ObservationError(f"unknown velocity {v!r}; known: {VELOCITIES}")
+            parse_person(p, v, self.pm.task.grid.cells)
         return slots
 
     def likelihood(self, observed: Observed, person: str, velocity: str) -> np.ndarray:
         """(n_person,): P(slot's labels | person state), with the camera's hidden cells
         folded in for "No person" and "Unseen" (as :meth:`PlannerAgent.likelihood`)."""
         pm, m = self.pm, self.pm.model
-        absent = m.n_cells
         z_v = VELOCITIES.index(velocity)
         if person not in (NO_PERSON, UNSEEN):
             return pm.observation_likelihood(m.position_index(int(person)), z_v)
-        lik = pm.observation_likelihood(absent, z_v)
-        h = np.zeros(m.n_cells + 1)
-        if person == UNSEEN:
-            h[: m.n_cells] = 1.0
-        for cell, frac in observed.hidden:
-            if cell in pm.task.grid.cells:
-                k = m.position_index(cell)
-                h[k] = max(h[k], frac)
-        if not h.any():
+        lik = pm.observation_likelihood(m.n_cells, z_v)
+        hidden = hidden_person(m, person, velocity, observed.hidden)
+        if hidden is None:
             return lik
-        l_absent = float(m.obs_position[absent, absent] * m.obs_velocity[absent, 0, z_v])
+        h, l_absent = hidden
         hs = np.repeat(h, 5)
         return (1.0 - hs) * lik + hs * l_absent
 
@@ -192,75 +163,36 @@ class PeopleAgent(Anticipating):
         out = {"robot": {m.robot_label(self.belief.robot): 1.0}}
         for i, row in enumerate(self.belief.persons):
             t = row.reshape(m.n_cells + 1, 5)
-            out[f"person_{i + 1}"] = {
-                m.position_label(k): round(float(v), 6) for k, v in enumerate(t.sum(axis=1))
-            }
-            out[f"direction_{i + 1}"] = {
-                DIRECTIONS[k]: round(float(v), 6) for k, v in enumerate(t.sum(axis=0))
-            }
+            out[f"person_{i + 1}"] = labelled(m.position_label, t.sum(axis=1))
+            out[f"direction_{i + 1}"] = direction_labelled(t.sum(axis=0))
         return out
 
-    def record(self, observed: Observed | None, note: str | None = None) -> dict[str, Any]:
-        """The step's record (as :meth:`PlannerAgent.record`, with the search's depth)."""
-        return {
-            "step": self.step,
-            "action": ACTIONS[self.action] if self.action is not None else None,
-            "observation": observed.to_dict() if observed else None,
-            "belief": self.marginals(),
-            "values": [round(v, 4) for v in self.values],
-            "depth": self.depth,
-            "note": note,
-        } | ({} if self.anticipated is None else {"anticipation": self.anticipated})
+    def search_note(self) -> dict[str, Any]:
+        """The record's note of the search: its depth."""
+        return {"depth": self.depth}
 
     # -- persistence ------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
-        return {
-            "fingerprint": self.fingerprint,
-            "step": self.step,
-            "phase": self.phase,
-            "action": self.action,
-            "command": self.command,
-            "values": self.values,
-            "robot": self.belief.robot,
-            "persons": self.belief.persons.tolist(),
-        }
+    def belief_state(self) -> dict[str, Any]:
+        return {"robot": self.belief.robot, "persons": self.belief.persons.tolist()}
 
-    def save(self, path: str | Path) -> None:
-        """Write the state atomically."""
-        save_state(path, self.state())
+    def read_belief(self, data: dict[str, Any]) -> PeopleBelief:
+        persons = np.asarray(data["persons"], float)  # read before the robot, as ever
+        return PeopleBelief(int(data["robot"]), persons)
 
-    def restore(self, path: str | Path) -> bool:
-        """Resume from a state file; False when there is none.
+    def check_belief(self, path: Path, belief: PeopleBelief, values: Any) -> list[float]:
+        """The state file's belief, checked (see :meth:`restore`).
 
         Raises:
-            StateFileError: unreadable, or written for another task.
+            StateFileError: not one distribution per person, or an unknown robot value.
         """
-        path = Path(path)
-        data = read_state(path)
-        if data is None:
-            return False
-        try:
-            persons = np.asarray(data["persons"], float)
-            robot, step = int(data["robot"]), int(data["step"])
-            phase, action = str(data["phase"]), data["action"]
-            values = [float(v) for v in data.get("values", [])]
-        except (OSError, ValueError, KeyError, TypeError) as err:
-            raise StateFileError(f"{path}: unreadable planner state ({err})") from None
-        if data.get("fingerprint") != self.fingerprint:
-            raise StateFileError(f"{path}: planner state of another task")
-        pm = self.pm
+        pm, persons, robot = self.pm, belief.persons, belief.robot
         if persons.shape != (pm.people, pm.n_person) or not np.allclose(persons.sum(axis=1), 1):
             raise StateFileError(f"{path}: the belief is not one distribution per person")
         if not np.all(np.isfinite(persons)) or np.any(persons < 0):
             raise StateFileError(f"{path}: the belief holds negative or non-finite numbers")
         if not 0 <= robot < pm.n_robot:
             raise StateFileError(f"{path}: unknown robot value {robot}")
-        check_progress(path, step, phase, action, len(ACTIONS))
-        self.belief = PeopleBelief(robot, persons)
-        self.step, self.phase, self.values = step, phase, values
-        self.action = None if action is None else int(action)
-        self.restore_command(data.get("command"))
-        return True
+        return values
 
 
 def initial_people_belief(

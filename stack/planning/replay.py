@@ -73,164 +73,144 @@ class Table:
     quotes: tuple[Quote, ...] = field(default=())
 
 
-def _steps(rows: str) -> tuple[Step, ...]:
-    out = []
-    for line in rows.strip().splitlines():
-        action, robot, person, velocity = (x.strip() for x in line.split("|"))
-        out.append(
-            Step(action, int(robot), None if person == "No person" else int(person), velocity)
-        )
-    return tuple(out)
+def _table(lines: tuple[str, ...]) -> Table:
+    """A table from its lines (see ``_TABLES``)."""
+    head, *rows = lines
+    name, title, task, robot, person, direction = (x.strip() for x in head.split("|"))
+    at = rows.index("quotes:")
+    steps = tuple(_step(row) for row in rows[:at])
+    quotes = tuple(_quote(row) for row in rows[at + 1 :])
+    return Table(name, title, task, int(robot), _person(person), direction, steps, quotes)
 
 
-def _pos(step: int, cells, thesis: float) -> Quote:
-    return Quote(step, "position", tuple(cells), thesis)
+def _person(label: str) -> int | None:
+    return None if label == "No person" else int(label)
 
 
-def _dir(step: int, names, thesis: float) -> Quote:
-    return Quote(step, "direction", tuple(names), thesis)
+def _step(row: str) -> Step:
+    """A table's row: "action | robot | person | velocity"."""
+    action, robot, person, velocity = (x.strip() for x in row.split("|"))
+    return Step(action, int(robot), _person(person), velocity)
 
 
-TABLES: dict[str, Table] = {
-    "5.1": Table(
-        "5.1",
-        "Simulation with one restricted area",
-        "r1",
-        robot=7,
-        person=11,
-        direction="not moving",
-        steps=_steps(
-            """
-            Do nothing | 7 | 9 | East higher
-            Do nothing | 7 | 7 | East higher
-            East | 5 | 5 | East higher
-            East | 3 | 3 | East 0-0.2
-            East | 1 | 1 | Not moving
-            Do nothing | 1 | 4 | West 0.2-0.7
-            Do nothing | 1 | 6 | West higher
-            West | 3 | 8 | South 0-0.2
-            Do nothing | 3 | 7 | Not moving
-            West | 5 | 7 | Not moving
-            West | 7 | 10 | North 0-0.2
-            Do nothing | 7 | 10 | Not moving
-            """
-        ),
-        quotes=(
-            _dir(1, ["East"], 0.75),
-            _pos(1, [9], 0.22),
-            _pos(1, [11], 0.73),
-            _pos(2, [7], 0.85),
-            _dir(2, ["East"], 0.89),
-            _pos(6, [4], 0.61),
-            _pos(6, [1], 0.31),
-            _dir(6, ["West"], 0.69),
-            _dir(6, ["North"], 0.17),
-            _dir(7, ["West"], 0.89),
-            _pos(7, [6], 0.9),
-        ),
+def _quote(row: str) -> Quote:
+    """A quote's row: "step: P(at cell or cell) = value" or "step: P(moving name) = value"."""
+    step, rest = row.split(": P(")
+    what, _, rest = rest.partition(" ")
+    values, value = rest.split(") = ")
+    names = values.split(" or ")
+    if what == "at":
+        return Quote(int(step), "position", tuple(int(c) for c in names), float(value))
+    return Quote(int(step), "direction", tuple(names), float(value))
+
+
+# Chapter 5's tables as the thesis prints them: a header "name | title | task | robot's
+# cell | person's cell | direction", a row per step (the thesis's action, then the
+# robot's cell, the person's cell and the person's velocity observed after it), and the
+# beliefs the text quotes after a step's observations, labelled as the report prints
+# them (:attr:`Quote.label`).
+_TABLES = (
+    (
+        "5.1 | Simulation with one restricted area | r1 | 7 | 11 | not moving",
+        "Do nothing | 7 | 9 | East higher",
+        "Do nothing | 7 | 7 | East higher",
+        "East | 5 | 5 | East higher",
+        "East | 3 | 3 | East 0-0.2",
+        "East | 1 | 1 | Not moving",
+        "Do nothing | 1 | 4 | West 0.2-0.7",
+        "Do nothing | 1 | 6 | West higher",
+        "West | 3 | 8 | South 0-0.2",
+        "Do nothing | 3 | 7 | Not moving",
+        "West | 5 | 7 | Not moving",
+        "West | 7 | 10 | North 0-0.2",
+        "Do nothing | 7 | 10 | Not moving",
+        "quotes:",
+        "1: P(moving East) = 0.75",
+        "1: P(at 9) = 0.22",
+        "1: P(at 11) = 0.73",
+        "2: P(at 7) = 0.85",
+        "2: P(moving East) = 0.89",
+        "6: P(at 4) = 0.61",
+        "6: P(at 1) = 0.31",
+        "6: P(moving West) = 0.69",
+        "6: P(moving North) = 0.17",
+        "7: P(moving West) = 0.89",
+        "7: P(at 6) = 0.9",
     ),
-    "5.2": Table(
-        "5.2",
-        "Experiment with the NRS and one restricted area",
-        "r1",
-        robot=8,
-        person=None,
-        direction="not moving",
-        steps=_steps(
-            """
-            South | 7 | No person | Not moving
-            Do nothing | 7 | 10 | East 0-0.2
-            Do nothing | 7 | 5 | East 0-0.2
-            East | 5 | 1 | Not moving
-            East | 3 | 2 | Not moving
-            East | 1 | 1 | Not moving
-            Do nothing | 1 | 6 | East 0-0.2
-            Do nothing | 1 | 12 | Not moving
-            West | 3 | No person | Not moving
-            West | 5 | No person | Not moving
-            West | 7 | No person | Not moving
-            """
-        ),
-        quotes=(
-            _dir(2, ["East"], 0.49),
-            _pos(2, [10], 0.58),
-            _dir(3, ["East"], 0.8),
-            _pos(3, [5], 0.72),
-            _pos(3, [8], 0.09),
-            _pos(4, [1, 2], 0.8),
-            _pos(6, [1, 2], 0.99),
-            _dir(7, ["East"], 0.49),
-        ),
+    (
+        "5.2 | Experiment with the NRS and one restricted area | r1 | 8 | No person | not moving",
+        "South | 7 | No person | Not moving",
+        "Do nothing | 7 | 10 | East 0-0.2",
+        "Do nothing | 7 | 5 | East 0-0.2",
+        "East | 5 | 1 | Not moving",
+        "East | 3 | 2 | Not moving",
+        "East | 1 | 1 | Not moving",
+        "Do nothing | 1 | 6 | East 0-0.2",
+        "Do nothing | 1 | 12 | Not moving",
+        "West | 3 | No person | Not moving",
+        "West | 5 | No person | Not moving",
+        "West | 7 | No person | Not moving",
+        "quotes:",
+        "2: P(moving East) = 0.49",
+        "2: P(at 10) = 0.58",
+        "3: P(moving East) = 0.8",
+        "3: P(at 5) = 0.72",
+        "3: P(at 8) = 0.09",
+        "4: P(at 1 or 2) = 0.8",
+        "6: P(at 1 or 2) = 0.99",
+        "7: P(moving East) = 0.49",
     ),
-    "5.3": Table(
-        "5.3",
-        "Experiment 1 with two restricted areas",
-        "r2",
-        robot=9,
-        person=None,
-        direction="not moving",
-        steps=_steps(
-            """
-            East | 7 | No person | Not moving
-            Do nothing | 7 | 9 | South 0-0.2
-            North | 8 | 12 | Not moving
-            West | 10 | 9 | North 0-0.2
-            West | 12 | 11 | Not moving
-            Do nothing | 12 | 9 | Not moving
-            Do nothing | 12 | 9 | Not moving
-            Do nothing | 12 | 6 | Not moving
-            Do nothing | 12 | 5 | Not moving
-            South | 11 | 5 | Not moving
-            """
-        ),
-        quotes=(
-            _pos(2, [9], 0.57),
-            _dir(2, ["South"], 0.47),
-            _dir(2, ["Not moving"], 0.28),
-            _dir(2, ["West", "North"], 0.15),
-            _pos(7, [9], 0.99),
-            _dir(7, ["Not moving"], 0.96),
-            _pos(8, [6], 0.57),
-            _pos(8, [9], 0.3),
-            _pos(9, [9], 0.03),
-        ),
+    (
+        "5.3 | Experiment 1 with two restricted areas | r2 | 9 | No person | not moving",
+        "East | 7 | No person | Not moving",
+        "Do nothing | 7 | 9 | South 0-0.2",
+        "North | 8 | 12 | Not moving",
+        "West | 10 | 9 | North 0-0.2",
+        "West | 12 | 11 | Not moving",
+        "Do nothing | 12 | 9 | Not moving",
+        "Do nothing | 12 | 9 | Not moving",
+        "Do nothing | 12 | 6 | Not moving",
+        "Do nothing | 12 | 5 | Not moving",
+        "South | 11 | 5 | Not moving",
+        "quotes:",
+        "2: P(at 9) = 0.57",
+        "2: P(moving South) = 0.47",
+        "2: P(moving Not moving) = 0.28",
+        "2: P(moving West or North) = 0.15",
+        "7: P(at 9) = 0.99",
+        "7: P(moving Not moving) = 0.96",
+        "8: P(at 6) = 0.57",
+        "8: P(at 9) = 0.3",
+        "9: P(at 9) = 0.03",
     ),
-    "5.4": Table(
-        "5.4",
-        "Experiment 2 with two restricted areas",
-        "r2",
-        robot=9,
-        person=None,
-        direction="not moving",
-        steps=_steps(
-            """
-            East | 7 | No person | Not moving
-            Do nothing | 7 | 7 | North higher
-            Do nothing | 7 | 6 | East 0-0.2
-            East | 5 | 1 | Not moving
-            East | 3 | 4 | East 0-0.2
-            East | 1 | 2 | Not moving
-            Do nothing | 1 | 4 | Not moving
-            Do nothing | 1 | 8 | Not moving
-            Do nothing | 1 | 6 | West 0-0.2
-            West | 3 | 8 | Not moving
-            West | 5 | 6 | Not moving
-            West | 7 | 8 | South 0.2-0.7
-            Do nothing | 7 | 7 | Not moving
-            Do nothing | 7 | 10 | North 0.2-0.7
-            North | 8 | 11 | Not moving
-            West | 10 | 11 | East 0-0.2
-            West | 12 | 11 | Not moving
-            """
-        ),
-        quotes=(
-            _pos(3, [6], 0.88),
-            _dir(3, ["East"], 0.61),
-            _dir(14, ["North"], 0.65),
-            _dir(14, ["West"], 0.15),
-        ),
+    (
+        "5.4 | Experiment 2 with two restricted areas | r2 | 9 | No person | not moving",
+        "East | 7 | No person | Not moving",
+        "Do nothing | 7 | 7 | North higher",
+        "Do nothing | 7 | 6 | East 0-0.2",
+        "East | 5 | 1 | Not moving",
+        "East | 3 | 4 | East 0-0.2",
+        "East | 1 | 2 | Not moving",
+        "Do nothing | 1 | 4 | Not moving",
+        "Do nothing | 1 | 8 | Not moving",
+        "Do nothing | 1 | 6 | West 0-0.2",
+        "West | 3 | 8 | Not moving",
+        "West | 5 | 6 | Not moving",
+        "West | 7 | 8 | South 0.2-0.7",
+        "Do nothing | 7 | 7 | Not moving",
+        "Do nothing | 7 | 10 | North 0.2-0.7",
+        "North | 8 | 11 | Not moving",
+        "West | 10 | 11 | East 0-0.2",
+        "West | 12 | 11 | Not moving",
+        "quotes:",
+        "3: P(at 6) = 0.88",
+        "3: P(moving East) = 0.61",
+        "14: P(moving North) = 0.65",
+        "14: P(moving West) = 0.15",
     ),
-}
+)
+
+TABLES: dict[str, Table] = {t.name: t for t in map(_table, _TABLES)}
 
 
 @dataclass
