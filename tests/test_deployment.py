@@ -465,6 +465,13 @@ def test_each_host_starts_its_own_nodes(tmp_path):
     bad = parse_deployment(split_twin(tmp_path, {"robot": ["twin_brige"]}), tmp_path / "t.yaml")
     with pytest.raises(ConfigError, match=r"hosts\.robot.*twin_brige"):
         host_specs(prepare(bad, tmp_path / "run2", say=lambda s: None), bad, "robot")
+    # a node on no host would run nowhere: the twin's velocity gate left out, say
+    gated = split_twin(tmp_path, HOSTS)
+    gated["twin"]["velocity_gate"] = True
+    dep = parse_deployment(gated, tmp_path / "gated.yaml")
+    system = prepare(dep, tmp_path / "run3", say=lambda s: None)
+    with pytest.raises(ConfigError, match=r"hosts.*velocity_gate.*on no host"):
+        host_specs(system, dep, "robot")
 
 
 @pytest.mark.parametrize(

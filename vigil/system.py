@@ -389,7 +389,9 @@ def host_specs(system: System, dep: Deployment, host: str | None) -> list[Proces
     """The processes ``host`` runs (the deployment's ``hosts``); all of them for None.
 
     Raises:
-        ConfigError: an unknown host, or a host listing a node the system does not have.
+        ConfigError: an unknown host, a host listing a node the system does not have, or
+            a node of the system on no host (it would run nowhere: e.g. the velocity
+            gate of ``twin.velocity_gate`` left out).
     """
     if host is None:
         return list(system.specs)
@@ -400,6 +402,10 @@ def host_specs(system: System, dep: Deployment, host: str | None) -> list[Proces
         unknown = sorted(set(nodes) - names)
         if unknown:
             raise ConfigError(f"hosts.{h}", unknown, f"not nodes of this system ({sorted(names)})")
+    placed = {n for nodes in dep.hosts.values() for n in nodes}
+    nowhere = sorted(names - placed)
+    if nowhere:
+        raise ConfigError("hosts", nowhere, "nodes of this system on no host: list each on one")
     return [s for s in system.specs if s.name in dep.hosts[host]]
 
 
