@@ -199,7 +199,8 @@ def base_holds(bag: Path, timeout_s: float = 0.5) -> dict:
     command the base's ``/odom`` speed must lie under its braking envelope: the speed it
     held until then less the acceleration limit times the time since, and never under
     :data:`STILL` (odometry is noisy, about 0.02 m/s at rest, and a person walking
-    into the robot pushes it). Returns ``silences``, ``excess`` (the largest speed above
+    into the robot pushes it), until it first stands (below :data:`STILL`): what moves
+    it after that is a new command. Returns ``silences``, ``excess`` (the largest speed above
     the envelope, m/s or rad/s; 0 when it held), ``worst_stop_s`` (the longest time
     from a last command to the first sample below :data:`STILL` or the next command)."""
     from rosbags.rosbag2 import Reader
@@ -241,6 +242,12 @@ def base_holds(bag: Path, timeout_s: float = 0.5) -> dict:
         for u, v, w in after:
             if u < t + grace_ns:
                 continue
+            if still is not None and u > still:
+                # it stood: the base kept its timeout. Moving again means a new command,
+                # a restarted sender's, which the bag may miss: each subscriber discovers
+                # the new publisher in its own time (seen: the base drove 2 s on a
+                # restarted gate's commands before the bag had matched it)
+                break
             since = (u - t - grace_ns) / 1e9
             v_max = max(STILL, v0 - robot.max_linear_accel_mps2 * since)
             w_max = max(STILL, w0 - robot.max_angular_accel_radps2 * since)
