@@ -170,9 +170,18 @@ def test_the_twin_s_async_camera_renders_what_render_camera_renders():
     import numpy as np
 
     from twin.config import TwinConfig
+
+    t_s, img, direct = _threaded_and_direct(TwinConfig())
+    assert t_s == pytest.approx(0.5)
+    assert np.array_equal(img, direct)
+
+
+def _threaded_and_direct(cfg):
+    """After 0.5 s of the twin: the render thread's frame (its capture time, the image)
+    and ``render_camera()``'s image of the same instant."""
     from twin.twin import Twin
 
-    with Twin(TwinConfig(), seed=0) as tw:
+    with Twin(cfg, seed=0) as tw:
         for _ in range(25):
             tw.step(None)
         direct = tw.render_camera()
@@ -182,8 +191,7 @@ def test_the_twin_s_async_camera_renders_what_render_camera_renders():
             t_s, img = cam.collect(wait=True)
         finally:
             cam.close()
-    assert t_s == pytest.approx(0.5)
-    assert np.array_equal(img, direct)
+    return t_s, img, direct
 
 
 def test_the_lens_blur_renders_the_sharp_image_blurred_on_both_camera_paths():
@@ -195,7 +203,6 @@ def test_the_lens_blur_renders_the_sharp_image_blurred_on_both_camera_paths():
     import numpy as np
 
     from twin.config import TwinConfig
-    from twin.twin import Twin
 
     sharp_cfg = TwinConfig()
     sharp_cfg = dataclasses.replace(
@@ -206,16 +213,7 @@ def test_the_lens_blur_renders_the_sharp_image_blurred_on_both_camera_paths():
     )
     images = []
     for cfg in (sharp_cfg, blur_cfg):
-        with Twin(cfg, seed=0) as tw:
-            for _ in range(25):
-                tw.step(None)
-            direct = tw.render_camera()
-            cam = tw.async_camera()
-            try:
-                assert cam.capture(tw.data, tw.time_s)
-                _, threaded = cam.collect(wait=True)
-            finally:
-                cam.close()
+        _, threaded, direct = _threaded_and_direct(cfg)
         assert np.array_equal(threaded, direct)
         images.append(direct)
     sharp, blurred = images

@@ -10,14 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from vigil.chaos import GATE_VICTIMS, base_holds, chaos_files, check_run, run_chaos
+from vigil.chaos import GATE_VICTIMS, VICTIMS, base_holds, chaos_files, check_run, run_chaos
 from vigil.ending import EXIT_NODE
 
 
-@pytest.mark.slow
-def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_timeout(tmp_path):
-    scenario, config = chaos_files(tmp_path, steps=6)
-    run = run_chaos(
+def _kill_while_driving(tmp_path: Path, first: str, realtime: bool = False):
+    """5.1.1 cut to 6 steps, ``first`` SIGKILLed once the robot drives, then one more
+    random victim (seeded); in lock-step, or at real time with the velocity gate."""
+    scenario, config = chaos_files(tmp_path, steps=6, realtime=realtime)
+    return run_chaos(
         scenario,
         config,
         tmp_path / "run",
@@ -25,13 +26,20 @@ def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_tim
         seed=3,
         first_s=1.0,
         gap_s=(5.0, 10.0),
-        first="navigation",
+        victims=GATE_VICTIMS if realtime else VICTIMS,
+        first=first,
         # 5.1.1's robot makes a 0.26 m move at step 3 (0.6 s, too short to catch before
         # navigation stops it), then drives 3 s east from step 4
         after_line=r"\[run\] step 3/",
         when_driving=True,
-        timeout_s=1500.0,
+        timeout_s=600.0 if realtime else 1500.0,
+        realtime=realtime,
     )
+
+
+@pytest.mark.slow
+def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_timeout(tmp_path):
+    run = _kill_while_driving(tmp_path, "navigation")
     assert [k.node for k in run.kills][:1] == ["navigation"], (run.lines[-20:], run.stderr)
     result = check_run(run.out)
     # the run ends with one line naming the first kill, and run.json holds it
@@ -54,22 +62,7 @@ def test_killing_the_velocity_gate_at_real_time_stops_the_base_within_its_timeou
     """The hardware chain (navigation -> gate -> base) with the twin at real time: a
     SIGKILLed gate sends no last zero, its last command stands at the base until the
     base's own watchdog (the gate's heartbeat silent, or the command stale) stops it."""
-    scenario, config = chaos_files(tmp_path, steps=6, realtime=True)
-    run = run_chaos(
-        scenario,
-        config,
-        tmp_path / "run",
-        kills=2,
-        seed=3,
-        first_s=1.0,
-        gap_s=(5.0, 10.0),
-        victims=GATE_VICTIMS,
-        first="velocity_gate",
-        after_line=r"\[run\] step 3/",
-        when_driving=True,
-        timeout_s=600.0,
-        realtime=True,
-    )
+    run = _kill_while_driving(tmp_path, "velocity_gate", realtime=True)
     assert [k.node for k in run.kills][:1] == ["velocity_gate"], (run.lines[-20:], run.stderr)
     result = check_run(run.out)
     assert run.returncode == EXIT_NODE, run.lines[-20:]

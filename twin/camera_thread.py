@@ -23,6 +23,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
+import cv2
 import numpy as np
 
 Frame = tuple[float, np.ndarray]  # (capture time [s], (H, W, 3) uint8 RGB)
@@ -143,8 +144,6 @@ class LensBlur:
         self.sigma_px = float(sigma_px)
 
     def render(self, *args: Any, **kwargs: Any) -> np.ndarray:
-        import cv2
-
         return cv2.GaussianBlur(self._renderer.render(*args, **kwargs), (0, 0), self.sigma_px)
 
     def __getattr__(self, name: str) -> Any:
