@@ -364,6 +364,47 @@ def test_perseus_stops_inside_an_iteration_at_its_limit(monkeypatch):
     _closed(pomdp, closure["alphas"], closure["actions"], closure["successors"])
 
 
+def test_perseus_stops_once_an_iteration_gains_less_than_its_tolerance():
+    """With a tolerance, Perseus ends after the first iteration that raised no sampled
+    belief's value by more than it: before its iteration cap, and the iteration before
+    that last one gained more (its stopping rule, not a count of iterations)."""
+    from stack.planning.pbvi import perseus
+
+    pomdp = _model("4x3.95.POMDP")
+    B = sample_beliefs(pomdp, [pomdp.b0], 200, np.random.default_rng(0))
+    tol = 1e-3 * (1 - pomdp.discount) / pomdp.discount
+    values = []
+    _, hist = perseus(pomdp, B, iterations=1000, rng=np.random.default_rng(0), tolerance=tol)
+    assert len(hist) < 1000
+    # the same run without the rule, as far: the values at the sampled beliefs per
+    # iteration show the last gain within the tolerance and the one before above it
+    for n in (len(hist) - 1, len(hist)):
+        pol, _ = perseus(pomdp, B, iterations=n, rng=np.random.default_rng(0))
+        values.append((pol.alphas @ B.T).max(axis=0))
+    pol, _ = perseus(pomdp, B, iterations=len(hist) - 2, rng=np.random.default_rng(0))
+    before = (pol.alphas @ B.T).max(axis=0)
+    assert np.max(values[1] - values[0]) <= tol < np.max(values[0] - before)
+
+
+def test_solve_pomdp_gives_perseus_its_share_only_of_a_long_time_limit():
+    """--perseus-share's default: 0.3 of a time limit of 10 s or more, none of a
+    shorter one or without a limit; a given share is kept."""
+    import argparse
+
+    from vigil.solving import solver_config
+
+    def share(**kw):
+        args = argparse.Namespace(beliefs=1000, iterations=1000, **kw)
+        return solver_config(args).perseus_share
+
+    assert share(time_limit=60.0, perseus_share=None) == 0.3
+    assert share(time_limit=10.0, perseus_share=None) == 0.3
+    assert share(time_limit=1.0, perseus_share=None) == 0.0
+    assert share(time_limit=None, perseus_share=None) == 0.0
+    assert share(time_limit=60.0, perseus_share=0.0) == 0.0
+    assert share(time_limit=5.0, perseus_share=0.5) == 0.5
+
+
 def test_dominated_vectors_are_dropped_and_the_set_stays_closed():
     from stack.planning.controller import pointwise_dominators, prune_closed
 

@@ -54,6 +54,7 @@ def _solver_args(
     algorithm: str = "sarsop",
     trials: int | None = None,
     relative_gap: float = 0.0,
+    beliefs: int = 300,
 ) -> None:
     p.add_argument(
         "--solver",
@@ -62,7 +63,7 @@ def _solver_args(
         help="sarsop: belief-tree search with a refined upper bound; perseus: the thesis's",
     )
     p.add_argument("--iterations", type=int, default=iterations, help="Perseus iterations")
-    p.add_argument("--beliefs", type=int, default=300, help="Perseus: sampled belief points")
+    p.add_argument("--beliefs", type=int, default=beliefs, help="Perseus: sampled belief points")
     p.add_argument(
         "--time-limit",
         type=float,
@@ -81,8 +82,9 @@ def _solver_args(
     p.add_argument(
         "--perseus-share",
         type=float,
-        default=0.0,
-        help="sarsop: share of the time limit for Perseus first, whose vectors seed the search",
+        default=None,
+        help="sarsop: share of the time limit for Perseus first, whose vectors seed the search "
+        "(default: 0.3 with a --time-limit of 10 s or more, else 0)",
     )
     p.add_argument(
         "--fib-time", type=float, default=0.0, help="Perseus: seconds for the fast informed bound"
@@ -267,7 +269,7 @@ def _task_solver_args(p: argparse.ArgumentParser) -> None:
     to the task solver (:data:`stack.planning.solve.TASK_CONFIG`)."""
     from stack.planning.solve import TASK_CONFIG as T
 
-    _solver_args(p, T.iterations, T.algorithm, T.trials, T.relative_gap)
+    _solver_args(p, T.iterations, T.algorithm, T.trials, T.relative_gap, T.beliefs)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -319,7 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
         "-o", "--output", help="policy file: exactly this path; .policy writes SARSOP's XML"
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    _solver_args(p, iterations=1000)
+    _solver_args(p, iterations=1000, beliefs=1000)
     p.add_argument(
         "--cpu-time",
         action="store_true",

@@ -12,9 +12,28 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r2.yaml"}
 
-# kept from --time-limit for writing the policy and exiting: 2 %, at least 0.3 s
+# kept from --time-limit for exiting (and the policy's file: the search measures how
+# long its vectors take to write and stops that much earlier): 2 %, at least 0.1 s with
+# a policy to write, 0.05 s without. RockSample_4_4 at load 3 needs ~0.65 s of a 1 s
+# limit wall (start-up ~0.45 s of it) and stopped after one backup with 0.3 s kept
 WRITE_RESERVE = 0.02
-WRITE_RESERVE_MIN_S = 0.3
+WRITE_RESERVE_MIN_S = 0.1
+EXIT_RESERVE_MIN_S = 0.05
+# --perseus-share's default: with a time limit of at least PERSEUS_FIRST_MIN_S, that
+# share of it goes first to Perseus, whose vectors seed the belief-tree search (the
+# best setting measured at 60 s on Hallway, Hallway2, TagAvoid and RockSample_5_7,
+# docs/BENCHMARKS.md; Perseus stops early on a model the search closes at once).
+# Shorter limits go to the search alone: RockSample_4_4 needs ~0.5 s of a 1 s limit.
+PERSEUS_FIRST_SHARE = 0.3
+PERSEUS_FIRST_MIN_S = 10.0
+
+
+def perseus_share(args: argparse.Namespace, limit: float | None) -> float:
+    """``--perseus-share``, or without it (None) the default for ``limit`` (s)."""
+    share = getattr(args, "perseus_share", None)
+    if share is not None:
+        return share
+    return PERSEUS_FIRST_SHARE if limit is not None and limit >= PERSEUS_FIRST_MIN_S else 0.0
 
 
 def solver_config(args: argparse.Namespace):
@@ -26,11 +45,12 @@ def solver_config(args: argparse.Namespace):
     """
     from stack.planning.solve import SolverConfig
 
-    limit = getattr(args, "time_limit", None)
+    limit = whole = getattr(args, "time_limit", None)
     if limit is not None:
         if not (limit > 0 and limit < 1e9):
             raise ValueError(f"--time-limit must be a positive number of seconds, got {limit}")
-        limit = max(limit * 0.5, limit - max(limit * WRITE_RESERVE, WRITE_RESERVE_MIN_S))
+        least = WRITE_RESERVE_MIN_S if getattr(args, "output", None) else EXIT_RESERVE_MIN_S
+        limit = max(limit * 0.5, limit - max(limit * WRITE_RESERVE, least))
     # a hand-made Namespace (older callers) gets the task defaults for what it lacks
     return SolverConfig(
         algorithm=getattr(args, "solver", "perseus"),
@@ -42,7 +62,7 @@ def solver_config(args: argparse.Namespace):
         target_gap=getattr(args, "target_gap", 1e-3),
         relative_gap=getattr(args, "relative_gap", 0.0),
         trials=getattr(args, "trials", None),
-        perseus_share=getattr(args, "perseus_share", 0.0),
+        perseus_share=perseus_share(args, whole),
         dual_paths=getattr(args, "dual_paths", 0),
         delayed_bound=getattr(args, "delayed_bound", False),
         # writing a vector entry as XML text takes ~0.4 us on an idle core, more under

@@ -342,6 +342,7 @@ def perseus(
     progress: Callable[[IterationStats], None] | None = None,
     b0: np.ndarray | None = None,
     closure: dict | None = None,
+    tolerance: float | None = None,
 ) -> tuple[AlphaPolicy, list[IterationStats]]:
     """Perseus: randomised point-based value iteration over a fixed belief set.
 
@@ -359,6 +360,11 @@ def perseus(
             they lead to. Perseus replaces its set every iteration, so its vectors are
             values of plans whose later steps are earlier vectors; with those kept the
             best vector's policy earns the bound (stack/planning/controller.py).
+        tolerance: stop after an iteration that raised no belief's value by more than
+            this (None: run every iteration, or until the time limit). The rest of the
+            value a set can gain is about gain * discount / (1 - discount), so
+            ``target_gap * (1 - discount) / discount`` stops once Perseus can add less
+            than a search's gap target.
 
     Returns:
         The policy and the per-iteration statistics.
@@ -430,6 +436,8 @@ def perseus(
         if progress:
             progress(stats)
         if time_limit_s is not None and stats.elapsed_s > time_limit_s:
+            break
+        if tolerance is not None and float(np.max((alphas @ B.T).max(axis=0) - old)) <= tolerance:
             break
     if closure is not None:
         order = list(dict.fromkeys(int(g) for g in gids))  # the final set, duplicates once

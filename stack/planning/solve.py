@@ -224,6 +224,10 @@ def _solve_search(pomdp, config, starts, seed_alphas, progress, start) -> SolveR
                 time_limit_s=budget,
                 b0=starts[0],
                 closure=closure,
+                # a model the search solves at once (Tiger, 4x3) ends Perseus early
+                tolerance=config.target_gap * (1 - pomdp.discount) / pomdp.discount
+                if 0 < pomdp.discount < 1
+                else None,
             )
         # Perseus's final vectors, and (archived, not searched with) the earlier ones
         # they lead to: with them the policy earns its bound (controller.py)
