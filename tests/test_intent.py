@@ -194,7 +194,7 @@ def test_distances_to_rectangles():
 
 
 def test_tracker_keeps_one_belief_per_person_and_forgets_the_lost():
-    tracker = IntentTracker(GRID, [1, 12], drop_after_s=5.0)
+    tracker = IntentTracker(GoalInference(GRID, [1, 12]), drop_after_s=5.0)
     east = walk([DOOR, (5.5, 0.75)], seed=1)
     west = walk([DOOR, (0.5, 2.25)], seed=2)
     for (_, a), (_, b) in zip(east[:25], west[:25], strict=True):
@@ -258,7 +258,7 @@ def test_rationality_fitted_on_walks_drawn_with_a_known_beta_comes_back(beta, la
         (lambda: GoalInference(GRID, [1, 1]), "restricted_cells"),
         (lambda: GoalInference(GRID, []), "restricted_cells"),
         (lambda: GoalInference(GRID, [1], exits=[(1.0, math.inf)]), "exits[0]"),
-        (lambda: IntentTracker(GRID, [1], drop_after_s=0.0), "drop_after_s"),
+        (lambda: IntentTracker(GoalInference(GRID, [1]), drop_after_s=0.0), "drop_after_s"),
         (lambda: fit_rationality([], GRID), "tracks"),
         (lambda: fit_rationality([LabelledTrack(1, ())], GRID), "tracks"),
         (lambda: fit_rationality([LabelledTrack(99, ())], GRID), "goal"),

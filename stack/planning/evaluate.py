@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -23,12 +25,21 @@ class Evaluation:
     returns: tuple[float, ...]
 
     def summary(self) -> dict:
-        return {
-            "mean": self.mean,
-            "ci95": self.ci95,
-            "episodes": self.episodes,
-            "horizon": self.horizon,
-        }
+        return summary_of(self)
+
+
+def summary_of(result: Any, exclude: Sequence[str] = ("returns",)) -> dict[str, Any]:
+    """A result dataclass's fields by name, in their order, less ``exclude`` (by
+    default the per-episode returns): the summary an evaluation prints as JSON."""
+    return {f.name: getattr(result, f.name) for f in fields(result) if f.name not in exclude}
+
+
+def mean_ci95(returns: Sequence[float]) -> tuple[float, float]:
+    """The mean of the episodes' returns and the half-width of its 95 % confidence
+    interval (1.96 standard errors; inf for a single episode)."""
+    x = np.asarray(returns)
+    ci = 1.96 * x.std(ddof=1) / math.sqrt(len(x)) if len(x) > 1 else float("inf")
+    return float(x.mean()), float(ci)
 
 
 def _update(pomdp: POMDP, OTa, b: np.ndarray, a: int, z: int) -> np.ndarray:
@@ -97,6 +108,5 @@ def _evaluate(pomdp, policy, episodes, horizon, seed, b0) -> Evaluation:
             z = draw_row(O[a], s, rng)
             b = _update(pomdp, OT[a], b, a, z)
         returns.append(total)
-    r = np.asarray(returns)
-    ci = 1.96 * r.std(ddof=1) / math.sqrt(len(r)) if len(r) > 1 else float("inf")
-    return Evaluation(float(r.mean()), float(ci), episodes, horizon, tuple(float(x) for x in r))
+    mean, ci = mean_ci95(returns)
+    return Evaluation(mean, ci, episodes, horizon, tuple(float(x) for x in returns))

@@ -19,7 +19,6 @@ robot's own moves differ. The planner's wall time per decision is recorded.
 from __future__ import annotations
 
 import json as jsonlib
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -29,7 +28,7 @@ from typing import Protocol
 import numpy as np
 
 from stack.planning.baselines import GreedyPlanner, SinglePlanner, single_person_policy
-from stack.planning.evaluate import default_horizon
+from stack.planning.evaluate import default_horizon, mean_ci95, summary_of
 from stack.planning.factored import PeopleBelief, PeopleModel
 from stack.planning.online import OnlineConfig, OnlinePlanner
 from stack.planning.task import Task, load_task
@@ -58,15 +57,7 @@ class PeopleEvaluation:
     returns: tuple[float, ...]
 
     def summary(self) -> dict:
-        return {
-            "planner": self.planner,
-            "mean": self.mean,
-            "ci95": self.ci95,
-            "episodes": self.episodes,
-            "horizon": self.horizon,
-            "decision_ms_median": self.decision_ms_median,
-            "decision_ms_p99": self.decision_ms_p99,
-        }
+        return summary_of(self)
 
     def line(self) -> str:
         return (
@@ -143,18 +134,17 @@ def run_episodes(
                     obs += [z // V, z % V]
                 b = b.update(pm, a, tuple(obs))
             returns.append(total)
-    x = np.asarray(returns)
-    ci = 1.96 * x.std(ddof=1) / math.sqrt(len(x)) if len(x) > 1 else float("inf")
+    mean, ci = mean_ci95(returns)
     ms = np.asarray(times) * 1e3
     return PeopleEvaluation(
         planner.name,
-        float(x.mean()),
-        float(ci),
+        mean,
+        ci,
         episodes,
         horizon,
         float(np.median(ms)),
         float(np.percentile(ms, 99)),
-        tuple(float(v) for v in x),
+        tuple(float(v) for v in returns),
     )
 
 

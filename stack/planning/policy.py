@@ -386,6 +386,11 @@ def read_policy_xml(
     return AlphaPolicy(alphas, actions_arr, meta, blocks=blocks, obs=np.asarray(obs, dtype=int))
 
 
+def relative_gap(lower: float, upper: float) -> float:
+    """The gap between two bounds as a fraction of the larger magnitude of the two."""
+    return (upper - lower) / max(abs(lower), abs(upper), 1e-12)
+
+
 class BoundedResult:
     """What a solve reports about its bounds; mixed into the solvers' result dataclasses
     (which hold ``policy``, ``lower_bound``, ``upper_bound``, ``seconds``)."""
@@ -401,7 +406,7 @@ class BoundedResult:
 
     @property
     def relative_gap(self) -> float:
-        return self.gap / max(abs(self.lower_bound), abs(self.upper_bound), 1e-12)
+        return relative_gap(self.lower_bound, self.upper_bound)
 
     @property
     def n_iterations(self) -> int:

@@ -161,6 +161,31 @@ class _Budget:
             )
 
 
+def _cond_probs(
+    tables: ET.Element | None,
+    variables: dict[str, _Var],
+    path: str | os.PathLike,
+    children: list[str],
+    parents: list[str],
+    kind: str,
+    naming: str,
+) -> dict[str, tuple[list[str], np.ndarray]]:
+    """The ``<CondProb>`` tables under ``tables``, one per variable of ``children``,
+    each over ``parents`` only, by child (``kind`` and ``naming`` word the errors:
+    "two {kind} tables", "{naming} 'x' has unsupported parents")."""
+    cpts: dict[str, tuple[list[str], np.ndarray]] = {}
+    for cp in [] if tables is None else tables.findall("CondProb"):
+        order, arr = _table(cp, variables, "ProbTable")
+        if order[-1] not in children or any(p not in parents for p in order[:-1]):
+            raise PomdpxError(f"{path}: {naming} {order[-1]!r} has unsupported parents")
+        if order[-1] in cpts:
+            raise PomdpxError(f"{path}: two {kind} tables for {order[-1]!r}")
+        cpts[order[-1]] = (order, arr)
+    if set(cpts) != set(children):
+        raise PomdpxError(f"{path}: no {kind} table for {sorted(set(children) - set(cpts))}")
+    return cpts
+
+
 def _fix_action(
     order: list[str], arr: np.ndarray, act: str, a: int
 ) -> tuple[np.ndarray, list[str]]:
@@ -290,16 +315,7 @@ def read_pomdpx(path: str | os.PathLike) -> POMDP:
     tables = root.find("StateTransitionFunction")
     if tables is None:
         raise PomdpxError(f"{path}: no <StateTransitionFunction>")
-    cpts: dict[str, tuple[list[str], np.ndarray]] = {}
-    for cp in tables.findall("CondProb"):
-        order, arr = _table(cp, variables, "ProbTable")
-        if order[-1] not in curr or any(p not in [act, *prev] for p in order[:-1]):
-            raise PomdpxError(f"{path}: transition of {order[-1]!r} has unsupported parents")
-        if order[-1] in cpts:
-            raise PomdpxError(f"{path}: two transition tables for {order[-1]!r}")
-        cpts[order[-1]] = (order, arr)
-    if set(cpts) != set(curr):
-        raise PomdpxError(f"{path}: no transition table for {sorted(set(curr) - set(cpts))}")
+    cpts = _cond_probs(tables, variables, path, curr, [act, *prev], "transition", "transition of")
     T = []
     for a in range(A):
         factors = [_factor_rows(*cpts[c], act, a, value_of, S) for c in curr]
@@ -310,17 +326,8 @@ def read_pomdpx(path: str | os.PathLike) -> POMDP:
     # observation variables' joint value, each observation variable's table given (a, s')
     seen = [c for c, f in zip(curr, fully, strict=True) if f]
 
-    ocpts: dict[str, tuple[list[str], np.ndarray]] = {}
     ofun = root.find("ObsFunction")
-    for cp in [] if ofun is None else ofun.findall("CondProb"):
-        order, arr = _table(cp, variables, "ProbTable")
-        if order[-1] not in obs or any(p not in [act, *curr] for p in order[:-1]):
-            raise PomdpxError(f"{path}: observation {order[-1]!r} has unsupported parents")
-        if order[-1] in ocpts:
-            raise PomdpxError(f"{path}: two observation tables for {order[-1]!r}")
-        ocpts[order[-1]] = (order, arr)
-    if set(ocpts) != set(obs):
-        raise PomdpxError(f"{path}: no observation table for {sorted(set(obs) - set(ocpts))}")
+    ocpts = _cond_probs(ofun, variables, path, obs, [act, *curr], "observation", "observation")
     seen_sizes = [len(variables[c].values) for c in seen]
     seen_rows = None
     if seen:  # the fully observed values join the observation

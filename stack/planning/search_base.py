@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from stack.planning import clock
-from stack.planning.policy import AlphaPolicy, BoundedResult
+from stack.planning.policy import AlphaPolicy, BoundedResult, relative_gap
 
 
 class SolveError(RuntimeError):
@@ -99,7 +99,7 @@ class SearchStats:
 
 
 def format_search_progress(s: SearchStats) -> str:
-    rel = s.gap / max(abs(s.lower), abs(s.upper), 1e-12)
+    rel = relative_gap(s.lower, s.upper)
     return (
         f"{s.elapsed_s:7.2f} s  LB {s.lower:11.5f}  UB {s.upper:11.5f}  gap {s.gap:10.5f} "
         f"({100 * rel:6.2f} %)  vectors {s.n_alphas:5d}  points {s.n_points:6d}  "

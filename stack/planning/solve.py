@@ -20,7 +20,7 @@ from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
 from stack.planning.dual import DUAL_BATCH
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
-from stack.planning.policy import AlphaPolicy, BoundedResult
+from stack.planning.policy import AlphaPolicy, BoundedResult, relative_gap
 from stack.planning.pomdp import POMDP
 from stack.planning.threads import blas_threads
 
@@ -113,9 +113,7 @@ class SolveResult(BoundedResult):
         if self.dual is not None:
             out |= self.dual.summary()
             # the same measure as relative_gap, with the dual bound as the upper
-            out["dual_relative_gap"] = (self.dual.upper - self.lower_bound) / max(
-                abs(self.lower_bound), abs(self.dual.upper), 1e-12
-            )
+            out["dual_relative_gap"] = relative_gap(self.lower_bound, self.dual.upper)
         elif self.dual_note:
             out["dual_note"] = self.dual_note
         if self.delayed is not None:

@@ -53,46 +53,9 @@ Pure numpy; no ROS. Limits: the floor is open (no obstacles in the distances);
 "elsewhere" is one aggregate for the caller.
 """
 
-from stack.planning.intent.fit import (
-    LabelledTrack,
-    RationalityFit,
-    fit_rationality,
-    simulate_goal_walk,
-    track_log_likelihood,
-)
-from stack.planning.intent.inference import (
-    CellForecast,
-    GoalInference,
-    IntentEstimate,
-    IntentTracker,
-)
-from stack.planning.intent.model import (
-    WANDER,
-    Goal,
-    IntentConfig,
-    TrackObservation,
-    boltzmann_likelihood,
-    distances_to,
-    make_goals,
-    step_progress,
-)
+from stack.planning.intent import fit, inference, model
+from stack.planning.intent.fit import *  # noqa: F403 (each part names its public API in __all__)
+from stack.planning.intent.inference import *  # noqa: F403
+from stack.planning.intent.model import *  # noqa: F403
 
-__all__ = [
-    "WANDER",
-    "CellForecast",
-    "Goal",
-    "GoalInference",
-    "IntentConfig",
-    "IntentEstimate",
-    "IntentTracker",
-    "LabelledTrack",
-    "RationalityFit",
-    "TrackObservation",
-    "boltzmann_likelihood",
-    "distances_to",
-    "fit_rationality",
-    "make_goals",
-    "simulate_goal_walk",
-    "step_progress",
-    "track_log_likelihood",
-]
+__all__ = [*model.__all__, *inference.__all__, *fit.__all__]

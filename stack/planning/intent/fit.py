@@ -34,6 +34,14 @@ from stack.planning.intent.model import (
     step_progress,
 )
 
+__all__ = [
+    "LabelledTrack",
+    "RationalityFit",
+    "fit_rationality",
+    "simulate_goal_walk",
+    "track_log_likelihood",
+]
+
 GoalSpec = int | tuple[float, float]  # a cell number, or a map point [m]
 
 

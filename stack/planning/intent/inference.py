@@ -24,6 +24,8 @@ from stack.planning.intent.model import (
     step_progress,
 )
 
+__all__ = ["CellForecast", "GoalInference", "IntentEstimate", "IntentTracker"]
+
 
 @dataclass(frozen=True)
 class CellForecast:
@@ -147,6 +149,7 @@ class GoalInference:
         self.config = config = IntentConfig() if config is None else config
         self.grid = grid
         self.restricted = tuple(int(c) for c in restricted_cells)
+        self.exits = tuple(exits)
         self.goals = make_goals(grid, self.restricted, exits, config.other_cells_as_goals)
         self._doors = np.array([(float(x), float(y)) for x, y in exits], dtype=float).reshape(-1, 2)
         self._rects = np.array([g.rect for g in self.goals if g.rect is not None], dtype=float)
@@ -178,6 +181,11 @@ class GoalInference:
     ) -> GoalInference:
         """For a :class:`stack.planning.task.Task` (its grid and restricted cells)."""
         return cls(task.grid, task.restricted_cells, config, exits)
+
+    def fresh(self) -> GoalInference:
+        """A new inference with the same parameters (grid, cells, config, exits), at
+        the prior: another person's."""
+        return type(self)(self.grid, self.restricted, self.config, self.exits)
 
     def reset(self) -> None:
         """Forget the person: the prior, no position."""
@@ -277,25 +285,19 @@ class GoalInference:
 
 
 class IntentTracker:
-    """Goal inference for several people, keyed by track id.
+    """Goal inference for several people, keyed by track id: each person's
+    :class:`GoalInference` is a :meth:`~GoalInference.fresh` copy of ``template``.
 
     Args:
-        grid, restricted_cells, config, exits: as for :class:`GoalInference`.
+        template: the inference every new person starts as (its grid, restricted
+            cells, config and exits; e.g. ``GoalInference(grid, cells)``).
         drop_after_s: a track not observed for this long is forgotten.
     """
 
-    def __init__(
-        self,
-        grid: CellGrid,
-        restricted_cells: Sequence[int],
-        config: IntentConfig | None = None,
-        exits: Sequence[tuple[float, float]] = (),
-        drop_after_s: float = 10.0,
-    ):
+    def __init__(self, template: GoalInference, drop_after_s: float = 10.0):
         if not drop_after_s > 0:
             raise ConfigError("drop_after_s", drop_after_s, "must be > 0 s")
-        GoalInference(grid, restricted_cells, config, exits)  # validate once, up front
-        self._args = (grid, tuple(restricted_cells), config, tuple(exits))
+        self.template = template
         self.drop_after_s = drop_after_s
         self.people: dict[int, GoalInference] = {}
 
@@ -308,7 +310,7 @@ class IntentTracker:
         for obs in observations:
             person = self.people.get(obs.track_id)
             if person is None:
-                person = self.people[obs.track_id] = GoalInference(*self._args)
+                person = self.people[obs.track_id] = self.template.fresh()
             person.update(obs)
         return self.predict(t)
 

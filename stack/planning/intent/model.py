@@ -16,6 +16,17 @@ import numpy as np
 from stack.cells import CellGrid, ConfigError
 from stack.config import Config
 
+__all__ = [
+    "WANDER",
+    "Goal",
+    "IntentConfig",
+    "TrackObservation",
+    "boltzmann_likelihood",
+    "distances_to",
+    "make_goals",
+    "step_progress",
+]
+
 WANDER = "wander"
 SMOOTHING_S = 0.3  # time constant of the position smoothing when a track has no velocity [s]
 

@@ -228,33 +228,13 @@ class Parser(PreambleParser):
         a = self.one_token(parts[0], "action", k, head)
         acts = self.expand(a, A)
         if len(parts) == 2:  # R: a : s  + matrix over (s', z)
-            toks = parts[1].split()
-            if not toks:
-                raise self.error(k, f"expected a state in '{head}'")
-            head = f"{head} : {toks[0]}"
-            s = self.resolve("state", toks[0], k, head)
-            mat = self.numbers(toks[1:], k, head, "rewards")
-            if mat.size != S * Z:
-                raise self.error(
-                    k, f"expected {S * Z} rewards ({S} x {Z} matrix) after '{head}', got {mat.size}"
-                )
-            self.check_finite(mat, k, head)
+            s, mat = self.state_rewards(k, parts[1], head, "state", S * Z, f"{S} x {Z} matrix")
             R.set_matrix(acts, self.expand(s, S), mat.reshape(S, Z))
             return
         s = self.one_token(parts[1], "state", k, head)
         rows = self.expand(s, S)
         if len(parts) == 3:  # R: a : s : s'  + row over z
-            toks = parts[2].split()
-            if not toks:
-                raise self.error(k, f"expected a next state in '{head}'")
-            head = f"{head} : {toks[0]}"
-            n = self.resolve("state", toks[0], k, head)
-            vec = self.numbers(toks[1:], k, head, "rewards")
-            if vec.size != Z:
-                raise self.error(
-                    k, f"expected {Z} rewards (one per observation) after '{head}', got {vec.size}"
-                )
-            self.check_finite(vec, k, head)
+            n, vec = self.state_rewards(k, parts[2], head, "next state", Z, "one per observation")
             R.set_row(acts, rows, n, vec)
             return
         n = self.one_token(parts[2], "state", k, head)
@@ -267,6 +247,24 @@ class Parser(PreambleParser):
         v = self.numbers(toks[1:], k, head, "a reward")
         self.check_finite(v, k, head)
         R.set_value(acts, rows, n, z, float(v[0]))
+
+    def state_rewards(
+        self, k: int, field: str, head: str, what: str, size: int, layout: str
+    ) -> tuple[int, np.ndarray]:
+        """The ``<state> <reward> ...`` field of an ``R:`` entry: the state (the
+        entry's ``what``) and its ``size`` finite rewards (``layout`` in the error)."""
+        toks = field.split()
+        if not toks:
+            raise self.error(k, f"expected a {what} in '{head}'")
+        head = f"{head} : {toks[0]}"
+        s = self.resolve("state", toks[0], k, head)
+        values = self.numbers(toks[1:], k, head, "rewards")
+        if values.size != size:
+            raise self.error(
+                k, f"expected {size} rewards ({layout}) after '{head}', got {values.size}"
+            )
+        self.check_finite(values, k, head)
+        return s, values
 
     def check_finite(self, v: np.ndarray, k: int, head: str) -> None:
         if not np.isfinite(v).all():
