@@ -255,8 +255,11 @@ def test_a_new_target_sends_the_trip_at_once_and_the_step_keeps_its_length():
     for k, p in enumerate(walk((7.0, 2.5), (6.2, 1.6))):  # cell 2 all along: no person event
         out += [(0.25 * (k + 1), c) for c in steps.on_observation(0.25 * (k + 1), observed(p))]
     acts = [(t, c.action, c.goal_id) for t, c in out if c.kind == "act"]
-    assert acts and acts[0][1:] == ("To 1", 1)  # the same step's goal
-    assert acts[0][0] < 2.5 and len(acts) == 1  # before the step could end, and once
+    # first, maybe, the standby trip to the cell beside 1 (the robot starts elsewhere);
+    # then the trip into 1: both under the same step's goal id
+    assert acts and all(g == 1 for _, _, g in acts)
+    assert [a for _, a, _ in acts] in (["To 1"], ["To 3", "To 1"])
+    assert acts[-1][0] < 2.5  # before the step could end, and once
     assert not [c for _, c in out if c.kind == "record"]
     assert steps.waiting == "nav" and agent.anticipated["revised"] == "To 1"
 
@@ -285,3 +288,104 @@ def test_the_first_steps_through_the_doorway_are_no_evidence_of_a_goal():
         if ant.target == 1:
             break
     assert ant.target == 1 and p[1] > 2.0  # still north of cell 1's row, 1.3 m off
+
+
+def _estimate(p1: float, eta1: float, p12: float = 0.0, eta12: float = 99.0):
+    from stack.planning.intent import CellForecast, IntentEstimate
+
+    return IntentEstimate(
+        t=0.0,
+        forecasts=(CellForecast(1, p1, 1.0, eta1), CellForecast(12, p12, 1.0, eta12)),
+        p_elsewhere=1.0 - p1 - p12,
+        inside=None,
+        position_m=(6.5, 3.0),
+        speed_mps=1.0,
+        moving=True,
+        age_s=0.0,
+    )
+
+
+def test_expected_lateness_weighs_each_late_arrival_by_its_goal_probability():
+    from stack.planning.anticipate import expected_lateness
+
+    trip_s = {1: {6: 5.0, 3: 1.0}, 12: {6: 6.0, 3: 11.0}}
+    est = _estimate(0.5, 2.0, 0.25, 8.0)
+    # from 6: 3 s late to 1 (x 0.5), first at 12; from 3: first at 1, 3 s late to 12
+    assert expected_lateness(trip_s, [est], 6) == pytest.approx(1.5)
+    assert expected_lateness(trip_s, [est], 3) == pytest.approx(0.75)
+    # two people: the sum; nobody heading anywhere: no lateness
+    assert expected_lateness(trip_s, [est, est], 6) == pytest.approx(3.0)
+    assert expected_lateness(trip_s, [_estimate(0.0, 2.0)], 6) == 0.0
+
+
+def test_the_robot_stands_by_nearer_the_cell_a_person_may_be_heading_for():
+    """Two restricted cells far apart (1 south-east, 12 north-west): a person walking
+    from the door toward cell 1's side draws the standby cell toward 1 before the
+    goal is clear; one walking west toward 12 draws it toward 12; and without anyone
+    seen there is nothing to stand by for (the policy decides)."""
+    cfg = AnticipationConfig(exits_m=((7.0, 5.2),))
+    standby = {}
+    for name, end in (("east", (5.8, 2.4)), ("west", (1.6, 3.4))):
+        ant = Anticipator(GRID, (1, 12), cfg)
+        for k, p in enumerate(walk((6.5, 3.6), end)):
+            ant.observe(0.25 * k, p, robot_cell=6)
+            if ant.target is not None:  # the goal is clear: the standby is over
+                assert ant.standby is None
+                break
+            if ant.standby is not None:  # the last one before the goal is clear
+                standby[name] = ant.standby
+                assert ant.standby not in (1, 12)
+                assert ant.advise(6, "Do nothing") == f"To {ant.standby}"
+    trips = {r: Anticipator.trip_lengths(GRID, r, "trip") for r in (1, 12)}
+    assert trips[1][standby["east"]] < trips[1][6]  # nearer cell 1 than the watch cell
+    assert trips[12][standby["west"]] < trips[12][6]
+    idle = Anticipator(GRID, (1, 12), cfg)
+    idle.observe(0.0, None, robot_cell=6)
+    assert idle.standby is None and idle.advise(6, "Do nothing") is None
+    off = Anticipator(GRID, (1, 12), AnticipationConfig(standby=False))
+    for k, p in enumerate(walk((6.5, 3.6), (5.8, 2.4))):
+        off.observe(0.25 * k, p, robot_cell=6)
+    assert off.standby is None
+
+
+def test_the_standby_cell_changes_only_for_a_gain_of_its_margin():
+    ant = Anticipator(GRID, (1, 12), AnticipationConfig(standby_margin_s=0.3))
+    est = _estimate(0.6, 3.0, 0.1, 8.0)
+    best = ant.choose_standby([est], 6, None)
+    assert best is not None and best != 6
+    # a cell in hand that is no more than the margin worse than the best is kept
+    costs = {w: ant.lateness([est], w) for w in GRID.cells if w not in (1, 12)}
+    near = [w for w in costs if w != best and costs[w] - costs[best] < 0.3]
+    far = [w for w in costs if costs[w] - costs[best] >= 0.3]
+    for w in near:
+        assert ant.choose_standby([est], 6, w) == w
+    for w in far:
+        assert ant.choose_standby([est], 6, w) == best
+    assert near or far
+
+
+def test_several_people_stand_by_as_one_when_only_one_is_seen():
+    """The n-person layer's standby is the one-person layer's on the same walk while the
+    other slot sees nobody; a second walker seen heading the other way moves it."""
+    from stack.planning.anticipate import PeopleAnticipator
+
+    cfg = AnticipationConfig(exits_m=((7.0, 5.2),))
+    one = Anticipator(GRID, (1, 12), cfg)
+    two = PeopleAnticipator(GRID, (1, 12), cfg, people=2)
+    path = walk((6.5, 3.6), (5.8, 2.4))
+    for k, p in enumerate(path):
+        one.observe(0.25 * k, p, robot_cell=6)
+        two.observe(0.25 * k, [p, None], robot_cell=6)
+        assert (two.target, two.standby) == (one.target, one.standby)
+    assert one.standby is not None  # the walk drew it
+    both = PeopleAnticipator(GRID, (1, 12), cfg, people=2)
+    west = walk((3.0, 3.6), (1.2, 3.3))
+    standbys = []
+    for k, (p, q) in enumerate(zip(path, west, strict=False)):
+        both.observe(0.25 * k, [p, q], robot_cell=6)
+        if both.target is None and both.standby is not None:
+            standbys.append(both.standby)
+    # the walker heading west draws the robot nearer cell 12 than the one-person
+    # standby, which leaned toward 1
+    trips = {r: Anticipator.trip_lengths(GRID, r, "trip") for r in (1, 12)}
+    assert standbys and all(trips[12][w] < trips[12][one.standby] for w in standbys)

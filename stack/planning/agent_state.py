@@ -24,7 +24,7 @@ import numpy as np
 
 from stack.config import read_text_capped
 from stack.files import write_atomic
-from stack.planning.anticipate import Anticipating
+from stack.planning.anticipating import Anticipating
 from stack.vocabulary import ACTIONS, DIRECTIONS
 
 # the state file's fields every agent has, in the file's order (then its belief's)

@@ -8,8 +8,10 @@ layer: the person's observed floor positions feed Bayesian goal inference
 cell or elsewhere), and while the person is believed to be heading for a restricted
 cell the robot drives straight there at top speed (a navigation trip, "To 1"; or with
 ``motion: cells`` the first move of a shortest path of cell moves) instead of the
-policy's action. The policy decides everything else: waiting at rest, coming back, and
-whatever it does while the person is not seen.
+policy's action. While a person is seen and no cell is the target yet, the robot
+stands by in the cell where its expected lateness is least (``standby``). The policy
+decides everything else: waiting at rest, coming back, and whatever it does while
+nobody is seen.
 
 - heading for cell c starts when P(goal = c) reaches ``go_probability`` and stops
   when it falls under ``stay_probability`` (hysteresis: a person who pauses on the
@@ -18,7 +20,11 @@ whatever it does while the person is not seen.
   (the trip there, not the policy's cell moves with a stop at each);
 - with the robot in the target cell it waits there (the policy values the cell only
   with the person in it, and would leave);
-- a change of target is an event: the planner decides again at once
+- standing by: the cell, not restricted, that minimises the sum over the people seen
+  and the restricted cells c of P(goal = c) times how much later than the person the
+  robot would reach c from there (two restricted cells far apart: a person coming in
+  at the door beside one draws the robot toward it before their goal is clear);
+- a change of target or standby cell is an event: the planner decides again at once
   (:class:`stack.planning.stepper.DecisionSteps`), not at the end of the step.
 
 Pure (numpy): the planner node and the in-process loop run it through
@@ -37,7 +43,7 @@ from typing import Any
 from stack.cells import MOVING_DIRECTIONS, CellGrid
 from stack.config import Config, require
 from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
-from stack.vocabulary import ACTIONS, TRIP_INSET_M, parse_trip, trip_command
+from stack.vocabulary import TRIP_INSET_M, trip_command
 
 PERSON_MODELS = ("thesis", "goal")
 MOTIONS = ("trip", "cells")
@@ -66,6 +72,14 @@ class AnticipationConfig(Config):
     exits_m: the room's doorways (map points, m): a person walking out is heading for
         one of them, not for the restricted cell on the way (without them a walk to a
         door beside a restricted cell looks like a visit).
+    standby: while a person is seen and no restricted cell is the target yet, wait in
+        the cell (not restricted) where the robot's expected lateness is least: the sum
+        over people and restricted cells of P(goal = c) times how much later than the
+        person the robot would reach c from there (:func:`expected_lateness`). With two
+        restricted cells far apart, a person coming in at the door beside one draws the
+        robot toward it before their goal is clear, and back as they head for the other.
+    standby_margin_s: move to a better waiting cell only when it cuts the expected
+        lateness by at least this (s): no back and forth on small changes of belief.
     intent: the goal inference (:class:`stack.planning.intent.IntentConfig`).
     """
 
@@ -79,6 +93,8 @@ class AnticipationConfig(Config):
     enter_probability: float = 0.6
     max_unseen_s: float = 2.0
     exits_m: tuple[tuple[float, float], ...] = ()
+    standby: bool = True
+    standby_margin_s: float = 0.3
     intent: IntentConfig = field(default_factory=IntentConfig)
 
     def __post_init__(self) -> None:
@@ -94,6 +110,8 @@ class AnticipationConfig(Config):
                 self.enter_probability, "must be in [0, 1]")  # fmt: skip
         require(0.0 < self.max_unseen_s < 60.0, "max_unseen_s", self.max_unseen_s,
                 "must be in (0, 60) s")  # fmt: skip
+        require(0.0 <= self.standby_margin_s <= 60.0, "standby_margin_s",
+                self.standby_margin_s, "must be in [0, 60] s")  # fmt: skip
 
 
 def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
@@ -156,6 +174,22 @@ def watch_cell(grid: CellGrid, restricted_cells: tuple[int, ...]) -> int:
     return min(candidates, key=cost)
 
 
+def expected_lateness(
+    trip_s: dict[int, dict[int, float]], estimates: Sequence[IntentEstimate], cell: int
+) -> float:
+    """The robot's expected lateness (s) waiting in ``cell``: over the people's goal
+    beliefs (``estimates``) and the restricted cells c, P(goal = c) times how much
+    later than the person's predicted entry the robot's trip from ``cell`` into c
+    (``trip_s[c][cell]``, s) would arrive, or nothing when it arrives first."""
+    total = 0.0
+    for est in estimates:
+        for f in est.forecasts:
+            late = trip_s[f.cell].get(cell, math.inf) - f.eta_s
+            if late > 0 and f.probability > 0:
+                total += f.probability * late
+    return total
+
+
 class Anticipator:
     """Goal inference on one person's observed positions and the move it advises.
 
@@ -171,9 +205,15 @@ class Anticipator:
         self.inference = GoalInference(grid, restricted_cells, config.intent, config.exits_m)
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
+        self.standby: int | None = None  # where to wait for the target (config.standby)
         # trip lengths from every cell to each restricted cell (moves are symmetric;
         # a trip: straight from the cell's centre to the nearest point inside)
         self._trip_m = {r: self.trip_lengths(grid, r, config.motion) for r in self.restricted}
+        self._trip_s = {
+            r: {c: m / config.robot_speed_mps for c, m in trips.items()}
+            for r, trips in self._trip_m.items()
+        }
+        self._waits = tuple(c for c in grid.cells if c not in self.restricted)
 
     @staticmethod
     def trip_lengths(grid: CellGrid, cell: int, motion: str) -> dict[int, float]:
@@ -220,7 +260,39 @@ class Anticipator:
                 best == self.target or self._due(est, best, robot_cell)
             ):
                 self.target = best
-        return self.target != before
+        held = self.standby
+        self.standby = self.choose_standby(
+            [] if unseen or self.target is not None else [est], robot_cell, held
+        )
+        return self.target != before or self.standby != held
+
+    def lateness(self, estimates: Sequence[IntentEstimate], cell: int) -> float:
+        """The robot's expected lateness (s) waiting in ``cell``, at its trip speed
+        (:func:`expected_lateness`)."""
+        return expected_lateness(self._trip_s, estimates, cell)
+
+    def choose_standby(
+        self, estimates: Sequence[IntentEstimate], robot_cell: int | None, held: int | None
+    ) -> int | None:
+        """Where to wait (``config.standby``) for the people seen (``estimates``; none:
+        nowhere, the policy decides): the cell in hand (``held``, else the robot's) while
+        no other cuts the expected lateness by ``standby_margin_s``, else the best one
+        (ties: the nearer to the robot). None when there is nothing to wait for."""
+        if not self.config.standby or not estimates or robot_cell is None:
+            return None
+        # the robot's own cell counts even when restricted: a robot that has just
+        # guarded a visit is not pulled out while the person may still be inside
+        waits = self._waits if robot_cell in self._waits else (*self._waits, robot_cell)
+        cost = {w: self.lateness(estimates, w) for w in waits}
+        here = held if held is not None else robot_cell
+        rx, ry = self.grid.center(robot_cell)
+        best = min(
+            self._waits,
+            key=lambda w: (round(cost[w], 6), math.dist((rx, ry), self.grid.center(w)), w),
+        )
+        if cost.get(here, math.inf) - cost[best] < self.config.standby_margin_s:
+            return held
+        return best
 
     def _due(self, est: IntentEstimate, cell: int, robot_cell: int | None) -> bool:
         """The person may be in ``cell`` within the robot's trip there plus ``lead_s``
@@ -245,7 +317,26 @@ class Anticipator:
             return None
         if self.target is not None:
             return self.move_to(robot_cell, self.target)
-        return self.hold_back(robot_cell, policy_action, [self.estimate])
+        return self.wait(robot_cell, self.standby, policy_action, [self.estimate])
+
+    def wait(
+        self,
+        robot_cell: int,
+        standby: int | None,
+        policy_action: str | None,
+        estimates: Sequence[IntentEstimate | None],
+    ) -> str | None:
+        """Without a target: the trip to the standby cell, or in it "Do nothing" (the
+        policy's moves into a restricted cell still pass :meth:`hold_back`); without a
+        standby cell, :meth:`hold_back`."""
+        if standby is not None and robot_cell != standby:
+            return self.move_to(robot_cell, standby)
+        held = self.hold_back(robot_cell, policy_action, estimates)
+        if held is not None or standby is None:
+            return held
+        direction = next((d for d in MOVING_DIRECTIONS if d.label == policy_action), None)
+        entering = None if direction is None else self.grid.neighbour(robot_cell, direction)
+        return None if entering in self.restricted else "Do nothing"
 
     def move_to(self, robot_cell: int, target: int) -> str:
         """The command toward ``target``: "Do nothing" in it, else the trip (or the
@@ -282,6 +373,7 @@ class Anticipator:
             return None
         return {
             "target": self.target,
+            "standby": self.standby,
             "p_goal": {str(c): round(self.estimate.p(c), 3) for c in self.restricted},
         }
 
@@ -310,6 +402,7 @@ class PeopleAnticipator:
         self.slots = [Anticipator(grid, restricted_cells, config) for _ in range(people)]
         self.config = config
         self.target: int | None = None
+        self.standby: int | None = None
 
     @classmethod
     def for_task(cls, task: Any) -> PeopleAnticipator | None:
@@ -328,9 +421,17 @@ class PeopleAnticipator:
         seen); returns whether the robot's target changed."""
         for k, slot in enumerate(self.slots):
             slot.observe(t, positions_m[k] if k < len(positions_m) else None, robot_cell)
-        before = self.target
+        before, held = self.target, self.standby
         self.target = self._choose()
-        return self.target != before
+        fresh = [
+            s.estimate
+            for s in self.slots
+            if s.estimate is not None and s.estimate.age_s <= self.config.max_unseen_s
+        ]
+        self.standby = self.slots[0].choose_standby(
+            [] if self.target is not None else fresh, robot_cell, held
+        )
+        return self.target != before or self.standby != held
 
     def _choose(self) -> int | None:
         ranked = []  # (visit under way first, likelier first, sooner first, target)
@@ -359,7 +460,8 @@ class PeopleAnticipator:
         first = self.slots[0]
         if self.target is not None:
             return first.move_to(robot_cell, self.target)
-        return first.hold_back(robot_cell, policy_action, [s.estimate for s in self.slots])
+        estimates = [s.estimate for s in self.slots]
+        return first.wait(robot_cell, self.standby, policy_action, estimates)
 
     def note(self) -> dict[str, Any] | None:
         """For the step record: the target and each slot's goal probabilities."""
@@ -368,82 +470,6 @@ class PeopleAnticipator:
             return None
         return {
             "target": self.target,
+            "standby": self.standby,
             "p_goal": [None if n is None else n["p_goal"] for n in notes],
         }
-
-
-class Anticipating:
-    """The anticipation layer in an agent (:class:`PlannerAgent`, and
-    :class:`~stack.planning.people_agent.PeopleAgent` for several people): the layer's
-    advice over the planner's action, the trip that goes out mid-step, and the track
-    the layer reads at every observation. The agent sets ``anticipator`` (None: the
-    planner alone) and ``grid``."""
-
-    anticipator: Anticipator | PeopleAnticipator | None
-    grid: CellGrid
-    robot_cell: int | None
-    anticipated: dict[str, Any] | None
-    action: int | None
-    command: str | None
-    phase: str
-
-    def advised(self, a: int) -> int:
-        """The step's model action from the planner's ``a`` and the layer's advice;
-        sets ``command`` (what navigation is sent: the action's name or a trip, which
-        the model counts as its first move) and ``anticipated`` (the record's note)."""
-        self.anticipated = None
-        move: str | None = None
-        if self.anticipator is not None:
-            move = self.anticipator.advise(self.robot_cell, ACTIONS[a])
-            note = self.anticipator.note()
-            if note is not None:
-                self.anticipated = {**note, "policy": ACTIONS[a], "move": move}
-            if move is not None:
-                dest = parse_trip(move)
-                if dest is None:
-                    a = ACTIONS.index(move)
-                else:
-                    start = self.robot_cell
-                    first = None if start is None else first_move(self.grid, start, dest)
-                    a = ACTIONS.index(first or "Do nothing")
-        self.command = move if move is not None else ACTIONS[a]
-        return a
-
-    def revise(self) -> str | None:
-        """The anticipation layer's new trip for the step under way (its target changed
-        since the decision), or None: the step's command stands. Only a trip is revised
-        mid-step (going there now); the rest waits for the step's end."""
-        if self.anticipator is None or self.action is None or self.phase != "acting":
-            return None
-        policy = (self.anticipated or {}).get("policy", ACTIONS[self.action])
-        move = self.anticipator.advise(self.robot_cell, policy)
-        if move is None or parse_trip(move) is None or move == self.command:
-            return None
-        self.command = move
-        if self.anticipated is None:  # no estimate yet at the decision
-            self.anticipated = {**(self.anticipator.note() or {}), "policy": policy, "move": None}
-        self.anticipated["revised"] = move
-        return move
-
-    def restore_command(self, command: Any) -> None:
-        """``command`` from a state file, once ``action`` is restored: a trip survives a
-        restart; anything else is the action's own name."""
-        trip = isinstance(command, str) and parse_trip(command) in self.grid.cells
-        self.command = command if trip else None if self.action is None else ACTIONS[self.action]
-
-    def track(self, t: float, observed: Any) -> str | None:
-        """Every observation (a :class:`stack.planning.agent.Observed`), step end or
-        not: the robot's cell and the anticipation layer's goal inference. Returns the
-        event when the layer's target changed ("heading for 1", "heading for none"),
-        else None."""
-        self.robot_cell = int(observed.robot) if observed.robot.isdigit() else None
-        if self.anticipator is None:
-            return None
-        if isinstance(self.anticipator, PeopleAnticipator):
-            changed = self.anticipator.observe(t, observed.people_positions_m, self.robot_cell)
-        else:
-            changed = self.anticipator.observe(t, observed.position_m, self.robot_cell)
-        if not changed:
-            return None
-        target = self.anticipator.target
-        return f"heading for {'none' if target is None else target}"
