@@ -389,3 +389,17 @@ def test_several_people_stand_by_as_one_when_only_one_is_seen():
     # standby, which leaned toward 1
     trips = {r: Anticipator.trip_lengths(GRID, r, "trip") for r in (1, 12)}
     assert standbys and all(trips[12][w] < trips[12][one.standby] for w in standbys)
+
+
+def test_the_standby_ends_when_waiting_at_home_is_as_good():
+    """A person who stopped or turned away no longer keeps the robot at a far corner:
+    once no cell cuts the margin off waiting at the policy's rest cell, there is no
+    standby cell (the policy takes the robot home), whatever cell was in hand."""
+    ant = Anticipator(GRID, (1, 12), AnticipationConfig(standby_margin_s=0.3), home=6)
+    faint = _estimate(0.01, 3.0, 0.1, 5.0)  # a person standing in the middle
+    assert ant.lateness([faint], 6) - min(ant.lateness([faint], w) for w in (3, 10)) < 0.3
+    for held in (None, 10, 3):
+        assert ant.choose_standby([faint], 10, held) is None
+    likely = _estimate(0.6, 3.0, 0.1, 8.0)  # heading for cell 1's side, nearly there
+    best = ant.choose_standby([likely], 6, None)
+    assert best is not None and ant.lateness([likely], 6) - ant.lateness([likely], best) >= 0.3

@@ -199,9 +199,14 @@ class Anticipator:
     """
 
     def __init__(
-        self, grid: CellGrid, restricted_cells: tuple[int, ...], config: AnticipationConfig
+        self,
+        grid: CellGrid,
+        restricted_cells: tuple[int, ...],
+        config: AnticipationConfig,
+        home: int | None = None,
     ):
         self.grid, self.restricted, self.config = grid, tuple(restricted_cells), config
+        self.home = home  # where the policy waits (the task's rest cell), if known
         self.inference = GoalInference(grid, restricted_cells, config.intent, config.exits_m)
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
@@ -232,7 +237,7 @@ class Anticipator:
         """The task's anticipator, or None for ``person_model: thesis``."""
         if getattr(task, "person_model", "thesis") != "goal":
             return None
-        return cls(task.grid, task.restricted_cells, task.anticipation)
+        return cls(task.grid, task.restricted_cells, task.anticipation, task.rest_cell)
 
     def observe(
         self, t: float, position_m: tuple[float, float] | None, robot_cell: int | None = None
@@ -277,7 +282,10 @@ class Anticipator:
         """Where to wait (``config.standby``) for the people seen (``estimates``; none:
         nowhere, the policy decides): the cell in hand (``held``, else the robot's) while
         no other cuts the expected lateness by ``standby_margin_s``, else the best one
-        (ties: the nearer to the robot). None when there is nothing to wait for."""
+        (ties: the nearer to the robot). None when there is nothing to wait for, or
+        when the best cell cuts less than the margin off waiting at ``home`` (the
+        policy's rest cell): a person who stopped or turned away no longer keeps the
+        robot at a far corner."""
         if not self.config.standby or not estimates or robot_cell is None:
             return None
         # the robot's own cell counts even when restricted: a robot that has just
@@ -290,7 +298,10 @@ class Anticipator:
             self._waits,
             key=lambda w: (round(cost[w], 6), math.dist((rx, ry), self.grid.center(w)), w),
         )
-        if cost.get(here, math.inf) - cost[best] < self.config.standby_margin_s:
+        margin = self.config.standby_margin_s
+        if self.home in cost and cost[self.home] - cost[best] < margin:
+            return None
+        if cost.get(here, math.inf) - cost[best] < margin:
             return held
         return best
 
@@ -396,10 +407,11 @@ class PeopleAnticipator:
         restricted_cells: tuple[int, ...],
         config: AnticipationConfig,
         people: int,
+        home: int | None = None,
     ):
         if people < 1:
             raise ValueError(f"people must be >= 1, got {people}")
-        self.slots = [Anticipator(grid, restricted_cells, config) for _ in range(people)]
+        self.slots = [Anticipator(grid, restricted_cells, config, home) for _ in range(people)]
         self.config = config
         self.target: int | None = None
         self.standby: int | None = None
@@ -409,7 +421,7 @@ class PeopleAnticipator:
         """The task's layer, or None for ``person_model: thesis``."""
         if getattr(task, "person_model", "thesis") != "goal":
             return None
-        return cls(task.grid, task.restricted_cells, task.anticipation, task.people)
+        return cls(task.grid, task.restricted_cells, task.anticipation, task.people, task.rest_cell)
 
     def observe(
         self,
