@@ -12,6 +12,7 @@ from stack.nav.speech import (
     Speaker,
     SpeechError,
     UnknownVoiceError,
+    forget_said,
     synthesize,
     wav_duration_s,
 )
@@ -36,6 +37,32 @@ def test_warning_makes_a_wav_of_plausible_length(tmp_path, voice, text):
     assert 0.5 * spoken_s <= utt.duration_s <= 2.0 * spoken_s
     short = synthesize("Stop.", tmp_path / "s.wav", cfg)
     assert short.duration_s < utt.duration_s / 2
+
+
+def test_a_repeated_warning_reuses_its_audio_until_forgotten(tmp_path, monkeypatch):
+    """The same words with the same settings run espeak-ng once per process (the same
+    bytes each time); :func:`forget_said` makes the next one synthesise again."""
+    import subprocess
+
+    runs = []
+    real = subprocess.run
+
+    def counting(args, *a, **kw):
+        if "-w" in args:
+            runs.append(args)
+        return real(args, *a, **kw)
+
+    monkeypatch.setattr(subprocess, "run", counting)
+    forget_said()
+    cfg = SpeechConfig(voice="en")
+    first = synthesize("Please stay out.", tmp_path / "a.wav", cfg)
+    again = synthesize("Please stay out.", tmp_path / "b.wav", cfg)
+    assert len(runs) == 1
+    assert (tmp_path / "a.wav").read_bytes() == (tmp_path / "b.wav").read_bytes()
+    assert again.duration_s == first.duration_s
+    forget_said()
+    synthesize("Please stay out.", tmp_path / "c.wav", cfg)
+    assert len(runs) == 2
 
 
 def test_faster_speech_is_shorter(tmp_path):

@@ -221,6 +221,12 @@ SAID_KEPT = 16  # texts whose audio a process keeps (a few warnings)
 _SAID: dict[tuple[tuple[str, ...], str], tuple[bytes, float]] = {}
 
 
+def forget_said() -> None:
+    """Forget the audio this process kept: the next :func:`synthesize` of any text
+    runs espeak-ng again (a benchmark of the synthesis itself)."""
+    _SAID.clear()
+
+
 @dataclass(frozen=True)
 class SpeechEvent:
     """Something that happened to a request.
