@@ -211,12 +211,15 @@ class Anticipator:
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
         self.standby: int | None = None  # where to wait for the target (config.standby)
-        # trip lengths from every cell to each restricted cell (moves are symmetric;
-        # a trip: straight from the cell's centre to the nearest point inside)
-        self._trip_m = {r: self.trip_lengths(grid, r, config.motion) for r in self.restricted}
+        # trip times (s) from every cell to each restricted cell at the robot's trip
+        # speed (moves are symmetric; a trip: straight from the cell's centre to the
+        # nearest point inside)
         self._trip_s = {
-            r: {c: m / config.robot_speed_mps for c, m in trips.items()}
-            for r, trips in self._trip_m.items()
+            r: {
+                c: m / config.robot_speed_mps
+                for c, m in self.trip_lengths(grid, r, config.motion).items()
+            }
+            for r in self.restricted
         }
         self._waits = tuple(c for c in grid.cells if c not in self.restricted)
 
@@ -243,17 +246,26 @@ class Anticipator:
         self, t: float, position_m: tuple[float, float] | None, robot_cell: int | None = None
     ) -> bool:
         """Take the person's floor position at ``t`` (None: not seen) and the robot's
-        cell (None: unknown); returns whether the target changed (an event worth a new
-        decision)."""
+        cell (None: unknown); returns whether the target or the standby cell changed
+        (an event worth a new decision)."""
+        before, held = self.target, self.standby
+        self.track_goal(t, position_m, robot_cell)
+        waiting = [] if self.target is not None else self.fresh([self.estimate])
+        self.standby = self.choose_standby(waiting, robot_cell, held)
+        return self.target != before or self.standby != held
+
+    def track_goal(
+        self, t: float, position_m: tuple[float, float] | None, robot_cell: int | None
+    ) -> None:
+        """The goal inference's step and this person's target (no standby: with
+        several people it is chosen over them all)."""
         if position_m is None:
             est = self.inference.predict(t)
         else:
             est = self.inference.update(TrackObservation(t, (position_m[0], position_m[1])))
         self.estimate = est
-        before = self.target
         cfg = self.config
-        unseen = est.age_s > cfg.max_unseen_s
-        if unseen:
+        if not self.fresh([est]):
             self.target = None
         elif est.inside is not None:
             self.target = est.inside  # in a restricted cell: be there, now, at top speed
@@ -265,11 +277,11 @@ class Anticipator:
                 best == self.target or self._due(est, best, robot_cell)
             ):
                 self.target = best
-        held = self.standby
-        self.standby = self.choose_standby(
-            [] if unseen or self.target is not None else [est], robot_cell, held
-        )
-        return self.target != before or self.standby != held
+
+    def fresh(self, estimates: Sequence[IntentEstimate | None]) -> list[IntentEstimate]:
+        """The estimates of people seen within ``max_unseen_s`` (unseen, a goal belief
+        drifts back to its prior, which is no evidence of a visit)."""
+        return [e for e in estimates if e is not None and e.age_s <= self.config.max_unseen_s]
 
     def lateness(self, estimates: Sequence[IntentEstimate], cell: int) -> float:
         """The robot's expected lateness (s) waiting in ``cell``, at its trip speed
@@ -310,7 +322,7 @@ class Anticipator:
         (always, with the robot's cell unknown)."""
         if robot_cell is None:
             return True
-        trip_s = self._trip_m[cell].get(robot_cell, math.inf) / self.config.robot_speed_mps
+        trip_s = self._trip_s[cell].get(robot_cell, math.inf)
         return est.forecast(cell).eta_s <= trip_s + self.config.lead_s
 
     def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
@@ -345,9 +357,14 @@ class Anticipator:
         held = self.hold_back(robot_cell, policy_action, estimates)
         if held is not None or standby is None:
             return held
-        direction = next((d for d in MOVING_DIRECTIONS if d.label == policy_action), None)
-        entering = None if direction is None else self.grid.neighbour(robot_cell, direction)
-        return None if entering in self.restricted else "Do nothing"
+        return None if self.entering(robot_cell, policy_action) is not None else "Do nothing"
+
+    def entering(self, robot_cell: int, action: str | None) -> int | None:
+        """The restricted cell ``action`` (a move's name) takes the robot into from
+        ``robot_cell``, else None."""
+        direction = next((d for d in MOVING_DIRECTIONS if d.label == action), None)
+        cell = None if direction is None else self.grid.neighbour(robot_cell, direction)
+        return cell if cell in self.restricted else None
 
     def move_to(self, robot_cell: int, target: int) -> str:
         """The command toward ``target``: "Do nothing" in it, else the trip (or the
@@ -367,12 +384,11 @@ class Anticipator:
         """ "Do nothing" instead of the policy's move into a restricted cell that none of
         the people seen (``estimates``, one per person) is heading for, while at least
         one of them is seen and none is in a restricted cell; else None."""
-        fresh = [e for e in estimates if e is not None and e.age_s <= self.config.max_unseen_s]
+        fresh = self.fresh(estimates)
         if policy_action is None or not fresh or any(e.inside is not None for e in fresh):
             return None
-        direction = next((d for d in MOVING_DIRECTIONS if d.label == policy_action), None)
-        entering = None if direction is None else self.grid.neighbour(robot_cell, direction)
-        if entering in self.restricted and all(
+        entering = self.entering(robot_cell, policy_action)
+        if entering is not None and all(
             e.p(entering) < self.config.enter_probability for e in fresh
         ):
             return "Do nothing"
@@ -432,17 +448,12 @@ class PeopleAnticipator:
         """Each slot's floor position at ``t`` (None: not seen; missing slots are not
         seen); returns whether the robot's target changed."""
         for k, slot in enumerate(self.slots):
-            slot.observe(t, positions_m[k] if k < len(positions_m) else None, robot_cell)
+            slot.track_goal(t, positions_m[k] if k < len(positions_m) else None, robot_cell)
         before, held = self.target, self.standby
         self.target = self._choose()
-        fresh = [
-            s.estimate
-            for s in self.slots
-            if s.estimate is not None and s.estimate.age_s <= self.config.max_unseen_s
-        ]
-        self.standby = self.slots[0].choose_standby(
-            [] if self.target is not None else fresh, robot_cell, held
-        )
+        first = self.slots[0]
+        waiting = [] if self.target is not None else first.fresh([s.estimate for s in self.slots])
+        self.standby = first.choose_standby(waiting, robot_cell, held)
         return self.target != before or self.standby != held
 
     def _choose(self) -> int | None:

@@ -388,8 +388,9 @@ def perseus(
     start = clock.now()
     history: list[IterationStats] = []
     n_backups = 0
+    values = (alphas @ B.T).max(axis=0)  # the set's value at every sampled belief
     for it in range(1, iterations + 1):
-        old = (alphas @ B.T).max(axis=0)
+        old = values
         new_alphas: list[np.ndarray] = []
         new_actions: list[int] = []
         new_gids: list[int] = []
@@ -437,7 +438,8 @@ def perseus(
             progress(stats)
         if time_limit_s is not None and stats.elapsed_s > time_limit_s:
             break
-        if tolerance is not None and float(np.max((alphas @ B.T).max(axis=0) - old)) <= tolerance:
+        values = (alphas @ B.T).max(axis=0)  # the next iteration's start, computed once
+        if tolerance is not None and float(np.max(values - old)) <= tolerance:
             break
     if closure is not None:
         order = list(dict.fromkeys(int(g) for g in gids))  # the final set, duplicates once
