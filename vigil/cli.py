@@ -55,6 +55,7 @@ def _solver_args(
     trials: int | None = None,
     relative_gap: float = 0.0,
     beliefs: int = 300,
+    perseus_share: float | None = 0.0,
 ) -> None:
     p.add_argument(
         "--solver",
@@ -82,9 +83,13 @@ def _solver_args(
     p.add_argument(
         "--perseus-share",
         type=float,
-        default=None,
-        help="sarsop: share of the time limit for Perseus first, whose vectors seed the search "
-        "(default: 0.3 with a --time-limit of 10 s or more, else 0)",
+        default=perseus_share,
+        help="sarsop: share of the time limit for Perseus first, whose vectors seed the search"
+        + (
+            " (default: 0.3 with a --time-limit of 10 s or more, else 0)"
+            if perseus_share is None
+            else ""
+        ),
     )
     p.add_argument(
         "--fib-time", type=float, default=0.0, help="Perseus: seconds for the fast informed bound"
@@ -269,7 +274,7 @@ def _task_solver_args(p: argparse.ArgumentParser) -> None:
     to the task solver (:data:`stack.planning.solve.TASK_CONFIG`)."""
     from stack.planning.solve import TASK_CONFIG as T
 
-    _solver_args(p, T.iterations, T.algorithm, T.trials, T.relative_gap, T.beliefs)
+    _solver_args(p, T.iterations, T.algorithm, T.trials, T.relative_gap, T.beliefs, T.perseus_share)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -321,7 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
         "-o", "--output", help="policy file: exactly this path; .policy writes SARSOP's XML"
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    _solver_args(p, iterations=1000, beliefs=1000)
+    # the benchmark files' best settings measured (docs/BENCHMARKS.md): Perseus first
+    # under a long limit (vigil.solving.perseus_share), its 1,000 beliefs
+    _solver_args(p, iterations=1000, beliefs=1000, perseus_share=None)
     p.add_argument(
         "--cpu-time",
         action="store_true",

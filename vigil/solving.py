@@ -29,7 +29,8 @@ PERSEUS_FIRST_MIN_S = 10.0
 
 
 def perseus_share(args: argparse.Namespace, limit: float | None) -> float:
-    """``--perseus-share``, or without it (None) the default for ``limit`` (s)."""
+    """``--perseus-share``, or when it is None (``solve-pomdp``'s default) the share for
+    ``limit`` (s); the task commands default to the task solver's 0."""
     share = getattr(args, "perseus_share", None)
     if share is not None:
         return share
