@@ -250,7 +250,7 @@ class Anticipator:
         (an event worth a new decision)."""
         before, held = self.target, self.standby
         self.track_goal(t, position_m, robot_cell)
-        waiting = [] if self.target is not None else self.fresh([self.estimate])
+        waiting = [] if self.target is not None else self.seen([self.estimate])
         self.standby = self.choose_standby(waiting, robot_cell, held)
         return self.target != before or self.standby != held
 
@@ -265,7 +265,7 @@ class Anticipator:
             est = self.inference.update(TrackObservation(t, (position_m[0], position_m[1])))
         self.estimate = est
         cfg = self.config
-        if not self.fresh([est]):
+        if not self.seen([est]):
             self.target = None
         elif est.inside is not None:
             self.target = est.inside  # in a restricted cell: be there, now, at top speed
@@ -278,7 +278,7 @@ class Anticipator:
             ):
                 self.target = best
 
-    def fresh(self, estimates: Sequence[IntentEstimate | None]) -> list[IntentEstimate]:
+    def seen(self, estimates: Sequence[IntentEstimate | None]) -> list[IntentEstimate]:
         """The estimates of people seen within ``max_unseen_s`` (unseen, a goal belief
         drifts back to its prior, which is no evidence of a visit)."""
         return [e for e in estimates if e is not None and e.age_s <= self.config.max_unseen_s]
@@ -384,7 +384,7 @@ class Anticipator:
         """ "Do nothing" instead of the policy's move into a restricted cell that none of
         the people seen (``estimates``, one per person) is heading for, while at least
         one of them is seen and none is in a restricted cell; else None."""
-        fresh = self.fresh(estimates)
+        fresh = self.seen(estimates)
         if policy_action is None or not fresh or any(e.inside is not None for e in fresh):
             return None
         entering = self.entering(robot_cell, policy_action)
@@ -452,7 +452,7 @@ class PeopleAnticipator:
         before, held = self.target, self.standby
         self.target = self._choose()
         first = self.slots[0]
-        waiting = [] if self.target is not None else first.fresh([s.estimate for s in self.slots])
+        waiting = [] if self.target is not None else first.seen([s.estimate for s in self.slots])
         self.standby = first.choose_standby(waiting, robot_cell, held)
         return self.target != before or self.standby != held
 
