@@ -13,6 +13,7 @@ from stack.planning.agent import Observed, PlannerAgent
 from stack.planning.anticipate import AnticipationConfig, Anticipator, first_move
 from stack.planning.model import build_model
 from stack.planning.policy import AlphaPolicy
+from stack.planning.standby import trip_lengths
 from stack.planning.stepper import DecisionSteps, StepTiming
 from stack.planning.task import Task, load_task
 from vigil.run import REPO
@@ -132,7 +133,7 @@ def test_a_new_target_ends_the_step_early_as_a_person_event_does():
 
 
 def test_the_watch_cell_is_one_move_from_a_lone_restricted_cell_and_equidistant_from_two():
-    from stack.planning.anticipate import travel_m, watch_cell
+    from stack.planning.standby import travel_m, watch_cell
 
     assert travel_m(GRID, 7)[1] == pytest.approx(3.0)  # 7 -> 5 -> 3 -> 1, 1 m each
     assert travel_m(GRID, 7)[12] == pytest.approx(3.5)  # 2 m west, 1.5 m north
@@ -306,7 +307,7 @@ def _estimate(p1: float, eta1: float, p12: float = 0.0, eta12: float = 99.0):
 
 
 def test_expected_lateness_weighs_each_late_arrival_by_its_goal_probability():
-    from stack.planning.anticipate import expected_lateness
+    from stack.planning.standby import expected_lateness
 
     trip_s = {1: {6: 5.0, 3: 1.0}, 12: {6: 6.0, 3: 11.0}}
     est = _estimate(0.5, 2.0, 0.25, 8.0)
@@ -336,7 +337,7 @@ def test_the_robot_stands_by_nearer_the_cell_a_person_may_be_heading_for():
                 standby[name] = ant.standby
                 assert ant.standby not in (1, 12)
                 assert ant.advise(6, "Do nothing") == f"To {ant.standby}"
-    trips = {r: Anticipator.trip_lengths(GRID, r, "trip") for r in (1, 12)}
+    trips = {r: trip_lengths(GRID, r, "trip") for r in (1, 12)}
     assert trips[1][standby["east"]] < trips[1][6]  # nearer cell 1 than the watch cell
     assert trips[12][standby["west"]] < trips[12][6]
     idle = Anticipator(GRID, (1, 12), cfg)
@@ -387,7 +388,7 @@ def test_several_people_stand_by_as_one_when_only_one_is_seen():
             standbys.append(both.standby)
     # the walker heading west draws the robot nearer cell 12 than the one-person
     # standby, which leaned toward 1
-    trips = {r: Anticipator.trip_lengths(GRID, r, "trip") for r in (1, 12)}
+    trips = {r: trip_lengths(GRID, r, "trip") for r in (1, 12)}
     assert standbys and all(trips[12][w] < trips[12][one.standby] for w in standbys)
 
 
@@ -403,3 +404,22 @@ def test_the_standby_ends_when_waiting_at_home_is_as_good():
     likely = _estimate(0.6, 3.0, 0.1, 8.0)  # heading for cell 1's side, nearly there
     best = ant.choose_standby([likely], 6, None)
     assert best is not None and ant.lateness([likely], 6) - ant.lateness([likely], best) >= 0.3
+
+
+def test_entry_lateness_weighs_a_person_coming_in_at_the_door():
+    from stack.planning.standby import entry_lateness, trip_times, watch_cell
+
+    trip_s = trip_times(GRID, (1,), 0.5)
+    door = (6.0, 3.5)  # 2 m north of cell 1's north-east corner (6.0, 1.5)
+    # waiting in 3 (centre 4.5, 0.75): the trip to 0.35 m inside cell 1 is 0.85 m, 1.7 s;
+    # the person needs 2 m / v: late only for walkers faster than 2 / 1.7 m/s
+    late = entry_lateness(GRID, trip_s, [door], 3, speeds_mps=(1.0, 2.0))
+    assert late == pytest.approx((0.0 + (1.7 - 1.0)) / 2)
+    assert entry_lateness(GRID, trip_s, [], 3) == 0.0
+    # r2's cells 1 and 12 with the door beside cell 1: the guard waits nearer it than
+    # the cell equidistant from both (6), which it keeps without a door
+    assert watch_cell(GRID, (1, 12)) == 6
+    assert watch_cell(GRID, (1, 12), exits=[(7.0, 5.2)]) == 5
+    assert watch_cell(GRID, (1, 12), exits=[(-1.0, 5.2)]) in (8, 10)  # a door by cell 12
+    assert watch_cell(GRID, (1,), exits=[(7.0, 5.2)]) == 3
+    assert load_task(REPO / "config" / "task-r2-goal.yaml").rest_cell == 5

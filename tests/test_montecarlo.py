@@ -97,6 +97,20 @@ def test_summary_counts_and_intervals(tmp_path):
     assert "| guarded-visit rate | 67 % |" in md and "2 of 3 visits" in md
     png = plot_study(tmp_path / "s.png", eps, s, "study")
     assert png.stat().st_size > 1000
+    assert "one_guard" not in s and "one guard" not in md  # one person a walk
+
+
+def test_several_people_are_also_scored_against_what_one_guard_could_guard():
+    eps = [
+        {**_episode(0, 2, 1, [1.0], 0), "reachable": 2, "guarded_reachable": 1, "one_guard": 1},
+        {**_episode(1, 2, 1, [2.0], 0), "reachable": 2, "guarded_reachable": 1, "one_guard": 2},
+    ]
+    s = summarise(eps)
+    assert (s["reachable"], s["guarded_reachable"], s["one_guard"]) == (4, 2, 3)
+    assert s["guarded_reachable_rate"] == 0.5
+    assert s["guarded_one_guard_rate"] == pytest.approx(2 / 3, abs=1e-3)
+    md = summary_markdown(s, "study")
+    assert "| of what one guard could guard | 67 % |" in md and "of the 3 reachable" in md
 
 
 def test_bad_study_settings_are_named(tmp_path):

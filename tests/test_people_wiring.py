@@ -269,3 +269,27 @@ def test_the_people_agent_sends_the_trip_the_layer_advises(pm):
     rec = a.observe(obs(1, quiet, quiet))  # the trip crossed three cells in one step
     assert "beyond the action's move" in rec["note"] and rec["belief"]["robot"] == {"1": 1.0}
     assert rec["anticipation"]["target"] == 1
+
+
+def _visit(cell, arrive, left, reachable=True):
+    return {"cell": cell, "person_arrival_t": arrive, "person_left_t": left, "reachable": reachable}
+
+
+def test_one_guard_counts_the_visits_one_robot_could_be_in_one_after_the_other():
+    from stack.cells import CellGrid
+    from vigil.report.people import one_guard_reachable
+
+    grid = CellGrid()  # cells 1 and 12 are 4 m apart (x 5-6 and 0-1): 8 s at 0.5 m/s
+    # two people in 1 and 12 at once, for 5 s: one robot can be in one of them
+    assert one_guard_reachable([_visit(1, 10.0, 15.0), _visit(12, 10.0, 15.0)], grid) == 1
+    # the second stays 10 s: the robot goes on to it (8 s) while they are still in
+    assert one_guard_reachable([_visit(1, 10.0, 15.0), _visit(12, 10.0, 20.0)], grid) == 2
+    # two people in the same cell at once: one robot guards both
+    assert one_guard_reachable([_visit(1, 10.0, 12.0), _visit(1, 11.0, 13.0)], grid) == 2
+    # a visit still under way at the end can always be reached; unreachable ones never
+    assert one_guard_reachable([_visit(1, 10.0, 11.0), _visit(12, 10.5, None)], grid) == 2
+    assert one_guard_reachable([_visit(1, 10.0, 15.0, reachable=False)], grid) == 0
+    assert one_guard_reachable([], grid) == 0
+    # three at once in 1, 12, 1 again later: 1 -> 1 (same cell) beats 1 -> 12
+    visits = [_visit(1, 0.0, 3.0), _visit(12, 0.0, 3.0), _visit(1, 2.0, 4.0)]
+    assert one_guard_reachable(visits, grid) == 2

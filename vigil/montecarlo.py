@@ -147,6 +147,7 @@ def metric_fields(summary: dict[str, Any]) -> dict[str, Any]:
         out.update(
             {k: people[k] for k in ("n_visits", "guarded", "reachable", "guarded_reachable")},
             robot_first=people["robot_first"],
+            one_guard=people.get("one_guard"),
             abandoned=sum(p["abandoned"] for p in people["per_person"]),
             delays_s=[v["delay_s"] for v in visits if v["delay_s"] is not None],
             visits=visits,

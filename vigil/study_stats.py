@@ -59,6 +59,10 @@ def summarise(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
     reachable = sum(e.get("reachable", 0) for e in ok)
     guarded_reachable = sum(e.get("guarded_reachable", 0) for e in ok)
     q_lo, q_hi = wilson(guarded_reachable, reachable)
+    # several people: the visits one ideal guard could guard (vigil.report.people)
+    one_guard = sum(e["one_guard"] for e in ok if e.get("one_guard") is not None)
+    several = any(e.get("one_guard") is not None for e in ok)
+    o_lo, o_hi = wilson(min(guarded_reachable, one_guard), one_guard)
     with_trip = sum(e["n_false_trips"] > 0 for e in ok)
     d_mean, d_lo, d_hi = bootstrap_mean([e["delays_s"] for e in ok], seed)
     t_mean, t_lo, t_hi = bootstrap_mean([[e["n_false_trips"]] for e in ok], seed + 1)
@@ -84,6 +88,15 @@ def summarise(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
         "guarded_reachable": guarded_reachable,
         "guarded_reachable_rate": r(guarded_reachable / reachable) if reachable else None,
         "guarded_reachable_rate_ci95": [r(q_lo), r(q_hi)],
+        **(
+            {
+                "one_guard": one_guard,
+                "guarded_one_guard_rate": r(guarded_reachable / one_guard) if one_guard else None,
+                "guarded_one_guard_rate_ci95": [r(o_lo), r(o_hi)],
+            }
+            if several
+            else {}
+        ),
         "mean_delay_s": r(d_mean, 2),
         "mean_delay_ci95_s": [r(d_lo, 2), r(d_hi, 2)],
         "max_delay_s": r(max((d for e in ok for d in e["delays_s"]), default=None), 2),
@@ -160,6 +173,16 @@ def summary_markdown(s: dict[str, Any], title: str) -> str:
         f"| reachable visits guarded | {_pct(s.get('guarded_reachable_rate'))} | "
         f"{_pct_ci(s.get('guarded_reachable_rate_ci95'))} | {s.get('guarded_reachable')} of "
         f"{s.get('reachable')} visits an ideal guard at 0.5 m/s could reach (Wilson) |",
+        *(
+            [
+                f"| of what one guard could guard | {_pct(s.get('guarded_one_guard_rate'))} | "
+                f"{_pct_ci(s.get('guarded_one_guard_rate_ci95'))} | {s.get('guarded_reachable')} "
+                f"of the {s['one_guard']} reachable visits one ideal guard could be in, one "
+                "after the other (Wilson) |"
+            ]
+            if "one_guard" in s
+            else []
+        ),
         f"| mean delay | {delay} | {_ci(s['mean_delay_ci95_s'], '{:.1f} s')} | guarded "
         f"visits, bootstrap over episodes; max {s['max_delay_s']} s |",
         f"| false trips per episode | {s['false_trips_per_episode']} | "

@@ -33,7 +33,6 @@ Pure (numpy): the planner node and the in-process loop run it through
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -43,7 +42,8 @@ from typing import Any
 from stack.cells import MOVING_DIRECTIONS, CellGrid
 from stack.config import Config, require
 from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
-from stack.vocabulary import TRIP_INSET_M, trip_command
+from stack.planning.standby import expected_lateness, trip_times
+from stack.vocabulary import trip_command
 
 PERSON_MODELS = ("thesis", "goal")
 MOTIONS = ("trip", "cells")
@@ -134,62 +134,6 @@ def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
     return None
 
 
-def travel_m(grid: CellGrid, start: int) -> dict[int, float]:
-    """The length (m, centre to centre) of the shortest path of cell moves from
-    ``start`` to every cell of ``grid`` (Dijkstra: cells may be oblong)."""
-    dist = {start: 0.0}
-    queue = [(0.0, start)]
-    while queue:
-        d, c = heapq.heappop(queue)
-        if d > dist[c]:
-            continue
-        (x0, y0) = grid.center(c)
-        for direction in MOVING_DIRECTIONS:
-            n = grid.neighbour(c, direction)
-            if n is None:
-                continue
-            x1, y1 = grid.center(n)
-            nd = d + math.hypot(x1 - x0, y1 - y0)
-            if nd < dist.get(n, math.inf):
-                dist[n] = nd
-                heapq.heappush(queue, (nd, n))
-    return dist
-
-
-def watch_cell(grid: CellGrid, restricted_cells: tuple[int, ...]) -> int:
-    """Where a guard waits (a task's ``rest_cell: auto``): the cell, not restricted,
-    whose longest trip to a restricted cell is shortest (the thesis's rest cell 7 is
-    "equidistant" from task r2's cells 1 and 12); ties go to the shorter trips in
-    total, then to the lowest cell number. With one restricted cell it is the nearest
-    neighbour: a guard waiting there is one move from the cell, not three."""
-    trips = {r: travel_m(grid, r) for r in restricted_cells}
-    candidates = [c for c in grid.cells if c not in trips]
-    if not candidates:
-        raise ValueError("every cell is restricted: nowhere to wait")
-
-    def cost(c: int) -> tuple[float, float, int]:
-        ds = [trips[r].get(c, math.inf) for r in restricted_cells]
-        return (round(max(ds), 9), round(sum(ds), 9), c)
-
-    return min(candidates, key=cost)
-
-
-def expected_lateness(
-    trip_s: dict[int, dict[int, float]], estimates: Sequence[IntentEstimate], cell: int
-) -> float:
-    """The robot's expected lateness (s) waiting in ``cell``: over the people's goal
-    beliefs (``estimates``) and the restricted cells c, P(goal = c) times how much
-    later than the person's predicted entry the robot's trip from ``cell`` into c
-    (``trip_s[c][cell]``, s) would arrive, or nothing when it arrives first."""
-    total = 0.0
-    for est in estimates:
-        for f in est.forecasts:
-            late = trip_s[f.cell].get(cell, math.inf) - f.eta_s
-            if late > 0 and f.probability > 0:
-                total += f.probability * late
-    return total
-
-
 class Anticipator:
     """Goal inference on one person's observed positions and the move it advises.
 
@@ -211,29 +155,9 @@ class Anticipator:
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
         self.standby: int | None = None  # where to wait for the target (config.standby)
-        # trip times (s) from every cell to each restricted cell at the robot's trip
-        # speed (moves are symmetric; a trip: straight from the cell's centre to the
-        # nearest point inside)
-        self._trip_s = {
-            r: {
-                c: m / config.robot_speed_mps
-                for c, m in self.trip_lengths(grid, r, config.motion).items()
-            }
-            for r in self.restricted
-        }
+        # trip times (s) from every cell into each restricted cell, at the trip speed
+        self._trip_s = trip_times(grid, self.restricted, config.robot_speed_mps, config.motion)
         self._waits = tuple(c for c in grid.cells if c not in self.restricted)
-
-    @staticmethod
-    def trip_lengths(grid: CellGrid, cell: int, motion: str) -> dict[int, float]:
-        """The robot's trip length (m) from every cell's centre into ``cell``: cell moves
-        centre to centre, or a trip straight to the nearest point ``TRIP_INSET_M`` inside."""
-        if motion == "cells":
-            return travel_m(grid, cell)
-        out = {}
-        for c in grid.cells:
-            x, y = grid.center(c)
-            out[c] = math.dist((x, y), grid.nearest_inside(cell, x, y, TRIP_INSET_M))
-        return out
 
     @classmethod
     def for_task(cls, task: Any) -> Anticipator | None:

@@ -5,7 +5,7 @@ A task file is YAML with these sections (see ``config/task-r1.yaml`` and
 
 - ``grid``: the cells (numbering, metric size; :class:`stack.cells.CellGrid`);
 - ``restricted_cells``, ``rest_cell`` (a cell, or ``auto``: where a guard waits,
-  :func:`stack.planning.anticipate.watch_cell`), ``people``, ``discount``;
+  :func:`stack.planning.standby.watch_cell`), ``people``, ``discount``;
 - ``rewards``: table 4.1;
 - ``robot``: the robot's transition model (figures A.5-A.6);
 - ``person``: a person's direction and position transition models (section 3.2.1);
@@ -28,7 +28,8 @@ import yaml
 
 from stack.cells import CellGrid, ConfigError
 from stack.config import Config, from_mapping, load_yaml, read_text_capped
-from stack.planning.anticipate import PERSON_MODELS, AnticipationConfig, watch_cell
+from stack.planning.anticipate import PERSON_MODELS, AnticipationConfig
+from stack.planning.standby import watch_cell
 
 DIRECTION_NAMES = ("north", "south", "east", "west", "not moving")
 
@@ -167,9 +168,10 @@ class Initial(Config):
 
 
 def _auto_rest_cell(data: Mapping[str, Any]) -> int:
-    """``rest_cell: auto``: :func:`stack.planning.anticipate.watch_cell` of the file's
-    grid and restricted cells (0, refused by :meth:`Task.check` with the real error,
-    when they are not valid)."""
+    """``rest_cell: auto``: :func:`stack.planning.standby.watch_cell` of the file's
+    grid, restricted cells and, from its ``anticipation`` section, the room's exits and
+    the robot's trip speed (0, refused by :meth:`Task.check` with the real error, when
+    they are not valid)."""
     grid = from_mapping(CellGrid, data.get("grid"), "grid")
     restricted = data.get("restricted_cells", Task.restricted_cells)
     if not isinstance(restricted, (list, tuple)) or not all(
@@ -177,7 +179,11 @@ def _auto_rest_cell(data: Mapping[str, Any]) -> int:
     ):
         return 0
     try:
-        return watch_cell(grid, tuple(restricted))
+        ant = from_mapping(AnticipationConfig, data.get("anticipation"), "anticipation")
+    except ConfigError:
+        return 0
+    try:
+        return watch_cell(grid, tuple(restricted), ant.exits_m, ant.robot_speed_mps, ant.motion)
     except ValueError:
         return 0
 

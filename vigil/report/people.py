@@ -9,6 +9,7 @@ the needless trips with nobody in the cell.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -17,11 +18,13 @@ from vigil.report.metrics import (
     MIN_VISIT_S,
     NEEDLESS_S,
     QUIET_S,
+    REACH_SPEED_MPS,
     Timeline,
     classify_warnings,
     false_trips,
     find_visits,
     needless_trips,
+    reach_time_s,
     visit_summary,
 )
 
@@ -55,6 +58,7 @@ def people_metrics(
     for i, tl in enumerate(timelines):
         visits = find_visits(tl, restricted, min_visit_s, grid, warning_starts=warning_starts)
         per.append({"person": i + 1, **visit_summary(visits)})
+    every = [v for p in per for v in p["visits"]]
     trips: list[dict[str, Any]] = []
     needless: list[dict[str, Any]] = []
     if timelines:
@@ -80,6 +84,7 @@ def people_metrics(
         "guarded": sum(p["guarded"] for p in per),
         "reachable": sum(p["reachable"] for p in per),
         "guarded_reachable": sum(p["guarded_reachable"] for p in per),
+        "one_guard": None if grid is None else one_guard_reachable(every, grid),
         "max_delay_s": max(delays) if delays else None,
         "false_trips": trips,
         "n_false_trips": len(trips),
@@ -90,6 +95,47 @@ def people_metrics(
         "late_warnings": sum(not t for t in timely),
         "approach_warnings": sum(t and not d for t, d in zip(timely, direct, strict=True)),
     }
+
+
+def one_guard_reachable(
+    visits: Sequence[dict[str, Any]], grid: CellGrid, speed_mps: float = REACH_SPEED_MPS
+) -> int:
+    """How many of ``visits`` (every walker's, as :func:`visit_summary` lists them) one
+    ideal guard could guard: the most reachable visits (``reachable``: the ideal guard
+    of :mod:`vigil.report.metrics`, one person at a time) that one robot could be in,
+    one after the other, while the person is inside. Optimistic, so the count is an
+    upper bound: the guard is in the first visit's cell as the person enters, and
+    leaves each cell the moment it is there for the next, straight at ``speed_mps``
+    from the cell's centre to the next cell's nearest point. Two people in the two
+    cells of task r2 at once are one visit for one guard, not two.
+    """
+    vs = [
+        (float(v["person_arrival_t"]), math.inf if v["person_left_t"] is None
+         else float(v["person_left_t"]), int(v["cell"]))
+        for v in visits
+        if v.get("reachable")
+    ]  # fmt: skip
+    n = len(vs)
+    if n > 16:  # 2^n states: no walk of ours has this many visits
+        raise ValueError(f"{n} reachable visits: too many for the exact count")
+    # best[mask][last]: the earliest instant the guard can have been in the cells of
+    # the visits in ``mask``, ending with ``last``
+    best: dict[tuple[int, int], float] = {(1 << i, i): vs[i][0] for i in range(n)}
+    most = 1 if n else 0
+    for mask in range(1, 1 << n):
+        for last in range(n):
+            t = best.get((mask, last))
+            if t is None:
+                continue
+            most = max(most, bin(mask).count("1"))
+            for j in range(n):
+                if mask >> j & 1:
+                    continue
+                arrive, left, cell = vs[j]
+                there = max(arrive, t + reach_time_s(grid, vs[last][2], cell, speed_mps))
+                if there < left and there < best.get((mask | 1 << j, j), math.inf):
+                    best[(mask | 1 << j, j)] = there
+    return most
 
 
 def people_markdown(m: dict[str, Any]) -> str:
