@@ -4,16 +4,19 @@ Every component's configuration is a frozen dataclass deriving from :class:`Conf
 Whether it is built from YAML (``Cls.from_dict(mapping, key)``) or in code
 (``Cls(x=...)``), the constructor checks each field against its type hint (numbers
 finite, integers integral, booleans boolean, tuples of the right length, nested
-configurations of their class) and then the class's own rules: ``_rules`` (field ->
-(predicate, rule text)) and ``check()`` (cross-field rules, raising through
-:func:`require`). Unknown keys are refused by ``from_dict``. An error is always
-:class:`stack.cells.ConfigError` with the dotted key, the value and the rule.
+configurations of their class) and then the class's own rules: each field's range
+declared beside its default with :func:`setting`, ``_rules`` (field -> (predicate, rule
+text)) and ``check()`` (cross-field rules, raising through :func:`require`). Unknown keys
+are refused by ``from_dict``. An error is always :class:`stack.cells.ConfigError` with
+the dotted key, the value and the rule.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import operator
+import re
 import types
 import typing
 from collections.abc import Mapping
@@ -36,8 +39,9 @@ Rule = tuple[Any, str]  # (predicate on the value, rule text)
 class Config:
     """Base of every configuration dataclass: checked whenever it is built.
 
-    Subclasses are ``@dataclass(frozen=True)``; they may define ``_rules`` and
-    ``check()``; their own ``__post_init__`` (if any) runs after the field checks.
+    Subclasses are ``@dataclass(frozen=True)``; they may declare fields with
+    :func:`setting`, define ``_rules`` and ``check()``; their own ``__post_init__`` (if
+    any) runs after the field checks.
     """
 
     _rules: ClassVar[dict[str, Rule]] = {}
@@ -49,7 +53,7 @@ class Config:
 
         def __post_init__(self: Any) -> None:
             check_fields(self)
-            for name, (predicate, rule) in type(self)._rules.items():
+            for name, (predicate, rule) in _class_rules(type(self)).items():
                 value = getattr(self, name)
                 if value is not None and not predicate(value):
                     raise ConfigError(name, value, rule)
@@ -72,6 +76,56 @@ class Config:
             ConfigError: an unknown key, a value of the wrong type, or a broken rule.
         """
         return from_mapping(cls, data, cls.section if key is None else key)  # type: ignore[attr-defined]
+
+
+_NUMBER = r"-?\d+(?:\.\d+)?"
+_INTERVAL = re.compile(rf"([\[(])\s*({_NUMBER})\s*,\s*({_NUMBER})\s*([\])])")
+_BOUND = re.compile(rf"(>=|<=|>|<)\s*({_NUMBER})")
+_OPS = {"[": operator.le, "]": operator.le, "(": operator.lt, ")": operator.lt}
+_BOUND_OPS = {">=": operator.ge, "<=": operator.le, ">": operator.gt, "<": operator.lt}
+
+
+def setting(default: T, rule: str) -> T:
+    """A Config field's default with its rule beside it, e.g.
+    ``lapse: float = setting(0.05, "a probability in [0, 1)")``.
+
+    ``rule`` is what the error says after "must be", and the check is read from it: one
+    interval (``[a, b]``, ``(a, b]``, ...: round brackets for open ends) or one bound
+    (``> a``, ``>= a``, ``< b``, ``<= b``); the words around it are for the reader. It is
+    checked as one of ``_rules`` would be (a None value passes), before them.
+
+    Raises:
+        ValueError: the rule holds no interval or bound (when the class is defined).
+    """
+    if m := _INTERVAL.search(rule):
+        below, above = _OPS[m[1]], _OPS[m[4]]
+        low, high = float(m[2]), float(m[3])
+
+        def predicate(v: Any) -> bool:
+            return bool(below(low, v) and above(v, high))
+
+    elif m := _BOUND.search(rule):
+        op, bound = _BOUND_OPS[m[1]], float(m[2])
+
+        def predicate(v: Any) -> bool:
+            return bool(op(v, bound))
+
+    else:
+        raise ValueError(f"setting: no interval or bound in the rule {rule!r}")
+    return dataclasses.field(default=default, metadata={"rule": (predicate, f"must be {rule}")})
+
+
+_RULES: dict[type, dict[str, Rule]] = {}
+
+
+def _class_rules(cls: type) -> dict[str, Rule]:
+    """A Config class's rules, once per class: its settings' in field order, then ``_rules``."""
+    rules = _RULES.get(cls)
+    if rules is None:
+        fields = dataclasses.fields(cls)  # type: ignore[arg-type]
+        own = {f.name: f.metadata["rule"] for f in fields if "rule" in f.metadata}
+        rules = _RULES[cls] = own | cls._rules  # type: ignore[attr-defined]
+    return rules
 
 
 _HINTS: dict[type, dict[str, Any]] = {}

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stack.planning.momdp_model import MixedModel
+from stack.planning.policy import relative_gap
 
 DUAL_BATCH = 16  # paths per batch of dual_batches (each batch seeded on its own)
 DUAL_FIB_TOL = 1e-6  # the fast informed bound behind dual_batches' penalty
@@ -84,7 +85,9 @@ class DualBound:
         """The upper end of the 95 % interval: the figure to compare a lower bound with."""
         return self.mean + self.ci95
 
-    def summary(self) -> dict:
+    def summary(self, lower_bound: float) -> dict:
+        """The bound's figures in a solve's summary; ``dual_relative_gap`` is the
+        summary's ``relative_gap`` with this bound as the upper one."""
         return {
             "dual_upper_mean": self.mean,
             "dual_upper_ci95": self.ci95,
@@ -92,6 +95,7 @@ class DualBound:
             "dual_paths": self.paths,
             "dual_horizon": self.horizon,
             "dual_seconds": self.seconds,
+            "dual_relative_gap": relative_gap(lower_bound, self.upper),
         }
 
 

@@ -391,14 +391,17 @@ def relative_gap(lower: float, upper: float) -> float:
     return (upper - lower) / max(abs(lower), abs(upper), 1e-12)
 
 
+@dataclass
 class BoundedResult:
-    """What a solve reports about its bounds; mixed into the solvers' result dataclasses
-    (which hold ``policy``, ``lower_bound``, ``upper_bound``, ``seconds``)."""
+    """What every solver's result holds (the policy, its bounds at b0, the time taken,
+    the progress reports) and says about its bounds; SearchResult and SolveResult add
+    their own figures."""
 
     policy: AlphaPolicy
     lower_bound: float
     upper_bound: float
     seconds: float
+    history: list[Any] = field(default_factory=list)  # pbvi.IterationStats or SearchStats
 
     @property
     def gap(self) -> float:

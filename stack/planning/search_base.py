@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from stack.planning import clock
@@ -109,11 +109,6 @@ def format_search_progress(s: SearchStats) -> str:
 
 @dataclass
 class SearchResult(BoundedResult):
-    policy: AlphaPolicy
-    lower_bound: float
-    upper_bound: float
-    seconds: float
-    history: list[SearchStats] = field(default_factory=list)
     trials: int = 0
     backups: int = 0
     stopped: str = ""  # "gap", "time", "trials"

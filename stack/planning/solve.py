@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,7 +20,7 @@ from stack.planning import clock
 from stack.planning.bounds import blind_lower_bound, fast_informed_bound, plan_alphas, qmdp
 from stack.planning.dual import DUAL_BATCH
 from stack.planning.pbvi import IterationStats, perseus, sample_beliefs
-from stack.planning.policy import AlphaPolicy, BoundedResult, relative_gap
+from stack.planning.policy import AlphaPolicy, BoundedResult
 from stack.planning.pomdp import POMDP
 from stack.planning.threads import blas_threads
 
@@ -97,11 +97,6 @@ class SolverConfig:
 
 @dataclass
 class SolveResult(BoundedResult):
-    policy: AlphaPolicy
-    lower_bound: float
-    upper_bound: float
-    seconds: float
-    history: list[Any] = field(default_factory=list)  # IterationStats or SearchStats
     dual: Any = None  # a DualBound at b0 (stack/planning/dual.py), when computed
     dual_note: str = ""  # why it was not, when asked for
     delayed: Any = None  # a DelayedResult (stack/planning/delayed.py), when computed
@@ -111,9 +106,7 @@ class SolveResult(BoundedResult):
     def summary(self) -> dict:
         out = super().summary()
         if self.dual is not None:
-            out |= self.dual.summary()
-            # the same measure as relative_gap, with the dual bound as the upper
-            out["dual_relative_gap"] = relative_gap(self.lower_bound, self.dual.upper)
+            out |= self.dual.summary(self.lower_bound)
         elif self.dual_note:
             out["dual_note"] = self.dual_note
         if self.delayed is not None:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from stack.cells import CellGrid, ConfigError
-from stack.config import Config
+from stack.config import Config, setting
 
 __all__ = [
     "WANDER",
@@ -67,36 +67,20 @@ class IntentConfig(Config):
 
     section = "intent"
 
-    rationality_per_m: float = 3.0
-    lapse: float = 0.05
-    restricted_prior: float = 0.5
-    wander_share: float = 0.3
-    exit_share: float = 0.5
+    rationality_per_m: float = setting(3.0, "in [0, 100] per metre")
+    lapse: float = setting(0.05, "a probability in [0, 1)")
+    restricted_prior: float = setting(0.5, "a probability in (0, 1)")
+    wander_share: float = setting(0.3, "a probability in [0, 1]")
+    exit_share: float = setting(0.5, "a probability in [0, 1]")
     other_cells_as_goals: bool = True
-    switch_rate_per_s: float = 0.05
-    stop_speed_mps: float = 0.15
-    position_step_m: float = 0.3
-    eta_min_speed_mps: float = 0.5
-    inside_belief: float = 0.9
-    directions: int = 32
-    max_gap_s: float = 2.0
-    door_zone_m: float = 1.0
-
-    _rules = {
-        "rationality_per_m": (lambda v: 0.0 <= v <= 100.0, "must be in [0, 100] per metre"),
-        "lapse": (lambda v: 0.0 <= v < 1.0, "must be a probability in [0, 1)"),
-        "restricted_prior": (lambda v: 0.0 < v < 1.0, "must be a probability in (0, 1)"),
-        "wander_share": (lambda v: 0.0 <= v <= 1.0, "must be a probability in [0, 1]"),
-        "exit_share": (lambda v: 0.0 <= v <= 1.0, "must be a probability in [0, 1]"),
-        "switch_rate_per_s": (lambda v: 0.0 <= v <= 10.0, "must be in [0, 10] per second"),
-        "stop_speed_mps": (lambda v: 0.0 <= v < 1.0, "must be in [0, 1) m/s"),
-        "position_step_m": (lambda v: 0.0 < v <= 2.0, "must be in (0, 2] m"),
-        "eta_min_speed_mps": (lambda v: 0.0 < v <= 3.0, "must be in (0, 3] m/s"),
-        "inside_belief": (lambda v: 0.0 <= v < 1.0, "must be a probability in [0, 1)"),
-        "directions": (lambda v: 8 <= v <= 720, "must be in [8, 720]"),
-        "max_gap_s": (lambda v: v > 0.0, "must be > 0 s"),
-        "door_zone_m": (lambda v: 0.0 <= v <= 5.0, "must be in [0, 5] m"),
-    }
+    switch_rate_per_s: float = setting(0.05, "in [0, 10] per second")
+    stop_speed_mps: float = setting(0.15, "in [0, 1) m/s")
+    position_step_m: float = setting(0.3, "in (0, 2] m")
+    eta_min_speed_mps: float = setting(0.5, "in (0, 3] m/s")
+    inside_belief: float = setting(0.9, "a probability in [0, 1)")
+    directions: int = setting(32, "in [8, 720]")
+    max_gap_s: float = setting(2.0, "> 0 s")
+    door_zone_m: float = setting(1.0, "in [0, 5] m")
 
 
 # -- goals -------------------------------------------------------------------------------
