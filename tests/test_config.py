@@ -115,3 +115,30 @@ def test_every_numeric_field_has_a_range_in_code_as_from_yaml(cls):
         if not refused:
             loose.append(f.name)
     assert not loose, f"{cls.__name__}: fields with no range: {loose}"
+
+
+def test_a_setting_checks_the_range_its_rule_names_with_open_and_closed_ends():
+    from stack.config import setting
+
+    @dataclasses.dataclass(frozen=True)
+    class Limits(Config):
+        p: float = setting(0.5, "a probability in [0, 1)")
+        gain: float = setting(1.0, "in (0, 10] per second")
+        gap_s: float = setting(2.0, "> 0 s")
+        count: int = setting(3, ">= 1")
+
+    assert Limits().p == 0.5 and Limits(p=0.0).p == 0.0 and Limits(gain=10.0).gain == 10.0
+    for bad, rule in (
+        ({"p": 1.0}, "must be a probability in \\[0, 1\\)"),
+        ({"p": -0.1}, "p"),
+        ({"gain": 0.0}, "must be in \\(0, 10\\] per second"),
+        ({"gain": 10.5}, "gain"),
+        ({"gap_s": 0.0}, "must be > 0 s"),
+        ({"count": 0}, "must be >= 1"),
+    ):
+        with pytest.raises(ConfigError, match=rule):
+            Limits(**bad)
+    with pytest.raises(ConfigError, match="gap_s"):
+        Limits.from_dict({"gap_s": -1.0}, "limits")
+    with pytest.raises(ValueError, match="no interval or bound"):
+        setting(1.0, "positive")
