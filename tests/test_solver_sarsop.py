@@ -405,6 +405,57 @@ def test_solve_pomdp_gives_perseus_its_share_only_of_a_long_time_limit():
     assert share(time_limit=5.0, perseus_share=0.5) == 0.5
 
 
+def test_perseus_share_default_depends_on_the_model_size():
+    """auto: Perseus first only when --beliefs x states is at most
+    PERSEUS_MAX_BELIEF_ENTRIES (the flat benchmark files and RockSample_7_8 keep 0.3,
+    RockSample_11_11 gets the search alone); a given share is always obeyed."""
+    import argparse
+
+    from vigil.solving import PERSEUS_MAX_BELIEF_ENTRIES, perseus_choice, solver_config
+
+    def share(n_states, beliefs=1000, **kw):
+        args = argparse.Namespace(beliefs=beliefs, iterations=1000, **kw)
+        return solver_config(args, n_states).perseus_share
+
+    for n in (60, 92, 870, 3201, 12_800):  # Hallway ... RockSample_5_7, RockSample_7_8
+        assert share(n, time_limit=60.0, perseus_share=None) == 0.3
+        assert share(n, time_limit=10.0, perseus_share=None) == 0.3
+        assert share(n, time_limit=5.0, perseus_share=None) == 0.0
+    assert share(249_856, time_limit=60.0, perseus_share=None) == 0.0  # RockSample_11_11
+    assert share(249_856, time_limit=600.0, perseus_share=None) == 0.0
+    assert share(249_856, beliefs=100, time_limit=60.0, perseus_share=None) == 0.3
+    edge = int(PERSEUS_MAX_BELIEF_ENTRIES) // 1000
+    assert share(edge, time_limit=60.0, perseus_share=None) == 0.3
+    assert share(edge + 1, time_limit=60.0, perseus_share=None) == 0.0
+    # explicit shares are obeyed whatever the size or limit
+    assert share(249_856, time_limit=60.0, perseus_share=0.3) == 0.3
+    assert share(249_856, time_limit=1.0, perseus_share=0.5) == 0.5
+    assert share(3201, time_limit=60.0, perseus_share=0.0) == 0.0
+    args = argparse.Namespace(beliefs=1000, perseus_share=None)
+    assert perseus_choice(args, 60.0, 249_856)[1].startswith("auto: the search alone")
+    assert perseus_choice(argparse.Namespace(perseus_share=0.2), 60.0, 249_856) == (0.2, "given")
+
+
+@needs_shared
+def test_solve_pomdp_reports_the_perseus_share(monkeypatch, capsys):
+    """solve-pomdp's JSON says which share it used and why (Tiger, 2 states: under the
+    threshold; with the threshold monkeypatched below its size, the search alone)."""
+    from vigil import solving
+
+    tiger = str(POMDP_DIR / "Tiger.pomdp")
+    for threshold, want in ((solving.PERSEUS_MAX_BELIEF_ENTRIES, 0.3), (1.0, 0.0)):
+        monkeypatch.setattr(solving, "PERSEUS_MAX_BELIEF_ENTRIES", threshold)
+        assert vigil(["solve-pomdp", tiger, "--time-limit", "10", "--json"]) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["perseus_share"] == want and out["stopped"] == "gap"
+        assert out["perseus_note"].startswith("auto")
+    assert (
+        vigil(["solve-pomdp", tiger, "--time-limit", "10", "--perseus-share", "0.2", "--json"]) == 0
+    )
+    out = json.loads(capsys.readouterr().out)
+    assert (out["perseus_share"], out["perseus_note"]) == (0.2, "given")
+
+
 def test_dominated_vectors_are_dropped_and_the_set_stays_closed():
     from stack.planning.controller import pointwise_dominators, prune_closed
 

@@ -39,6 +39,7 @@ from vigil.resume import DEFAULT_RESUME_MAX_AGE_S
 from vigil.solving import (
     bounds_line,
     command_start,
+    perseus_choice,
     progress_printer,
     read_model,
     solve_task_file,
@@ -86,7 +87,9 @@ def _solver_args(
         default=perseus_share,
         help="sarsop: share of the time limit for Perseus first, whose vectors seed the search"
         + (
-            " (default: 0.3 with a --time-limit of 10 s or more, else 0)"
+            "; always obeyed when given (default: auto, 0.3 with a --time-limit of 10 s or "
+            "more on a model whose --beliefs x states is at most 5e7, else 0; the JSON "
+            "output's perseus_share and perseus_note say which)"
             if perseus_share is None
             else ""
         ),
@@ -130,11 +133,15 @@ def cmd_solve_pomdp(args: argparse.Namespace) -> int:
     from stack.planning.solve import solve
 
     start = command_start(args)
-    config = solver_config(args)  # checks the arguments before the model is read
+    solver_config(args)  # checks the arguments before the model is read
     pomdp = read_model(args.file)
-    result = solve(
-        pomdp, config, progress=None if args.json else progress_printer(args), start=start
-    )
+    # --perseus-share's default depends on the model's size (vigil.solving.perseus_choice)
+    config = solver_config(args, pomdp.n_states)
+    share_note = perseus_choice(args, getattr(args, "time_limit", None), pomdp.n_states)[1]
+    progress = None if args.json else progress_printer(args)
+    if progress is not None and config.algorithm == "sarsop":
+        print(f"perseus share {config.perseus_share:g} ({share_note})", file=sys.stderr)
+    result = solve(pomdp, config, progress=progress, start=start)
     result.policy.meta["model"] = Path(args.file).name
     out = {
         "file": str(args.file),
@@ -142,6 +149,9 @@ def cmd_solve_pomdp(args: argparse.Namespace) -> int:
         "actions": pomdp.n_actions,
         "observations": pomdp.n_observations,
     } | result.summary()
+    if config.algorithm == "sarsop":
+        out["perseus_share"] = config.perseus_share
+        out["perseus_note"] = share_note
     if args.output:
         out["policy"] = str(result.policy.save(args.output))
     from stack.planning import clock
@@ -327,7 +337,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     # the benchmark files' best settings measured (docs/BENCHMARKS.md): Perseus first
-    # under a long limit (vigil.solving.perseus_share), its 1,000 beliefs
+    # under a long limit on a model of moderate size (vigil.solving.perseus_choice), its
+    # 1,000 beliefs
     _solver_args(p, iterations=1000, beliefs=1000, perseus_share=None)
     p.add_argument(
         "--cpu-time",

@@ -19,27 +19,63 @@ TASKS = {"r1": REPO / "config" / "task-r1.yaml", "r2": REPO / "config" / "task-r
 WRITE_RESERVE = 0.02
 WRITE_RESERVE_MIN_S = 0.1
 EXIT_RESERVE_MIN_S = 0.05
-# --perseus-share's default: with a time limit of at least PERSEUS_FIRST_MIN_S, that
-# share of it goes first to Perseus, whose vectors seed the belief-tree search (the
+# --perseus-share's default ("auto"): with a time limit of at least PERSEUS_FIRST_MIN_S,
+# that share of it goes first to Perseus, whose vectors seed the belief-tree search (the
 # best setting measured at 60 s on Hallway, Hallway2, TagAvoid and RockSample_5_7,
 # docs/BENCHMARKS.md; Perseus stops early on a model the search closes at once).
 # Shorter limits go to the search alone: RockSample_4_4 needs ~0.5 s of a 1 s limit.
+# So do models whose sampled belief set (--beliefs x states, dense float64) exceeds
+# PERSEUS_MAX_BELIEF_ENTRIES: Perseus's work grows with it (sampling a belief, and a
+# product with the whole set after every backup), and past it the phase buys nothing.
+# RockSample_11_11.pomdpx (249,856 states, 2.5e8 entries, 2 GB): sampling 1,000 beliefs
+# takes ~30 CPU s (more than a 60 s limit's 18 s share), 50 backups at ~0.27 s each
+# left the blind bound where it was, and at 60 CPU s the search alone ends higher
+# (21.52-21.58 against 21.33-21.35, 4,435-4,688 backups against ~2,950, peak 2.1-2.7 GB
+# against 3.0-3.1). RockSample_7_8.pomdpx (12,800 states, 1.3e7) still gains a little
+# (21.48 against 21.45); the flat benchmark files are at most 3.2e6 (RockSample_5_7).
+# A size, not a measured time: the same file and limit get the same settings on a
+# loaded machine. Not scaled with the limit: longer limits on 11_11 were not measured.
 PERSEUS_FIRST_SHARE = 0.3
 PERSEUS_FIRST_MIN_S = 10.0
+PERSEUS_MAX_BELIEF_ENTRIES = 5e7  # 400 MB as float64; between 7_8's 1.3e7 and 11_11's 2.5e8
 
 
-def perseus_share(args: argparse.Namespace, limit: float | None) -> float:
-    """``--perseus-share``, or when it is None (``solve-pomdp``'s default) the share for
-    ``limit`` (s); the task commands default to the task solver's 0."""
+def perseus_choice(
+    args: argparse.Namespace, limit: float | None, n_states: int | None = None
+) -> tuple[float, str]:
+    """The Perseus share and why: ``--perseus-share`` when given (``"given"``), else
+    (None, ``solve-pomdp``'s default) the share for ``limit`` (s) and a model of
+    ``n_states`` states (None: not known yet, the limit alone decides); the task
+    commands default to the task solver's 0."""
     share = getattr(args, "perseus_share", None)
     if share is not None:
-        return share
-    return PERSEUS_FIRST_SHARE if limit is not None and limit >= PERSEUS_FIRST_MIN_S else 0.0
+        return share, "given"
+    if limit is None or limit < PERSEUS_FIRST_MIN_S:
+        return 0.0, f"auto: the search alone under a time limit below {PERSEUS_FIRST_MIN_S:g} s"
+    if n_states is not None:
+        entries = getattr(args, "beliefs", 1000) * n_states  # solve-pomdp's 1,000
+        if entries > PERSEUS_MAX_BELIEF_ENTRIES:
+            return 0.0, (
+                f"auto: the search alone, {entries:.3g} belief entries (beliefs x states) "
+                f"> {PERSEUS_MAX_BELIEF_ENTRIES:.3g}"
+            )
+        return PERSEUS_FIRST_SHARE, (
+            f"auto: {entries:.3g} belief entries (beliefs x states) "
+            f"<= {PERSEUS_MAX_BELIEF_ENTRIES:.3g}"
+        )
+    return PERSEUS_FIRST_SHARE, "auto"
 
 
-def solver_config(args: argparse.Namespace):
+def perseus_share(
+    args: argparse.Namespace, limit: float | None, n_states: int | None = None
+) -> float:
+    """The share of :func:`perseus_choice`."""
+    return perseus_choice(args, limit, n_states)[0]
+
+
+def solver_config(args: argparse.Namespace, n_states: int | None = None):
     """The solver configuration of a command's arguments (--time-limit less the reserve
-    for writing the policy).
+    for writing the policy); ``n_states``: the model's, for --perseus-share's default.
 
     Raises:
         ValueError: a time limit that is not a positive number of seconds.
@@ -63,7 +99,7 @@ def solver_config(args: argparse.Namespace):
         target_gap=getattr(args, "target_gap", 1e-3),
         relative_gap=getattr(args, "relative_gap", 0.0),
         trials=getattr(args, "trials", None),
-        perseus_share=perseus_share(args, whole),
+        perseus_share=perseus_share(args, whole, n_states),
         dual_paths=getattr(args, "dual_paths", 0),
         delayed_bound=getattr(args, "delayed_bound", False),
         # writing a vector entry as XML text takes ~0.4 us on an idle core, more under
