@@ -293,3 +293,11 @@ def test_one_guard_counts_the_visits_one_robot_could_be_in_one_after_the_other()
     # three at once in 1, 12, 1 again later: 1 -> 1 (same cell) beats 1 -> 12
     visits = [_visit(1, 0.0, 3.0), _visit(12, 0.0, 3.0), _visit(1, 2.0, 4.0)]
     assert one_guard_reachable(visits, grid) == 2
+
+
+def test_one_guard_counts_every_reachable_visit_beyond_the_exact_limit():
+    from stack.cells import CellGrid
+    from vigil.report.people import ONE_GUARD_EXACT_MAX, one_guard_reachable
+
+    many = [_visit(1 if k % 2 else 12, 10.0, 11.0) for k in range(ONE_GUARD_EXACT_MAX + 1)]
+    assert one_guard_reachable(many, CellGrid()) == len(many)  # no failure, an upper bound

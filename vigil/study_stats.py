@@ -59,9 +59,12 @@ def summarise(episodes: Sequence[dict[str, Any]], seed: int = 0) -> dict[str, An
     reachable = sum(e.get("reachable", 0) for e in ok)
     guarded_reachable = sum(e.get("guarded_reachable", 0) for e in ok)
     q_lo, q_hi = wilson(guarded_reachable, reachable)
-    # several people: the visits one ideal guard could guard (vigil.report.people)
-    one_guard = sum(e["one_guard"] for e in ok if e.get("one_guard") is not None)
+    # several people: the visits one ideal guard could guard (vigil.report.people); a
+    # one-person episode's are its reachable visits
     several = any(e.get("one_guard") is not None for e in ok)
+    one_guard = sum(
+        e["one_guard"] if e.get("one_guard") is not None else e.get("reachable", 0) for e in ok
+    )
     o_lo, o_hi = wilson(min(guarded_reachable, one_guard), one_guard)
     with_trip = sum(e["n_false_trips"] > 0 for e in ok)
     d_mean, d_lo, d_hi = bootstrap_mean([e["delays_s"] for e in ok], seed)
