@@ -363,3 +363,67 @@ def test_video_composer_writes_h264(tmp_path):
     meta = next(reader)
     assert tuple(meta["size"]) == (960, 360)
     assert sum(1 for _ in reader) == n
+
+
+EPOCH_S = 1_795_812_190.0  # a real-time run's stamps: the system clock, epoch seconds
+
+
+def write_run_on_clock(run: Path, origin_s: float) -> Path:
+    """The synthetic run with every stamp ``origin_s`` later (0: the simulated clock),
+    a speech log and the camera frames of every other trace record."""
+    from vigil.frames import FRAMES_FILE, FrameWriter
+
+    steps, trace = make_steps(), make_trace()
+    for rec in steps:
+        rec["stamp_s"] += origin_s
+        if rec["observation"] is not None:
+            rec["observation"]["frame_stamp_s"] = rec["stamp_s"] - 0.25
+    for rec in trace:
+        rec["t"] += origin_s
+    write_run(run, steps, trace)
+    (run / "speech" / "speech_log.tsv").write_text(
+        "time_s\tvoice\tduration_s\twav\tframe_stamp_s\ttext\n"
+        f"{origin_s + 12.0:.3f}\ten\t2.000\t0001.wav\t{origin_s + 11.75:.3f}\tPlease leave\n"
+    )
+    frames = FrameWriter(run / FRAMES_FILE)
+    for rec in trace[::2]:
+        frames.add(rec["t"], np.full((48, 64, 3), 90, np.uint8))
+    frames.close()
+    return run
+
+
+def test_a_wall_clock_run_reports_seconds_since_its_start_as_lock_step_does(tmp_path, monkeypatch):
+    """Issue 25: a real-time run's stamps are epoch seconds; its report (summary,
+    tables, latency, the video's overlay) reads as the same run on the simulated clock,
+    whose times start at 0, and its raw records stay as they were."""
+    from vigil.report.video import VideoComposer as Composer
+
+    shown: dict[str, list[tuple[float, bool]]] = {}
+    add = Composer.add
+
+    def spy(self, t_s, frame_rgb, *args, **kwargs):
+        shown.setdefault(self.path.parent.parent.name, []).append((t_s, frame_rgb is not None))
+        return add(self, t_s, frame_rgb, *args, **kwargs)
+
+    monkeypatch.setattr(Composer, "add", spy)
+    sim = write_run_on_clock(tmp_path / "sim" / "run", 0.0)  # one name: one title
+    wall = write_run_on_clock(tmp_path / "wall" / "run", EPOCH_S)
+    raw = {n: (wall / n).read_bytes() for n in ("steps.jsonl", "trace.jsonl", "camera_frames.bin")}
+    s_sim = write_report(sim, TASK, plots=False)
+    s_wall = write_report(wall, TASK, plots=False)
+
+    (visit,) = s_wall["visits"]
+    assert visit["person_arrival_t"] == 7.0 and visit["robot_arrival_t"] == 12.0
+    assert s_wall["warnings_spoken"][0]["t"] == 12.0
+    assert s_wall["trace"]["start_t"] == 0.0 and s_wall["events_until_t"] == 22.0
+    assert s_wall["latency"]["frame_to_warning_s"]["max_s"] == 0.25
+    assert s_wall.pop("time_origin_s") == EPOCH_S and "time_origin_s" not in s_sim
+    assert s_wall == s_sim
+    for name in ("steps.md", "steps.csv"):
+        assert (wall / name).read_bytes() == (sim / name).read_bytes(), name
+    # the video's overlay and progress time, and every frame found beside its record
+    assert shown["wall"] == shown["sim"]
+    assert [t for t, _ in shown["wall"]] == [float(k) for k in range(31)]
+    assert [found for _, found in shown["wall"]] == [k % 2 == 0 for k in range(31)]
+    for name, data in raw.items():  # the records are the run's, never rewritten
+        assert (wall / name).read_bytes() == data, name

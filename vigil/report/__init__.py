@@ -261,8 +261,12 @@ def write_report(
     (when the recorder stored frames); always ``index.html``.
 
     Events and metrics end at the last decision's stamp (after it the twin runs on
-    until a wall-clock stop). Deterministic: the same inputs give byte-identical
-    steps.md, steps.csv and summary.json (and PNGs, with the same matplotlib).
+    until a wall-clock stop). Every time in the report is seconds since the run's
+    start, in lock-step (the simulated clock, as recorded) and in real time or on the
+    robot (the system clock's epoch stamps less the run's earliest, which
+    ``summary.json`` then holds as ``time_origin_s``): :func:`records.load_run`.
+    Deterministic: the same inputs give byte-identical steps.md, steps.csv and
+    summary.json (and PNGs, with the same matplotlib).
 
     Args:
         say: progress lines (about one a second while the video is written); None: quiet.
@@ -288,6 +292,8 @@ def write_report(
     title = f"{run_dir.name} ({task.name})"
     summary = summarise(model, rows, records, tl, wavs, thesis_table)
     summary["latency"] = latency(steps, trace, records.utterances)  # camera to motion, warning
+    if records.origin_s:  # the system clock: every time above is since this stamp
+        summary["time_origin_s"] = records.origin_s
     realtime = read_realtime(run_dir, records.warnings)
     if realtime is not None:  # a real-time twin: how well it kept the wall clock
         summary["realtime"] = realtime
@@ -333,6 +339,7 @@ def write_report(
             rest_cell=task.rest_cell,
             room_m=room,
             say=say,
+            origin_s=records.origin_s,
         )
         if path is not None:
             files.append(path.name)

@@ -30,6 +30,15 @@ Inputs in the run folder (formats fixed by ``vigil run``):
 - ``speech/speech_log.tsv``: one line per utterance started (``time_s``, ``voice``,
   ``duration_s``, ``wav``, ``text``; time on the run's clock, simulated in the twin).
 
+Times: every stamp above is on the run's clock. In lock-step (and in-process) runs that
+is the twin's simulated time, which starts at 0 with the run. In real time (``vigil run
+--realtime``) and on the robot it is the ROS system clock, epoch seconds: the bridge
+stamps the system time of the run's start plus the simulated time. :func:`load_run`
+gives the report run-relative times in both: when the earliest stamp is epoch-scaled
+(at least :data:`WALL_CLOCK_FROM_S`) it subtracts it from every time it returns
+(:func:`time_origin`, :func:`rebase`); simulated stamps are returned as they are. The
+files themselves are never changed.
+
 Malformed records: a line that is not a JSON object, lacks a required key or holds
 an unknown label raises :class:`RunRecordError` (a ValueError) naming the file and the
 line number. The one exception is a *last* line without its newline (a node killed in
@@ -41,7 +50,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +66,9 @@ TRACE_FILE = "trace.jsonl"
 SPEECH_LOG = "speech/speech_log.tsv"
 NOT_MOVING_BELOW_MPS = 0.05  # a true speed below this is "Not moving"
 SPEED_THRESHOLDS_MPS = (0.2, 0.7)  # thesis 4.5: 0-0.2, 0.2-0.7, higher
+# a run whose earliest stamp is at least this [s] is on the system clock (epoch seconds,
+# 1973 on): no simulated run lasts three years, and a simulated clock starts at 0
+WALL_CLOCK_FROM_S = 1e8
 
 
 class RunRecordError(ValueError):
@@ -291,6 +303,56 @@ class RunRecords:
     utterances: list[Utterance]
     speech_source: str
     warnings: list[str]
+    # the run's clock at its start [s], subtracted from every time above: 0.0 for a
+    # simulated clock, the earliest stamp for the system clock (:func:`time_origin`)
+    origin_s: float = 0.0
+
+
+def time_origin(
+    steps: Sequence[dict], trace: Sequence[dict], utterances: Sequence[Utterance]
+) -> float:
+    """The run's start on its clock [s]: what the report subtracts from every time.
+
+    0.0 for a simulated clock (lock-step, in-process: the twin's time starts at 0 with
+    the run, so its stamps are run-relative already and stay exactly as recorded). For
+    the system clock (real time, hardware: epoch seconds, told apart by an earliest
+    stamp of at least :data:`WALL_CLOCK_FROM_S`) the earliest stamp of the steps, the
+    trace and the utterances: in real time the twin's first ground truth, one control
+    period after the bridge started its clock.
+    """
+    firsts = [float(r["stamp_s"]) for r in steps] + [float(r["t"]) for r in trace]
+    firsts += [u.t for u in utterances]
+    start = min(firsts, default=0.0)
+    return start if start >= WALL_CLOCK_FROM_S else 0.0
+
+
+def since(t: float, origin_s: float) -> float:
+    """``t`` as seconds since ``origin_s`` (microseconds, as the records are stamped)."""
+    return round(t - origin_s, 6) + 0.0
+
+
+def rebase(records: RunRecords, origin_s: float) -> None:
+    """Make every time in ``records`` relative to ``origin_s`` (in place; 0.0: nothing
+    changes): the steps' ``stamp_s`` and observation ``frame_stamp_s``, the trace's
+    ``t``, the utterances' ``t`` and ``frame_stamp_s``. Differences between times keep."""
+    records.origin_s = origin_s
+    if origin_s == 0.0:
+        return
+    for rec in records.steps:
+        rec["stamp_s"] = since(float(rec["stamp_s"]), origin_s)
+        obs = rec.get("observation")
+        if isinstance(obs, dict) and isinstance(obs.get("frame_stamp_s"), int | float):
+            obs["frame_stamp_s"] = since(float(obs["frame_stamp_s"]), origin_s)
+    for rec in records.trace:
+        rec["t"] = since(float(rec["t"]), origin_s)
+    records.utterances = [
+        replace(
+            u,
+            t=since(u.t, origin_s),
+            frame_stamp_s=None if u.frame_stamp_s is None else since(u.frame_stamp_s, origin_s),
+        )
+        for u in records.utterances
+    ]
 
 
 def read_realtime(run_dir: str | Path, warnings: list[str]) -> dict | None:
@@ -311,7 +373,9 @@ def read_realtime(run_dir: str | Path, warnings: list[str]) -> dict | None:
 
 
 def load_run(run_dir: str | Path, n_cells: int) -> RunRecords:
-    """Read and check ``steps.jsonl``, ``trace.jsonl`` and the speech log.
+    """Read and check ``steps.jsonl``, ``trace.jsonl`` and the speech log; every time
+    in what it returns is seconds since the run's start (:func:`time_origin`, which
+    ``origin_s`` holds; the module's docstring).
 
     Raises:
         RunRecordError: a malformed record, or neither steps.jsonl nor trace.jsonl.
@@ -355,4 +419,6 @@ def load_run(run_dir: str | Path, n_cells: int) -> RunRecords:
             Utterance(float(r["t"]), None, text) for r in trace for text in trace_speech(r)
         ]
         source = "trace" if utterances else "none"
-    return RunRecords(steps, trace, utterances, source, warnings)
+    records = RunRecords(steps, trace, utterances, source, warnings)
+    rebase(records, time_origin(steps, trace, utterances))
+    return records

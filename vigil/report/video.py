@@ -22,6 +22,7 @@ from stack.cells import CellGrid
 from stack.files import PrivateOutput
 from stack.vocabulary import NO_PERSON
 from vigil.frames import FRAMES_FILE, decode, read_frames
+from vigil.report.records import since
 
 VIDEO_FILE = "camera.mp4"
 
@@ -385,12 +386,16 @@ def write_video(
     room_m: tuple[float, float, float, float] | None = None,
     fps: float = 10.0,
     say: Callable[[str], None] | None = None,
+    origin_s: float = 0.0,
 ) -> Path | None:
     """``camera.mp4`` from ``camera_frames.bin`` and the trace: one video frame per
     trace record. Returns the file, or None when the run stored no frames (then an
     existing ``camera.mp4``, e.g. from an older recorder, is left as it is).
 
-    ``say`` gets about one progress line a second.
+    ``say`` gets about one progress line a second. ``origin_s``: what was subtracted
+    from the times of ``trace`` and ``steps`` (:func:`vigil.report.records.load_run`);
+    the frames file holds the recorded times, and a frame goes with the record whose
+    recorded time it has.
     """
     run_dir = Path(run_dir)
     frames_path = run_dir / FRAMES_FILE
@@ -398,7 +403,7 @@ def write_video(
         return None
     jpegs: dict[float, bytes] = {}
     for t, data in read_frames(frames_path):
-        jpegs[round(t, 6)] = data
+        jpegs[since(t, origin_s)] = data  # round(t, 6) for a simulated clock's origin 0
     stamps = [float(s["stamp_s"]) for s in steps]
     beliefs = [((s.get("belief") or {}).get("person")) for s in steps]
     out = run_dir / VIDEO_FILE
