@@ -65,7 +65,28 @@ class _StopFlag:
             self.signal = signal.Signals(signum).name
 
 
-__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "Releasing", "spin_node"]
+__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "BatchingExecutor", "Releasing", "spin_node"]
+
+
+class BatchingExecutor(SingleThreadedExecutor):
+    """A single-threaded executor that calls its :attr:`before_wait` hooks each time it
+    has run every callback that was ready (one wake-up's batch), before it waits again.
+
+    A lock-step participant acknowledges a batch in one message
+    (:meth:`stack.ros_lockstep.Participant.ack_soon`) and the twin bridge checks its
+    ledger once a batch, instead of once a callback.
+    """
+
+    def __init__(self, *, context=None) -> None:
+        super().__init__(context=context)
+        self.before_wait: list[Callable[[], None]] = []
+
+    def _wait_for_ready_callbacks(self, *args, **kwargs):  # type: ignore[override]
+        # rclpy makes this generator anew once the previous one ran out of ready work:
+        # its first step is the wait
+        for hook in list(self.before_wait):
+            hook()
+        yield from super()._wait_for_ready_callbacks(*args, **kwargs)
 
 
 class Releasing:
@@ -121,7 +142,7 @@ def spin_node(
     code = 0
     try:
         node = make_node()
-        executor = SingleThreadedExecutor()
+        executor = BatchingExecutor()
         executor.add_node(node)
         while stop.signal is None:  # wakes at least every SPIN_WAKE_S to check
             executor.spin_once(timeout_sec=SPIN_WAKE_S)
