@@ -75,7 +75,7 @@ from stack.lockstep import (
     Coordinator,
     Ledger,
 )
-from stack.ros_main import Releasing, spin_node
+from stack.ros_main import BatchingExecutor, Releasing, spin_node
 from stack.ros_msgs import ack_from_msg, truth_to_msg
 from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
@@ -212,7 +212,7 @@ class TwinBridge(Releasing, Node):
         self.realtime_file = v.realtime_file
         self._stats_at = (0.0, 0.0)  # wall times of the last stats file and log line
         if self.lockstep:
-            callback, period = self._lockstep_poll, 0.001
+            callback, period = self._lockstep_timer, 0.001
         elif self.pacer is not None:  # twice per period: a tick is at most half late
             callback, period = self._realtime_tick, cfg.control_period_s / 2
         else:
@@ -272,8 +272,23 @@ class TwinBridge(Releasing, Node):
         )
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
-    def _lockstep_poll(self) -> None:
-        """Do what the coordinator (:class:`stack.lockstep.Coordinator`) says is next."""
+    def _lockstep_timer(self) -> None:
+        """Under :class:`stack.ros_main.BatchingExecutor` (:func:`spin_node`) the ledger
+        is checked after every batch of callbacks and this timer, slowed down, only sees
+        to the start and to stalls; under another executor it checks every 1 ms."""
+        hooks = ex.before_wait if isinstance(ex := self.executor, BatchingExecutor) else None
+        if hooks is not None and self._lockstep_batch not in hooks:
+            hooks.append(self._lockstep_batch)
+            self.timer.timer_period_ns = 20_000_000  # 20 ms: the start and stalls only
+        self._lockstep_poll()
+
+    def _lockstep_batch(self) -> None:
+        for _ in range(4):  # act until told to wait (at once, with participants)
+            if not self._lockstep_poll():
+                return
+
+    def _lockstep_poll(self) -> bool:
+        """Do what the :class:`stack.lockstep.Coordinator` says is next (False: wait)."""
         first = self.coordinator.phase == "start"
         action = self.coordinator.poll(self._wall_s(), self._own_matched, self.twin.time_s)
         self._log_coordinator()
@@ -289,6 +304,7 @@ class TwinBridge(Releasing, Node):
             self._publish_sensors()
         elif action == ABORT:
             raise SystemExit(EXIT_STALLED)
+        return bool(action)
 
     # -- stepping -------------------------------------------------------------------------
     def _step_physics(self) -> None:
