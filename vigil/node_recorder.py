@@ -83,8 +83,14 @@ class RecorderNode(Releasing, Node):
         self.records = TraceRecords()  # what each trace record holds (vigil.trace_records)
         ls = self.lockstep = Participant(self, v.lockstep)
         ls.subscription(Image, topic.CAMERA_IMAGE, self.on_image, 5)
-        ls.subscription(CameraPerson, topic.PERSON, self.on_person, 10)
+        # the legs before the camera: the legs node's message of a scan and the camera
+        # node's of the frame taken at the same tick both come one step after the
+        # twin's sensors; when both wait at once, the executor takes them in this order,
+        # so a camera record holds the legs of its own tick (as when the legs came
+        # first because detecting them is quicker than HOG; and as vigil.inprocess's
+        # queue delivers them: the scan is published before the frame)
         ls.subscription(LegTracks, topic.LEGS, self.on_legs, 10)
+        ls.subscription(CameraPerson, topic.PERSON, self.on_person, 10)
         ls.subscription(TwinTruth, topic.TWIN_TRUTH, self.on_truth, 10)
         ls.subscription(Odometry, topic.ODOM, self.on_odom, 10)
         ls.subscription(Warning, topic.SPEECH_WARNING, self.on_warning, 10)
