@@ -22,6 +22,10 @@ Time, three modes:
         until every participant has processed them and everything that followed
         (detections, observations, the planner's decision, the next ``/cmd_vel``),
         and only then steps the physics. Results do not depend on the machine's speed.
+        The waits are checked after each batch of callbacks the executor runs
+        (:class:`stack.ros_main.BatchingExecutor`); a frame due at the tick is
+        rendered on the camera's thread (:mod:`twin.camera_thread`) from the scene at
+        the ``/clock`` while the nodes take the clock and the tick.
     real time (``realtime`` true, ``lockstep`` false): the simulated time follows a
         monotonic wall clock (:class:`twin.realtime.Pacer`): a bridge that fell behind
         steps the physics until it has caught up; the camera renders on a thread of its
@@ -32,6 +36,9 @@ Time, three modes:
         How well it kept up (:class:`twin.realtime.RealtimeStats`) is logged every 10 s
         and written to ``realtime_file`` (JSON, replaced each second).
     free-running (both false): ticks as fast as the executor allows.
+
+The module is over 500 lines because the three modes share the sensors, the base and
+its watchdog, and each mode's timing is only readable beside the others'.
 
 Ground truth for evaluation also goes out as one record per sensor tick on
 ``/twin/truth`` (vigil_interfaces/TwinTruth): the robot's pose and cell, the first
@@ -201,8 +208,9 @@ class TwinBridge(Releasing, Node):
         )
         # real time: the wall-clock schedule; the stamps' offset is set at the first tick
         self.pacer = Pacer(cfg.control_period_s) if v.realtime and not self.lockstep else None
-        # real time: the camera renders on its own thread while the physics goes on
-        self.camera = twin.async_camera() if self.pacer is not None else None
+        # real time: the camera renders on its own thread while the physics goes on;
+        # lock-step: a frame rendered there while the nodes take the clock and the tick
+        self.camera = twin.async_camera() if self.pacer is not None or self.lockstep else None
         self._frame_owed = False  # a frame came due while the renderer was busy
         # real time: the nodes the world waits for before it starts (as an experimenter
         # sends the person in once the system is up), at most stall_timeout_s
@@ -297,7 +305,11 @@ class TwinBridge(Releasing, Node):
                 t_next = min(self._next.values())
                 while self.twin.time_s + 1e-9 < t_next:
                     self._step_physics()
-            self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s)))
+            t = self.twin.time_s
+            if self.camera is not None and self._next["camera"] <= t + 1e-9:
+                if not self._out("camera", t):  # the frame _publish_sensors() will send
+                    self.camera.capture(self.twin.data, t)
+            self._publish(self.pub_clock, Clock(clock=stamp_of(t)))
         elif action == TICK:  # everyone has the new time: now the timers
             self._publish(self.pub_tick, Clock(clock=stamp_of(self.twin.time_s)))
         elif action == SENSORS:
@@ -448,7 +460,9 @@ class TwinBridge(Releasing, Node):
             self._publish(self.pub_scan, scan_msg(tw.scan(), self.offset_s))
         frames = self._due("camera", t)
         if frames and not self._out("camera", t):
-            if self.camera is not None:  # real time: rendered beside the physics
+            if self.pacer is None and self.camera is not None:  # lock-step: see _frame
+                self._publish_image(self._frame(t), ts)
+            elif self.camera is not None:  # real time: rendered beside the physics
                 # a frame owed since the last period is dropped (counted), this one taken
                 # now or as soon as the renderer is free (_publish_frame)
                 assert self.pacer is not None
@@ -456,6 +470,17 @@ class TwinBridge(Releasing, Node):
                 self._capture()
             else:
                 self._publish_image(tw.render_camera(), ts)
+
+    def _frame(self, t: float):
+        """Lock-step: the frame of ``t``, captured with the scene at this tick's
+        ``/clock`` (nothing moves until the next) and rendered on the camera's thread
+        meanwhile: the image ``render_camera()`` makes of the scene, bit for bit."""
+        assert self.camera is not None
+        if not self.camera.busy:
+            self.camera.capture(self.twin.data, t)
+        frame = self.camera.collect(wait=True)
+        assert frame is not None and frame[0] == t, (frame and frame[0], t)
+        return frame[1]
 
     def _out(self, sensor: str, t: float) -> bool:
         return any(s == sensor and t0 <= t < t1 for s, t0, t1 in self.outages)
