@@ -52,6 +52,8 @@ def base(**changes):
         (base(nodes={"stop_timeout_s": 0}), "nodes.stop_timeout_s"),
         (base(nodes={"max_restarts": -2}), "nodes.max_restarts"),
         (base(nodes={"processes": "two"}), "nodes.processes"),
+        (base(nodes={"processes": "one"}, lockstep=False), "nodes.processes"),
+        (base(mode="hardware", nodes={"processes": "one"}), "nodes.processes"),
         (base(twin={"stall_timeout_s": float("inf")}), "twin.stall_timeout_s"),
         (base(ros={"interfaces": ["10.0.0.300"]}), "ros.interfaces"),
     ],
@@ -556,8 +558,8 @@ def test_a_lockstep_twin_run_s_nodes_go_in_one_process_where_they_can(tmp_path):
     rt_system = prepare(realtime, tmp_path / "b", plain, say=lambda s: None)
     assert one_process(realtime, rt_system, plain) is rt_system
     data["nodes"]["processes"] = "one"
-    with pytest.raises(ConfigError, match="lock-step"):
-        one_process(parse_deployment(data, tmp_path / "twin.yaml"), rt_system, plain)
+    with pytest.raises(ConfigError, match="lock-step twin run only"):
+        parse_deployment(data, tmp_path / "twin.yaml")
 
 
 def test_the_container_s_log_is_split_by_node(tmp_path):

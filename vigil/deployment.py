@@ -334,6 +334,12 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
             "odom",
             "on a robot odometry drifts from the map: use amcl or tf (REP-105 map -> odom)",
         )
+    if sections["nodes"].processes == "one" and (mode != "twin" or not lockstep):
+        raise ConfigError(
+            "nodes.processes", "one", "one process holds the nodes of a lock-step twin run "
+            "only (a robot's, a real-time twin's or several hosts' nodes run apart): use "
+            "auto or separate",
+        )  # fmt: skip
     hosts = _hosts(data.get("hosts"))
     if hosts and lockstep:
         raise ConfigError(
