@@ -536,7 +536,14 @@ def test_a_lockstep_twin_run_s_nodes_go_in_one_process_where_they_can(tmp_path):
     assert argv[argv.index("--nodes") + 1].split(",") == [s.name for s in system.specs]
     assert argv[-2:] == ["--params-file", str(system.specs[0].params_file)]
     assert {s.name for s in system.specs} <= set(NODES)
-    assert one.params == system.params and one.env == system.env
+    assert one.env == system.env
+    # the same parameters, and the bridge renders a frame beside the nodes
+    assert one.params == {
+        **system.params,
+        "twin_bridge": {**system.params["twin_bridge"], "render_ahead": True},
+    }
+    written = yaml.safe_load(system.specs[0].params_file.read_text())
+    assert written["twin_bridge"]["ros__parameters"]["render_ahead"] is True
 
     kill = parse_scenario(
         scenario(faults=[{"kind": "kill", "node": "planner", "after_step": 1}]), tmp_path / "k.yaml"

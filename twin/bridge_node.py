@@ -23,7 +23,8 @@ Time, three modes:
         (detections, observations, the planner's decision, the next ``/cmd_vel``),
         and only then steps the physics. Results do not depend on the machine's speed.
         The waits are checked after each batch of callbacks the executor runs
-        (:class:`stack.ros_main.BatchingExecutor`); a frame due at the tick is
+        (:class:`stack.ros_main.BatchingExecutor`); with ``render_ahead`` (the
+        nodes in one process, :mod:`vigil.container`) a frame due at the tick is
         rendered on the camera's thread (:mod:`twin.camera_thread`) from the scene at
         the ``/clock`` while the nodes take the clock and the tick.
     real time (``realtime`` true, ``lockstep`` false): the simulated time follows a
@@ -115,7 +116,8 @@ class TwinBridge(Releasing, Node):
     exit code :data:`EXIT_STALLED` and an error naming what it waited for),
     ``sensor_outages`` (JSON list of
     [sensor, t0_s, t1_s] with sensor "camera" or "lidar": nothing is published from it
-    in that simulated interval, a fault for tests and scenarios).
+    in that simulated interval, a fault for tests and scenarios), ``render_ahead``
+    (lock-step: render a frame on the camera's thread during the clock and tick phases).
     """
 
     def __init__(self, twin: Twin | None = None, **kwargs):
@@ -135,6 +137,7 @@ class TwinBridge(Releasing, Node):
             stall_timeout_s=30.0,
             sensor_outages="[]",
             realtime_file="",
+            render_ahead=False,
         )
         self.lockstep = v.lockstep
         participants = list(v.participants)
@@ -209,8 +212,11 @@ class TwinBridge(Releasing, Node):
         # real time: the wall-clock schedule; the stamps' offset is set at the first tick
         self.pacer = Pacer(cfg.control_period_s) if v.realtime and not self.lockstep else None
         # real time: the camera renders on its own thread while the physics goes on;
-        # lock-step: a frame rendered there while the nodes take the clock and the tick
-        self.camera = twin.async_camera() if self.pacer is not None or self.lockstep else None
+        # lock-step with render_ahead: rendered there while the nodes take the clock and
+        # the tick (one process, vigil.container: in separate processes the frame's lead
+        # of the render time let the truth reach the recorder before the detection)
+        ahead = self.lockstep and v.render_ahead
+        self.camera = twin.async_camera() if self.pacer is not None or ahead else None
         self._frame_owed = False  # a frame came due while the renderer was busy
         # real time: the nodes the world waits for before it starts (as an experimenter
         # sends the person in once the system is up), at most stall_timeout_s

@@ -36,7 +36,7 @@ from stack.files import open_write
 from vigil.deployment import Deployment
 from vigil.processes import ProcessSpec
 from vigil.scenario import Scenario
-from vigil.system import System
+from vigil.system import System, write_params
 
 # node name -> (module, node class, its last words or ""): what each module's main() spins
 NODES: dict[str, tuple[str, str, str]] = {
@@ -93,7 +93,10 @@ def one_process(dep: Deployment, system: System, scenario: Scenario | None, say=
     if odd:  # a node the container does not know (none today): each in its own process
         say(f"[run] one process cannot hold {', '.join(odd)}: a process a node")
         return system
-    params_file = system.specs[0].params_file
+    params = dict(system.params)
+    if "twin_bridge" in params:  # one process: the frame is rendered beside the nodes
+        params["twin_bridge"] = {**params["twin_bridge"], "render_ahead": True}
+    params_file = write_params(system.run_dir, names, params)
     command = [sys.executable, "-u", "-m", "vigil.container", "--nodes", ",".join(names)]
     spec = ProcessSpec(
         PROCESS_NAME,
@@ -102,7 +105,7 @@ def one_process(dep: Deployment, system: System, scenario: Scenario | None, say=
         restart=False,
         command=[*command, "--ros-args", "--params-file", str(params_file)],
     )
-    return replace(system, specs=[spec])
+    return replace(system, specs=[spec], params=params)
 
 
 def split_log(log_dir: Path, names: list[str]) -> None:
