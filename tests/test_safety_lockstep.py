@@ -91,9 +91,11 @@ def test_stamp_of_rounds_to_the_nearest_nanosecond():
 
 
 @pytest.mark.ros
-def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path):
+@pytest.mark.parametrize("process", ["twin_bridge", "container"])
+def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path, process):
     """A participant that never comes: the bridge exits with EXIT_STALLED, and the
-    launcher's reason names the missing node."""
+    launcher's reason names the missing node; the same with the bridge in the lock-step
+    run's one process (vigil.container)."""
     from twin.bridge_node import EXIT_STALLED
 
     params = tmp_path / "params.yaml"
@@ -103,6 +105,10 @@ def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path)
         "    stall_timeout_s: 1.0\n    stall_abort_s: 3.0\n"
     )
     spec = ProcessSpec("twin_bridge", "twin.bridge_node", params, restart=False)
+    if process == "container":
+        argv = [sys.executable, "-u", "-m", "vigil.container", "--nodes", "twin_bridge"]
+        command = [*argv, "--ros-args", "--params-file", str(params)]
+        spec = ProcessSpec("container", "vigil.container", params, False, command=command)
     la = Launcher([spec], tmp_path / "logs", {"MUJOCO_GL": "egl"}, say=lambda s: None)
     la.start()
     deadline = time.monotonic() + 120
@@ -111,7 +117,7 @@ def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path)
             time.sleep(0.2)
     finally:
         la.stop(2.0)
-    assert la.exit_codes["twin_bridge"] == EXIT_STALLED
+    assert la.exit_codes[process] == EXIT_STALLED
     assert "lock-step stalled" in la.stopped_because
     assert "ghost_planner" in la.stopped_because
     # what vigil run makes of it: the "stalled" ending, its own exit code, the bridge's line
