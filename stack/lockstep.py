@@ -205,8 +205,16 @@ class Ledger:
         total = self.own_sent.get(topic, 0) + self.retired_sent.get(topic, 0)
         return total + sum(m.ack.sent.get(topic, 0) for m in self.members.values())
 
-    def _expected_recv(self, member: _Member, topic: str) -> int:
-        return self.total_sent(topic) - member.offset.get(topic, 0)
+    def _totals(self) -> dict[str, int]:
+        """:meth:`total_sent` of every topic at once."""
+        totals: dict[str, int] = defaultdict(int)
+        for counts in (self.own_sent, self.retired_sent):
+            for topic, n in counts.items():
+                totals[topic] += n
+        for m in self.members.values():
+            for topic, n in m.ack.sent.items():
+                totals[topic] += n
+        return totals
 
     def _rebase(self, member: _Member) -> None:
         """Forgive what ``member`` missed: count it as balanced as of now."""
@@ -249,20 +257,21 @@ class Ledger:
         rebase.
         """
         out = []
+        totals = self._totals()  # the sums, once a check (they do not change in it)
         for name, m in sorted(self.members.items()):
             if m.excused:
                 continue
             for topic, got in sorted(m.ack.recv.items()):
-                want = self._expected_recv(m, topic)
+                want = totals.get(topic, 0) - m.offset.get(topic, 0)
                 if got <= want:
                     m.ahead_since.pop(topic, None)
                 if got > want and self._caught_up(name, m, topic):
-                    m.offset[topic] = self.total_sent(topic) - got
+                    m.offset[topic] = totals.get(topic, 0) - got
                     m.ahead_since.pop(topic, None)
                 elif got != want:
                     out.append(f"{name} {topic} {got}/{want}")
         for topic in sorted(self.own_subscribes):
-            got, want = self.own_recv.get(topic, 0), self.total_sent(topic)
+            got, want = self.own_recv.get(topic, 0), totals.get(topic, 0)
             if got < want:
                 out.append(f"coordinator {topic} {got}/{want}")
         return out

@@ -4,10 +4,13 @@ Kept apart from the algorithm packages: only node files import it.
 
 A node builds one :class:`Participant` and creates its publishers and subscriptions
 through it. Disabled (real time, the robot), they are the plain rclpy objects.
-Enabled, every subscription callback is followed by an acknowledgement of the counts,
-subscriptions are made reliable (a lost message would stall the twin), and the node's
-time is the coordinator's ``/clock`` as this participant last processed it, so a
-callback reads the same time whatever the machine's speed. Timers (:meth:`timer`,
+Enabled, the counts are acknowledged after the subscription callbacks: once per batch
+(every callback that was ready when the node woke) under
+:class:`stack.ros_main.BatchingExecutor`, as :func:`stack.ros_main.spin_node` spins a
+node, else after each callback. Subscriptions are made reliable (a lost message would
+stall the twin), and the node's time is the coordinator's ``/clock`` as this
+participant last processed it, so a callback reads the same time whatever the
+machine's speed. Timers (:meth:`timer`,
 :meth:`on_clock`) run on the coordinator's ``/lockstep/tick``, which follows only
 once every participant has processed the ``/clock``::
 
@@ -34,6 +37,7 @@ from vigil_interfaces.msg import LockstepAck
 
 from stack import topics
 from stack.lockstep import ACK_TOPIC, RUN_ID_ENV, TICK_TOPIC
+from stack.ros_main import BatchingExecutor
 from stack.ros_msgs import ack_to_msg
 
 HEARTBEAT_S = 0.5  # wall clock: re-send the counts (lost acks, matching at start-up)
@@ -105,13 +109,18 @@ class Participant:
         self._made_s = time.monotonic()
         self._matched_s: float | None = None  # when every subscription first had a publisher
         self.ready = False  # acknowledging (see READY_MAX_S)
+        self._dirty = False  # counts changed since the last acknowledgement (a batch's)
+        self._hooked: BatchingExecutor | None = None  # the executor that flushes them
+        # the publishers' subscription counts, as last asked: the coordinator and the bag
+        # read them only before the first tick, so after it they are asked on heartbeats
+        self._matched: dict[str, int] = {}
         if not self.enabled:
             return
         self._ack_pub = node.create_publisher(LockstepAck, ACK_TOPIC, 50)
         self.subscription(ClockMsg, clock_topic, self._clock_cb, 10, internal=True)
         self.subscription(ClockMsg, TICK_TOPIC, self._tick_cb, 10, internal=True)
         wall = Clock(clock_type=ClockType.STEADY_TIME)
-        node.create_timer(HEARTBEAT_S, self.ack, clock=wall)
+        node.create_timer(HEARTBEAT_S, self._heartbeat, clock=wall)
 
     # -- time -------------------------------------------------------------------------
     def now_s(self) -> float:
@@ -196,7 +205,7 @@ class Participant:
             finally:
                 self.in_callback = False
                 self.recv[holder["topic"]] += 1
-                self.ack()
+                self.ack_soon()
 
         def counted(msg) -> None:
             if not internal and self._tick_pending():
@@ -239,11 +248,42 @@ class Participant:
         self.ready = True
         return True
 
+    def ack_soon(self) -> None:
+        """Acknowledge the counts once the executor has run the rest of the batch
+        (:class:`stack.ros_main.BatchingExecutor`), or now under another executor.
+
+        One acknowledgement for a batch is as safe as one a callback: it is sent after
+        every callback of the batch, and shows every send of a callback whose receive
+        it shows (:mod:`stack.lockstep`); the coordinator only sees it later."""
+        executor = self.node.executor
+        if not isinstance(executor, BatchingExecutor):
+            self.ack()
+            return
+        if self._hooked is not executor:
+            self._hooked = executor
+            executor.before_wait.append(self._flush)
+        self._dirty = True
+
+    def _flush(self) -> None:
+        if self._dirty:
+            self._dirty = False
+            self.ack()
+
+    def _heartbeat(self) -> None:
+        self._matched = {}  # asked again
+        self.ack()
+
+    def _matched_counts(self) -> dict[str, int]:
+        if not self._matched or self._clock_s is None:
+            self._matched = {p.topic_name: p.get_subscription_count() for p in self._publishers}
+        return self._matched
+
     def ack(self) -> None:
         if not self.enabled:
             return
         if not self.ready and not self._check_ready():
             return  # counted all the same: the first acknowledgement carries them
+        self._dirty = False
         try:
             ack = ack_to_msg(
                 self.node.get_name(),
@@ -251,7 +291,7 @@ class Participant:
                 self.run_id,
                 self.recv,
                 self.sent,
-                {p.topic_name: p.get_subscription_count() for p in self._publishers},
+                self._matched_counts(),
             )
             self._ack_pub.publish(ack)
         except Exception:  # a callback finishing while Ctrl-C shuts the context down

@@ -37,8 +37,8 @@ import faulthandler
 import signal
 import sys
 import threading
-from collections.abc import Callable
-from typing import TypeVar
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -65,7 +65,47 @@ class _StopFlag:
             self.signal = signal.Signals(signum).name
 
 
-__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "Releasing", "spin_node"]
+__all__ = ["EXIT_BAD_CONFIG", "EXIT_DISK_FULL", "BatchingExecutor", "Releasing", "spin_node"]
+
+
+class BatchingExecutor(SingleThreadedExecutor):
+    """A single-threaded executor that calls its :attr:`before_wait` hooks each time it
+    has run every callback that was ready (one wake-up's batch), before it waits again.
+
+    A lock-step participant acknowledges a batch in one message
+    (:meth:`stack.ros_lockstep.Participant.ack_soon`) and the twin bridge checks its
+    ledger once a batch, instead of once a callback.
+    """
+
+    def __init__(self, *, context=None, qos_events: bool = True) -> None:
+        super().__init__(context=context)
+        self.before_wait: list[Callable[[], None]] = []
+        self.qos_events = qos_events
+
+    def _wait_for_ready_callbacks(self, *args, **kwargs):  # type: ignore[override]
+        # rclpy makes this generator anew once the previous one ran out of ready work:
+        # its first step is the wait
+        for hook in list(self.before_wait):
+            hook()
+        if not self.qos_events:
+            self._drop_event_handlers()
+        yield from super()._wait_for_ready_callbacks(*args, **kwargs)
+
+    def _drop_event_handlers(self) -> None:
+        """``qos_events`` False: the nodes' middleware-event handlers (rclpy gives every
+        publisher and subscription two, which log an incompatible QoS or type) are not
+        waited for. Each costs the executor Python work on every wait, and rclpy's
+        check of them is quadratic: with the hundred and more publishers and
+        subscriptions of one process holding every node of a run, it was most of the
+        process's time (:mod:`vigil.container`)."""
+        for node in self.get_nodes():
+            entities: list[Any] = [*node.publishers, *node.subscriptions]
+            for entity in entities:
+                if entity.event_handlers:
+                    for handler in entity.event_handlers:
+                        node.remove_waitable(handler)
+                        handler.destroy()
+                    entity.event_handlers = []  # destroy_publisher() removes these too
 
 
 class Releasing:
@@ -107,6 +147,29 @@ def spin_node(
         on_exit: last words while the context is still up (e.g. a zero velocity); runs
             on every way out once the node exists, a crash included.
     """
+    spin_nodes([(make_node, on_exit)], args)
+
+
+def spin_nodes(
+    makers: Sequence[tuple[Callable[[], Any], Callable[[Any], None] | None]],
+    args: list[str] | None = None,
+    name: str = "",
+    qos_events: bool = True,
+) -> None:
+    """:func:`spin_node` for several nodes in one process, on one executor (the twin's
+    lock-step container, :mod:`vigil.container`): built in order; a node that
+    cannot start ends the process (exit 2) with its name; on the way out every node's
+    last words, then every node's release, then the teardown, each done for every node
+    even when one of them fails (the first error is raised once all are done).
+
+    Args:
+        makers: (builds the node, its last words or None), in order.
+        args: ROS command-line arguments (every node reads its own parameters).
+        name: the process's name in a ``[FATAL]`` line raised after the start (default:
+            the node's, with one node).
+        qos_events: False: no handler of middleware events (an incompatible QoS logged)
+            is waited for (:class:`BatchingExecutor`).
+    """
     from stack.cells import ConfigError
 
     main_thread = threading.current_thread() is threading.main_thread()
@@ -117,41 +180,61 @@ def spin_node(
         # the stacks on SIGTERM, then the flag (chained): the launcher's second signal
         faulthandler.register(signal.SIGTERM, file=sys.stderr, all_threads=True, chain=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    nodes: list[tuple[Any, Callable[[Any], None] | None]] = []
+    making: Any = makers[0][0]  # the maker a [FATAL] line names
     code = 0
     try:
-        node = make_node()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
+        executor = BatchingExecutor(qos_events=qos_events)
+        for make, on_exit in makers:
+            making = make
+            nodes.append((make(), on_exit))
+            executor.add_node(nodes[-1][0])
+        if len(makers) > 1 and name:
+            making = _Named(name)
         while stop.signal is None:  # wakes at least every SPIN_WAKE_S to check
             executor.spin_once(timeout_sec=SPIN_WAKE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, OSError) as err:
         if isinstance(err, OSError) and err.errno in DISK_FULL:
-            _fatal(make_node, f"disk full: {err}")
+            _fatal(making, f"disk full: {err}")
             code = EXIT_DISK_FULL
-        elif node is not None:
+        elif len(nodes) == len(makers):
             raise
         else:
-            _fatal(make_node, str(err))
+            _fatal(making, str(err))
             code = EXIT_BAD_CONFIG
     finally:
         stop.cleaning = True
+        errors: list[BaseException] = []
+
+        def each(step: Callable[[Any, Callable[[Any], None] | None], None]) -> None:
+            for node, on_exit in nodes:
+                try:
+                    step(node, on_exit)
+                except Exception as err:  # noqa: BLE001 - raised once every node is done
+                    errors.append(err)
+
+        def last_words(node, on_exit) -> None:
+            if on_exit is not None and rclpy.ok():
+                on_exit(node)
+
+        def release(node, _on_exit) -> None:
+            if isinstance(node, Releasing):  # its files closed before the alarm is set
+                node.release()
+
         try:
-            if node is not None:
-                if on_exit is not None and rclpy.ok():
-                    on_exit(node)
-                if isinstance(node, Releasing):  # its files closed before the alarm is set
-                    node.release()
+            each(last_words)
+            each(release)
             if main_thread:
                 _teardown_alarm()
-            if node is not None:
-                node.destroy_node()
+            each(lambda node, _on_exit: node.destroy_node())
+            if errors:
+                raise errors[0]
         except OSError as err:  # closing files on a full disk
             if err.errno not in DISK_FULL:
                 raise
-            _fatal(make_node, f"disk full while closing: {err}")
+            _fatal(making, f"disk full while closing: {err}")
             code = EXIT_DISK_FULL
         finally:
             rclpy.try_shutdown()
@@ -159,6 +242,13 @@ def spin_node(
                 _teardown_alarm(cancel=True)
     if code:
         sys.exit(code)
+
+
+class _Named:
+    """A name for :func:`_fatal` (it reads ``__name__``)."""
+
+    def __init__(self, name: str):
+        self.__name__ = name
 
 
 def _teardown_alarm(cancel: bool = False) -> None:

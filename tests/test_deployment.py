@@ -51,6 +51,9 @@ def base(**changes):
         (base(mode="hardware", lockstep=True), "lockstep"),
         (base(nodes={"stop_timeout_s": 0}), "nodes.stop_timeout_s"),
         (base(nodes={"max_restarts": -2}), "nodes.max_restarts"),
+        (base(nodes={"processes": "two"}), "nodes.processes"),
+        (base(nodes={"processes": "one"}, lockstep=False), "nodes.processes"),
+        (base(mode="hardware", nodes={"processes": "one"}), "nodes.processes"),
         (base(twin={"stall_timeout_s": float("inf")}), "twin.stall_timeout_s"),
         (base(ros={"interfaces": ["10.0.0.300"]}), "ros.interfaces"),
     ],
@@ -511,3 +514,88 @@ def test_peers_are_asked_at_discovery_and_need_the_network(tmp_path):
             split_twin(tmp_path, HOSTS, ros={"localhost_only": False, "peers": ["10.0.0"]}),
             tmp_path / "twin.yaml",
         )
+
+
+def test_a_lockstep_twin_run_s_nodes_go_in_one_process_where_they_can(tmp_path):
+    """Issue 25: vigil run puts the lock-step twin's nodes in one process
+    (vigil.container), the same nodes with the same parameters; a scenario that kills a
+    node, a real-time twin or the nodes spread over hosts keep a process a node, and
+    asking for one process there is refused by name."""
+    from vigil.container import NODES, one_process
+    from vigil.system import prepare
+
+    data = twin_data(tmp_path)
+    dep = parse_deployment(data, tmp_path / "twin.yaml")
+    plain = parse_scenario(scenario(), tmp_path / "s.yaml")
+    system = prepare(dep, tmp_path / "a", plain, say=lambda s: None)
+    one = one_process(dep, system, plain, say=lambda s: None)
+    assert [s.name for s in one.specs] == ["container"]
+    (spec,) = one.specs
+    assert spec.restart is False  # one failure domain: a node that fails ends the run
+    argv = spec.argv()
+    assert argv[argv.index("--nodes") + 1].split(",") == [s.name for s in system.specs]
+    assert argv[-2:] == ["--params-file", str(system.specs[0].params_file)]
+    assert {s.name for s in system.specs} <= set(NODES)
+    assert one.env == system.env
+    # the same parameters, and the bridge renders a frame beside the nodes
+    assert one.params == {
+        **system.params,
+        "twin_bridge": {**system.params["twin_bridge"], "render_ahead": True},
+    }
+    written = yaml.safe_load(system.specs[0].params_file.read_text())
+    assert written["twin_bridge"]["ros__parameters"]["render_ahead"] is True
+
+    kill = parse_scenario(
+        scenario(faults=[{"kind": "kill", "node": "planner", "after_step": 1}]), tmp_path / "k.yaml"
+    )
+    assert one_process(dep, system, kill) is system  # auto: a process a node
+    data["nodes"]["processes"] = "one"
+    asked = parse_deployment(data, tmp_path / "twin.yaml")
+    with pytest.raises(ConfigError, match="kills planner") as err:
+        one_process(asked, system, kill)
+    assert err.value.key == "nodes.processes"
+    data["nodes"]["processes"] = "separate"
+    separate = parse_deployment(data, tmp_path / "twin.yaml")
+    assert one_process(separate, system, plain) is system
+
+    data["nodes"]["processes"] = "auto"
+    data.update(lockstep=False)
+    data["twin"]["realtime"] = True
+    realtime = parse_deployment(data, tmp_path / "twin.yaml")
+    rt_system = prepare(realtime, tmp_path / "b", plain, say=lambda s: None)
+    assert one_process(realtime, rt_system, plain) is rt_system
+    data["nodes"]["processes"] = "one"
+    with pytest.raises(ConfigError, match="lock-step twin run only"):
+        parse_deployment(data, tmp_path / "twin.yaml")
+
+
+def test_the_container_s_log_is_split_by_node(tmp_path):
+    from vigil.container import split_log
+
+    (tmp_path / "container.log").write_text(
+        "[INFO] [1.5] [planner]: step 1\n"
+        "[WARN] [1.6] [twin_bridge]: lock-step: slow\n"
+        "Traceback (most recent call last):\n"
+        "[INFO] [1.7] [planner]: step 2\n"
+    )
+    split_log(tmp_path, ["twin_bridge", "planner", "bag"])
+    assert (tmp_path / "planner.log").read_text().splitlines() == [
+        "[INFO] [1.5] [planner]: step 1",
+        "[INFO] [1.7] [planner]: step 2",
+    ]
+    assert "slow" in (tmp_path / "twin_bridge.log").read_text()
+    assert (tmp_path / "bag.log").read_text() == ""
+
+
+def test_the_container_refuses_a_node_it_does_not_know(tmp_path):
+    import subprocess
+
+    out = subprocess.run(
+        [sys.executable, "-m", "vigil.container", "--nodes", "twin_bridge,kettle"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert out.returncode == 2
+    assert "[FATAL] container:" in out.stderr and "'kettle'" in out.stderr

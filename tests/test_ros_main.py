@@ -92,3 +92,40 @@ def test_a_slow_release_of_the_nodes_files_is_not_cut_short_by_the_teardown_alar
     proc = _run(code, 120)
     assert proc.returncode == 0, proc.stderr
     assert "released" in proc.stderr
+
+
+@pytest.mark.ros
+def test_nodes_in_one_process_each_say_their_last_words_and_release_even_if_one_fails():
+    """stack.ros_main.spin_nodes (the lock-step twin's one process, vigil.container):
+    on a stop, every node's last words, then every node's release, then the teardown,
+    each for every node although the first node's last words raise; the error is then
+    raised (the process fails) once all of it is done."""
+    code = textwrap.dedent(
+        """
+        import os, signal, sys
+        from rclpy.node import Node
+        from stack.ros_main import Releasing, spin_nodes
+
+        class Holder(Releasing, Node):
+            def __init__(self, name):
+                super().__init__(name)
+                if name == "b":
+                    self.create_timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
+
+            def _release(self):
+                print(f"released {self.get_name()}", file=sys.stderr, flush=True)
+
+        def failing(node):
+            raise RuntimeError("last words of a failed")
+
+        def fine(node):
+            print(f"last words of {node.get_name()}", file=sys.stderr, flush=True)
+
+        spin_nodes([(lambda: Holder("a"), failing), (lambda: Holder("b"), fine)])
+        """
+    )
+    proc = _run(code, 60)
+    assert proc.returncode == 1, proc.stderr
+    said = [line for line in proc.stderr.splitlines() if line.startswith(("last", "released"))]
+    assert said == ["last words of b", "released a", "released b"], proc.stderr
+    assert "RuntimeError: last words of a failed" in proc.stderr

@@ -91,9 +91,11 @@ def test_stamp_of_rounds_to_the_nearest_nanosecond():
 
 
 @pytest.mark.ros
-def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path):
+@pytest.mark.parametrize("process", ["twin_bridge", "container"])
+def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path, process):
     """A participant that never comes: the bridge exits with EXIT_STALLED, and the
-    launcher's reason names the missing node."""
+    launcher's reason names the missing node; the same with the bridge in the lock-step
+    run's one process (vigil.container)."""
     from twin.bridge_node import EXIT_STALLED
 
     params = tmp_path / "params.yaml"
@@ -103,6 +105,10 @@ def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path)
         "    stall_timeout_s: 1.0\n    stall_abort_s: 3.0\n"
     )
     spec = ProcessSpec("twin_bridge", "twin.bridge_node", params, restart=False)
+    if process == "container":
+        argv = [sys.executable, "-u", "-m", "vigil.container", "--nodes", "twin_bridge"]
+        command = [*argv, "--ros-args", "--params-file", str(params)]
+        spec = ProcessSpec("container", "vigil.container", params, False, command=command)
     la = Launcher([spec], tmp_path / "logs", {"MUJOCO_GL": "egl"}, say=lambda s: None)
     la.start()
     deadline = time.monotonic() + 120
@@ -111,7 +117,7 @@ def test_a_stalled_lockstep_run_ends_with_an_error_naming_what_stalled(tmp_path)
             time.sleep(0.2)
     finally:
         la.stop(2.0)
-    assert la.exit_codes["twin_bridge"] == EXIT_STALLED
+    assert la.exit_codes[process] == EXIT_STALLED
     assert "lock-step stalled" in la.stopped_because
     assert "ghost_planner" in la.stopped_because
     # what vigil run makes of it: the "stalled" ending, its own exit code, the bridge's line
@@ -245,3 +251,75 @@ def test_a_participant_acknowledges_once_its_subscriptions_have_matched(ros):
     assert not ps.ready and "slow" not in heard
     assert spin_until(ros, lambda: "slow" in heard, READY_MAX_S + 3.0)
     assert time.monotonic() - t0 >= READY_MAX_S - 0.1
+
+
+@pytest.mark.ros
+def test_the_batching_executor_calls_its_hooks_once_a_batch(ros):
+    """Every callback ready at one wake-up runs before the hooks, which run once before
+    each wait (what a participant's one acknowledgement a batch rests on)."""
+    from rclpy.node import Node
+
+    from stack.ros_main import BatchingExecutor
+
+    log: list[str] = []
+    node = Node("batching")
+    gcs = [node.create_guard_condition(lambda i=i: log.append(f"gc{i}")) for i in (1, 2)]
+    ex = BatchingExecutor()
+    ex.before_wait.append(lambda: log.append("wait"))
+    ex.add_node(node)
+    for gc in gcs:
+        gc.trigger()
+    for _ in range(3):
+        ex.spin_once(timeout_sec=0.05)
+    assert log == ["wait", "gc1", "gc2", "wait"]
+    ex.shutdown()
+    node.destroy_node()
+
+
+@pytest.mark.ros
+def test_a_participant_acknowledges_a_batch_once_and_reads_matches_before_the_start(ros):
+    from builtin_interfaces.msg import Time
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Empty
+
+    from stack.ros_lockstep import Participant
+    from stack.ros_main import BatchingExecutor
+
+    acks: list[dict] = []
+    node = Node("batched")
+    p = Participant(node, True)
+    p.publisher(Empty, "/batched_out", 10)
+    p.ready = True  # past its start-up wait
+    p.ack = lambda: acks.append(dict(p._matched_counts()))  # type: ignore[method-assign]
+    ex = BatchingExecutor()
+    ex.add_node(node)
+    for _ in range(3):  # three callbacks of one batch
+        p.ack_soon()
+    assert acks == []
+    ex.spin_once(timeout_sec=0.01)  # the batch is over: one acknowledgement
+    assert len(acks) == 1
+    ex.spin_once(timeout_sec=0.01)
+    assert len(acks) == 1  # nothing new, nothing sent
+
+    asked: list[int] = []
+    pub = p._publishers[0]
+    pub.get_subscription_count = lambda: asked.append(1) or 0  # type: ignore[method-assign]
+    p._matched_counts()
+    assert len(asked) == 1  # before the first /clock: asked every time
+    p._clock_cb(Clock(clock=Time(sec=1)))
+    p._matched_counts()
+    p._matched_counts()
+    assert len(asked) == 1  # after it: the last answer...
+    p._heartbeat()
+    assert len(asked) == 2  # ...until a heartbeat asks again
+    ex.shutdown()
+
+    at_once: list[int] = []
+    other = Node("unbatched")
+    q = Participant(other, True)
+    q.ready = True
+    q.ack = lambda: at_once.append(1)  # type: ignore[method-assign]
+    ros.add_node(other)
+    q.ack_soon()
+    assert at_once == [1]  # under another executor: at once

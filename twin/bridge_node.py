@@ -22,6 +22,11 @@ Time, three modes:
         until every participant has processed them and everything that followed
         (detections, observations, the planner's decision, the next ``/cmd_vel``),
         and only then steps the physics. Results do not depend on the machine's speed.
+        The waits are checked after each batch of callbacks the executor runs
+        (:class:`stack.ros_main.BatchingExecutor`); with ``render_ahead`` (the
+        nodes in one process, :mod:`vigil.container`) a frame due at the tick is
+        rendered on the camera's thread (:mod:`twin.camera_thread`) from the scene at
+        the ``/clock`` while the nodes take the clock and the tick.
     real time (``realtime`` true, ``lockstep`` false): the simulated time follows a
         monotonic wall clock (:class:`twin.realtime.Pacer`): a bridge that fell behind
         steps the physics until it has caught up; the camera renders on a thread of its
@@ -32,6 +37,9 @@ Time, three modes:
         How well it kept up (:class:`twin.realtime.RealtimeStats`) is logged every 10 s
         and written to ``realtime_file`` (JSON, replaced each second).
     free-running (both false): ticks as fast as the executor allows.
+
+The module is over 500 lines because the three modes share the sensors, the base and
+its watchdog, and each mode's timing is only readable beside the others'.
 
 Ground truth for evaluation also goes out as one record per sensor tick on
 ``/twin/truth`` (vigil_interfaces/TwinTruth): the robot's pose and cell, the first
@@ -75,7 +83,7 @@ from stack.lockstep import (
     Coordinator,
     Ledger,
 )
-from stack.ros_main import Releasing, spin_node
+from stack.ros_main import BatchingExecutor, Releasing, spin_node
 from stack.ros_msgs import ack_from_msg, truth_to_msg
 from stack.ros_params import declare
 from stack.ros_tf import TF_QOS, TF_STATIC_QOS, tf_message
@@ -108,7 +116,8 @@ class TwinBridge(Releasing, Node):
     exit code :data:`EXIT_STALLED` and an error naming what it waited for),
     ``sensor_outages`` (JSON list of
     [sensor, t0_s, t1_s] with sensor "camera" or "lidar": nothing is published from it
-    in that simulated interval, a fault for tests and scenarios).
+    in that simulated interval, a fault for tests and scenarios), ``render_ahead``
+    (lock-step: render a frame on the camera's thread during the clock and tick phases).
     """
 
     def __init__(self, twin: Twin | None = None, **kwargs):
@@ -128,6 +137,7 @@ class TwinBridge(Releasing, Node):
             stall_timeout_s=30.0,
             sensor_outages="[]",
             realtime_file="",
+            render_ahead=False,
         )
         self.lockstep = v.lockstep
         participants = list(v.participants)
@@ -201,8 +211,12 @@ class TwinBridge(Releasing, Node):
         )
         # real time: the wall-clock schedule; the stamps' offset is set at the first tick
         self.pacer = Pacer(cfg.control_period_s) if v.realtime and not self.lockstep else None
-        # real time: the camera renders on its own thread while the physics goes on
-        self.camera = twin.async_camera() if self.pacer is not None else None
+        # real time: the camera renders on its own thread while the physics goes on;
+        # lock-step with render_ahead: rendered there while the nodes take the clock and
+        # the tick (one process, vigil.container: in separate processes the frame's lead
+        # of the render time let the truth reach the recorder before the detection)
+        ahead = self.lockstep and v.render_ahead
+        self.camera = twin.async_camera() if self.pacer is not None or ahead else None
         self._frame_owed = False  # a frame came due while the renderer was busy
         # real time: the nodes the world waits for before it starts (as an experimenter
         # sends the person in once the system is up), at most stall_timeout_s
@@ -212,7 +226,7 @@ class TwinBridge(Releasing, Node):
         self.realtime_file = v.realtime_file
         self._stats_at = (0.0, 0.0)  # wall times of the last stats file and log line
         if self.lockstep:
-            callback, period = self._lockstep_poll, 0.001
+            callback, period = self._lockstep_timer, 0.001
         elif self.pacer is not None:  # twice per period: a tick is at most half late
             callback, period = self._realtime_tick, cfg.control_period_s / 2
         else:
@@ -272,8 +286,23 @@ class TwinBridge(Releasing, Node):
         )
         return {p.topic_name: p.get_subscription_count() for p in pubs}
 
-    def _lockstep_poll(self) -> None:
-        """Do what the coordinator (:class:`stack.lockstep.Coordinator`) says is next."""
+    def _lockstep_timer(self) -> None:
+        """Under :class:`stack.ros_main.BatchingExecutor` (:func:`spin_node`) the ledger
+        is checked after every batch of callbacks and this timer, slowed down, only sees
+        to the start and to stalls; under another executor it checks every 1 ms."""
+        hooks = ex.before_wait if isinstance(ex := self.executor, BatchingExecutor) else None
+        if hooks is not None and self._lockstep_batch not in hooks:
+            hooks.append(self._lockstep_batch)
+            self.timer.timer_period_ns = 20_000_000  # 20 ms: the start and stalls only
+        self._lockstep_poll()
+
+    def _lockstep_batch(self) -> None:
+        for _ in range(4):  # act until told to wait (at once, with participants)
+            if not self._lockstep_poll():
+                return
+
+    def _lockstep_poll(self) -> bool:
+        """Do what the :class:`stack.lockstep.Coordinator` says is next (False: wait)."""
         first = self.coordinator.phase == "start"
         action = self.coordinator.poll(self._wall_s(), self._own_matched, self.twin.time_s)
         self._log_coordinator()
@@ -282,13 +311,18 @@ class TwinBridge(Releasing, Node):
                 t_next = min(self._next.values())
                 while self.twin.time_s + 1e-9 < t_next:
                     self._step_physics()
-            self._publish(self.pub_clock, Clock(clock=stamp_of(self.twin.time_s)))
+            t = self.twin.time_s
+            if self.camera is not None and self._next["camera"] <= t + 1e-9:
+                if not self._out("camera", t):  # the frame _publish_sensors() will send
+                    self.camera.capture(self.twin.data, t)
+            self._publish(self.pub_clock, Clock(clock=stamp_of(t)))
         elif action == TICK:  # everyone has the new time: now the timers
             self._publish(self.pub_tick, Clock(clock=stamp_of(self.twin.time_s)))
         elif action == SENSORS:
             self._publish_sensors()
         elif action == ABORT:
             raise SystemExit(EXIT_STALLED)
+        return bool(action)
 
     # -- stepping -------------------------------------------------------------------------
     def _step_physics(self) -> None:
@@ -432,7 +466,9 @@ class TwinBridge(Releasing, Node):
             self._publish(self.pub_scan, scan_msg(tw.scan(), self.offset_s))
         frames = self._due("camera", t)
         if frames and not self._out("camera", t):
-            if self.camera is not None:  # real time: rendered beside the physics
+            if self.pacer is None and self.camera is not None:  # lock-step: see _frame
+                self._publish_image(self._frame(t), ts)
+            elif self.camera is not None:  # real time: rendered beside the physics
                 # a frame owed since the last period is dropped (counted), this one taken
                 # now or as soon as the renderer is free (_publish_frame)
                 assert self.pacer is not None
@@ -440,6 +476,17 @@ class TwinBridge(Releasing, Node):
                 self._capture()
             else:
                 self._publish_image(tw.render_camera(), ts)
+
+    def _frame(self, t: float):
+        """Lock-step: the frame of ``t``, captured with the scene at this tick's
+        ``/clock`` (nothing moves until the next) and rendered on the camera's thread
+        meanwhile: the image ``render_camera()`` makes of the scene, bit for bit."""
+        assert self.camera is not None
+        if not self.camera.busy:
+            self.camera.capture(self.twin.data, t)
+        frame = self.camera.collect(wait=True)
+        assert frame is not None and frame[0] == t, (frame and frame[0], t)
+        return frame[1]
 
     def _out(self, sensor: str, t: float) -> bool:
         return any(s == sensor and t0 <= t < t1 for s, t0, t1 in self.outages)

@@ -23,7 +23,9 @@ Sections (all optional except ``mode`` and ``task``)::
                  # pose_source: odom (twin) | amcl | tf (hardware default; odom refused)
     speech: {voice: en}
     planner: {max_steps: 0, start_delay_s: 1.0, nav_timeout_s: 60.0, obs_timeout_s: 5.0}
-    nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0}
+    nodes: {restart: true, max_restarts: 3, stop_timeout_s: 5.0,
+            processes: auto}      # vigil run: one process for the lock-step twin's
+                                  # nodes (vigil.container) | one (or refused) | separate
     topics: {scan: /scan, odom: /odom, cmd_vel: /cmd_vel}
     hardware: {camera_stream: {...}, velocity_gate: {...}, armed: false,
                camera_info: axis-intrinsics.yaml}   # optional: /camera/camera_info
@@ -42,6 +44,7 @@ from stack.cells import ConfigError
 from stack.config import Config, read_yaml
 
 MODES = ("twin", "hardware")
+PROCESSES = ("auto", "one", "separate")  # nodes.processes
 # bounds of the values (issue 23: a value a node cannot use is refused here, naming the
 # key, before any process starts; types and finiteness: stack.config.check_fields)
 MAX_SEED = 2**32 - 1  # numpy's legacy seeds and every ROS integer parameter take it
@@ -194,11 +197,16 @@ class NodesSection(Config):
     max_restarts: int = 3
     stop_timeout_s: float = 5.0
     restart_delay_s: float = 0.0
+    # vigil run: "one" process for every node of the lock-step twin run
+    # (vigil.container), "separate" (one a node), "auto": one where it applies
+    # (vigil.system.one_process says where not)
+    processes: str = "auto"
 
     _rules = {
         "max_restarts": _within(0, MAX_RESTARTS, low_open=False),
         "stop_timeout_s": _within(0, 600.0),
         "restart_delay_s": _within(0, 600.0, low_open=False),
+        "processes": (lambda v: v in PROCESSES, f"must be one of {', '.join(PROCESSES)}"),
     }
 
 
@@ -326,6 +334,12 @@ def parse_deployment(data: Any, source: Path | None = None) -> Deployment:
             "odom",
             "on a robot odometry drifts from the map: use amcl or tf (REP-105 map -> odom)",
         )
+    if sections["nodes"].processes == "one" and (mode != "twin" or not lockstep):
+        raise ConfigError(
+            "nodes.processes", "one", "one process holds the nodes of a lock-step twin run "
+            "only (a robot's, a real-time twin's or several hosts' nodes run apart): use "
+            "auto or separate",
+        )  # fmt: skip
     hosts = _hosts(data.get("hosts"))
     if hosts and lockstep:
         raise ConfigError(

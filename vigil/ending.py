@@ -135,7 +135,7 @@ def from_launcher(launcher) -> Ending | None:
 
     if rc == NODE_DISK_FULL:
         return Ending("disk full", f"disk full: {line}")
-    if name == "twin_bridge" and rc == BRIDGE_STALLED:
+    if name in ("twin_bridge", "container") and rc == BRIDGE_STALLED:  # vigil.container
         return Ending("stalled", line)
     return Ending("node", line)
 

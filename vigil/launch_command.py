@@ -122,6 +122,8 @@ def prepare_launch(
     run_dir = fresh_run_dir(out, run_id)
     say(f"[launch] folder {run_dir}")
     system = prepare(dep, run_dir, scenario, say=say)
+    if dep.nodes.processes == "one":
+        say("[launch] nodes.processes: one is for vigil run; vigil launch starts a process a node")
     if host is not None:  # one host of several: its own nodes only (the deployment's hosts)
         specs = host_specs(system, dep, host)
         system = replace(system, specs=specs)

@@ -18,7 +18,8 @@ holds every message in the lock-step phase it was sent in, whatever the machine'
 participant (``participants``) has been heard on ``/lockstep/ack`` and the graph shows
 the publishers of the topics they publish (their acks list them) and of ``/clock``,
 subscribes to every wanted topic that has a publisher then, and only then acknowledges
-(the twin waits for it before its first tick, so no counted message is missed). Its log
+(the twin waits for it before its first tick, so no counted message is missed); then it
+stops listening to the acks. Its log
 time is the lock-step clock, made strictly increasing by one nanosecond per message, so
 the bag's order is the order the bag received the messages in; every ``/lockstep/tick``
 is written (a ``rosgraph_msgs/Clock``) before the messages of that tick. A counted topic
@@ -120,8 +121,11 @@ class BagNode(Releasing, Node):
         self.announced: set[str] = set()  # wanted topics the participants say they publish
         self.last_ns = -1
         self.started = False  # lock-step: subscribed and acknowledged
+        self.ack_sub = None  # lock-step: the others' acks, read only until the bag starts
         if v.lockstep:
-            self.create_subscription(LockstepAck, topic.LOCKSTEP_ACK, self.on_ack, 50)
+            self.ack_sub = self.create_subscription(
+                LockstepAck, topic.LOCKSTEP_ACK, self.on_ack, 50
+            )
         else:
             self.create_subscription(Clock, topic.CLOCK, self.on_clock, 10)
         self.want_lockstep = bool(v.lockstep)
@@ -201,6 +205,9 @@ class BagNode(Releasing, Node):
         if self.lockstep is not None and not self.started:
             self.started = True
             self.lockstep.ack()
+            if self.ack_sub is not None:  # every participant's ack from now on: unread
+                self.destroy_subscription(self.ack_sub)
+                self.ack_sub = None
 
     def _recorder(self, name: str):
         limit = self.limits.get(name)

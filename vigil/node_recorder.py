@@ -82,11 +82,16 @@ class RecorderNode(Releasing, Node):
         self.images: dict[float, object] = {}
         self.records = TraceRecords()  # what each trace record holds (vigil.trace_records)
         ls = self.lockstep = Participant(self, v.lockstep)
+        # in the order the twin's sensors cause them: when several wait at once the
+        # executor takes them in this order, so a camera record holds the truth and
+        # odometry of its own tick and the legs of its own scan (as when the slower
+        # message came later, and as vigil.inprocess's queue delivers them: the
+        # twin's messages first, then what the legs node and then the camera node sent)
         ls.subscription(Image, topic.CAMERA_IMAGE, self.on_image, 5)
-        ls.subscription(CameraPerson, topic.PERSON, self.on_person, 10)
-        ls.subscription(LegTracks, topic.LEGS, self.on_legs, 10)
         ls.subscription(TwinTruth, topic.TWIN_TRUTH, self.on_truth, 10)
         ls.subscription(Odometry, topic.ODOM, self.on_odom, 10)
+        ls.subscription(LegTracks, topic.LEGS, self.on_legs, 10)
+        ls.subscription(CameraPerson, topic.PERSON, self.on_person, 10)
         ls.subscription(Warning, topic.SPEECH_WARNING, self.on_warning, 10)
         ls.subscription(SpeechDone, topic.SPEECH_DONE, self.on_speech_done, 10)
         self.get_logger().info(f"recording into {out_dir}")

@@ -350,12 +350,18 @@ def _policy(dep: Deployment, task: Path, people: int, say) -> Path | str:
     return dep.policy or policy_for(task, say)
 
 
-def _write(
-    run_dir: Path, names: list[str], params: dict, dep: Deployment, max_steps: int
-) -> System:
+def write_params(run_dir: Path, names: list[str], params: dict) -> Path:
+    """The nodes' parameters, one section a node, in ``run_dir/params.yaml``."""
     params_file = run_dir / "params.yaml"
     doc = {name: {"ros__parameters": params[name]} for name in names}
     write_text(params_file, dump_yaml(doc, sort_keys=True))
+    return params_file
+
+
+def _write(
+    run_dir: Path, names: list[str], params: dict, dep: Deployment, max_steps: int
+) -> System:
+    params_file = write_params(run_dir, names, params)
     # a real-time twin stands for the physical world, which never waits: the nodes
     # yield the cores to it (on a robot they have cores of their own)
     realtime = realtime_twin(dep)

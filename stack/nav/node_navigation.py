@@ -346,11 +346,12 @@ class NavigationNode(Node):
             self._supersede()
 
 
-def main(args=None) -> None:
-    # leave the base standing still on the way out
-    def stop_base(node: NavigationNode) -> None:
-        node.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
+def stop_base(node: NavigationNode) -> None:
+    """The node's last words: leave the base standing still on the way out."""
+    node.cmd_pub.publish(twist_to_msg(ZERO_TWIST))
 
+
+def main(args=None) -> None:
     spin_node(NavigationNode, args, on_exit=stop_base)
 
 
