@@ -11,6 +11,7 @@ import pytest
 from stack.cells import CellGrid, ConfigError
 from stack.planning.agent import Observed, PlannerAgent
 from stack.planning.anticipate import AnticipationConfig, Anticipator, first_move
+from stack.planning.intent import IntentConfig
 from stack.planning.model import build_model
 from stack.planning.policy import AlphaPolicy
 from stack.planning.standby import trip_lengths
@@ -19,6 +20,9 @@ from stack.planning.task import Task, load_task
 from vigil.run import REPO
 
 GRID = CellGrid()  # 12 10 8 6 4 2 / 11 9 7 5 3 1; cell 1 is x 5-6, y 0-1.5
+# steps as weak evidence (rationality 3 per metre, not the default 10): the goal of a
+# walk stays unclear for metres, long enough to see what the layer does meanwhile
+WEAK = IntentConfig(rationality_per_m=3.0)
 DOOR = (7.0, 4.4)
 
 
@@ -197,7 +201,7 @@ def test_with_the_doorway_as_an_exit_a_person_walking_out_is_not_heading_for_cel
     path = walk((2.5, 0.75), (7.0, 5.2))[:-4]
     targets, p1 = {}, {}
     for exits in ((), ((7.0, 5.2),)):
-        ant = Anticipator(GRID, (1,), AnticipationConfig(exits_m=exits))
+        ant = Anticipator(GRID, (1,), AnticipationConfig(exits_m=exits, intent=WEAK))
         seen = set()
         for k, p in enumerate(path):
             ant.observe(0.25 * k, p)
@@ -324,7 +328,7 @@ def test_the_robot_stands_by_nearer_the_cell_a_person_may_be_heading_for():
     from the door toward cell 1's side draws the standby cell toward 1 before the
     goal is clear; one walking west toward 12 draws it toward 12; and without anyone
     seen there is nothing to stand by for (the policy decides)."""
-    cfg = AnticipationConfig(exits_m=((7.0, 5.2),))
+    cfg = AnticipationConfig(exits_m=((7.0, 5.2),), intent=WEAK)
     standby = {}
     for name, end in (("east", (5.8, 2.4)), ("west", (1.6, 3.4))):
         ant = Anticipator(GRID, (1, 12), cfg)
@@ -370,7 +374,7 @@ def test_several_people_stand_by_as_one_when_only_one_is_seen():
     other slot sees nobody; a second walker seen heading the other way moves it."""
     from stack.planning.anticipate import PeopleAnticipator
 
-    cfg = AnticipationConfig(exits_m=((7.0, 5.2),))
+    cfg = AnticipationConfig(exits_m=((7.0, 5.2),), intent=WEAK)
     one = Anticipator(GRID, (1, 12), cfg)
     two = PeopleAnticipator(GRID, (1, 12), cfg, people=2)
     path = walk((6.5, 3.6), (5.8, 2.4))

@@ -170,6 +170,28 @@ def test_inside_a_restricted_cell():
     assert est.inside is None and est.p(1) < 0.2
 
 
+def test_a_visitor_walking_out_has_reached_that_goal_and_may_head_for_the_other():
+    """Out of cell 1 by ``renew_after_visit_m``, the visitor's belief starts from the
+    prior again: P(1) falls at once (not over metres of walking away), and their walk on
+    toward 12 counts for 12 from the first step. Never renewing, P(1) stays high for
+    the first steps out (stepping back and forth over the border is one visit)."""
+    out = walk([(5.5, 0.75), (5.5, 2.0), (1.0, 2.25)], speed=1.0, heading_noise_deg=0.0,
+               pos_noise_m=0.0)  # fmt: skip
+    histories = {}
+    for margin in (0.3, -1.0):
+        cfg = IntentConfig(renew_after_visit_m=margin, rationality_per_m=3.0)  # weak steps
+        model = GoalInference(GRID, [1, 12], cfg)
+        model.update(TrackObservation(-1.0, (5.5, 0.75)))  # inside 1, at the prior
+        histories[margin] = feed(model, out)
+    renewed, kept = histories[0.3], histories[-1.0]
+    assert at(renewed, 0.5).inside == at(kept, 0.5).inside == 1  # still in: 0.9 both
+    assert at(renewed, 0.5).p(1) == pytest.approx(0.9)
+    # 0.35 m out of cell 1 (y 1.85): renewed is back near the prior, kept is not
+    assert at(renewed, 1.1).p(1) < 0.3 < 0.5 < at(kept, 1.1).p(1)
+    # heading west toward 12, the renewed belief gets there sooner
+    assert at(renewed, 2.5).p(12) > at(kept, 2.5).p(12)
+
+
 def test_eta_is_distance_over_speed_and_an_estimate_is_json_ready():
     model = GoalInference(GRID, [1])
     before = model.estimate()
@@ -238,6 +260,75 @@ def test_rationality_fitted_on_walks_drawn_with_a_known_beta_comes_back(beta, la
     # a goal given as a point (the door) works too
     door = simulate_goal_walk(GRID, DOOR, (1.0, 1.0), rng, beta, 0.0, 1.0, 0.25, 60)
     assert door.goal == DOOR and math.dist(door.observations[-1].position_m, DOOR) < 0.5
+
+
+def test_a_cell_as_spots_a_walker_may_head_for():
+    """``goal_spots``: a cell is n x n places; a step's likelihood under it is the mean
+    over its places: a walk to the middle of cell 1 goes to cell 1, one out of it to
+    cell 6 leaves it."""
+    from stack.planning.intent import goal_spots, spot_likelihood
+
+    assert goal_spots((5.0, 0.0, 6.0, 1.5), 0).tolist() == [[5.0, 0.0, 6.0, 1.5]]
+    assert goal_spots((5.0, 0.0, 6.0, 1.5), 2)[:, :2].tolist() == [
+        [5.25, 0.375], [5.25, 1.125], [5.75, 0.375], [5.75, 1.125]
+    ]  # fmt: skip
+    assert goal_spots((7.0, 5.2, 7.0, 5.2), 3).tolist() == [[7.0, 5.2, 7.0, 5.2]]  # a point
+    spots = np.concatenate([goal_spots(GRID.bounds(1), 3), goal_spots(GRID.bounds(2), 3)])
+    owner = np.repeat([0, 1], 9)
+    x, d = np.array([4.0, 2.6]), np.array([0.3, -0.4]) * 0.6  # toward (5.5, 0.6)
+    lik = spot_likelihood(spots, owner, 2, x, d, 32, 8.0, 0.05)
+    each = [spot_likelihood(spots[k : k + 1], np.zeros(1, int), 1, x, d, 32, 8.0, 0.05)[0]
+            for k in range(18)]  # fmt: skip
+    assert lik == pytest.approx([np.mean(each[:9]), np.mean(each[9:])])
+    walk_in = walk([(4.0, 2.6), (5.5, 0.6)], speed=1.0, pos_noise_m=0.0, heading_noise_deg=0.0)
+    model = GoalInference(GRID, [1, 12], IntentConfig(goal_spots=3, rationality_per_m=8.0))
+    assert at(feed(model, walk_in), 1.2).p(1) > 0.8
+    model = GoalInference(GRID, [1, 12], IntentConfig(goal_spots=3, rationality_per_m=8.0))
+    est = at(feed(model, walk([(5.5, 0.4), (2.5, 2.5)], speed=1.0)), 2.5)  # to cell 6
+    assert est.p(1) < 0.05
+
+
+def test_a_fit_with_spots_recovers_walks_drawn_to_places_in_cells():
+    """Walks to a random place in a cell are likelier under its spots than under its
+    nearest point (each model at its own best fit)."""
+    rng = np.random.default_rng(5)
+    tracks = []
+    for _ in range(60):
+        goal = int(rng.integers(1, GRID.n_cells + 1))
+        x0, y0, x1, y1 = GRID.bounds(goal)
+        place = (float(rng.uniform(x0, x1)), float(rng.uniform(y0, y1)))
+        start = (float(rng.uniform(-1.0, 7.0)), float(rng.uniform(-1.0, 4.0)))
+        if math.dist(start, place) < 1.0:
+            continue
+        obs = [o for _, o in walk([start, place], speed=1.0, seed=int(rng.integers(1 << 30)))]
+        tracks.append(LabelledTrack(goal, tuple(obs)))
+    near = fit_rationality(tracks, GRID, IntentConfig(goal_spots=0))
+    spots = fit_rationality(tracks, GRID, IntentConfig(goal_spots=3))
+    assert spots.log_likelihood > near.log_likelihood
+
+
+def test_the_calibrated_rationality_is_the_one_whose_beliefs_name_the_goal_best():
+    """Walks drawn from the model at beta 5 toward random cells: the belief scores the
+    true goal best near 5, worse at 1 (too vague) and at 40 (too sure); a walk to a
+    point that is no goal of the inference is left out, and with none left it says
+    so."""
+    from stack.planning.intent import calibrate_rationality, goal_log_score
+
+    rng = np.random.default_rng(3)
+    tracks = []
+    for _ in range(60):
+        goal = int(rng.integers(1, GRID.n_cells + 1))
+        start = (float(rng.uniform(-1.0, 7.0)), float(rng.uniform(-1.0, 4.0)))
+        tracks.append(simulate_goal_walk(GRID, goal, start, rng, 5.0, 0.0, 1.0, 0.25, 60))
+    model = GoalInference(GRID, [1, 12], IntentConfig(lapse=0.05))
+    best, scores = calibrate_rationality(tracks, model, (1.0, 3.0, 5.0, 7.0, 40.0))
+    assert best in (3.0, 5.0, 7.0) and scores[best] == max(scores.values())
+    assert scores[1.0] < scores[best] and scores[40.0] < scores[best]
+    assert all(v < 0 for v in scores.values())
+    nowhere = simulate_goal_walk(GRID, (3.0, 5.0), (1.0, 1.0), rng, 5.0, 0.0, 1.0, 0.25, 30)
+    assert goal_log_score([*tracks, nowhere], model) == pytest.approx(goal_log_score(tracks, model))
+    with pytest.raises(ConfigError, match="tracks"):
+        goal_log_score([nowhere], model)
 
 
 @pytest.mark.parametrize(

@@ -26,18 +26,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from stack.cells import CellGrid, ConfigError
+from stack.planning.intent.inference import GoalInference
 from stack.planning.intent.model import (
     Displacements,
     IntentConfig,
     TrackObservation,
+    boltzmann_likelihood,
     distances_to,
+    goal_spots,
     step_progress,
 )
 
 __all__ = [
+    "CALIBRATION_BETAS",
     "LabelledTrack",
     "RationalityFit",
+    "calibrate_rationality",
     "fit_rationality",
+    "goal_log_score",
     "simulate_goal_walk",
     "track_log_likelihood",
 ]
@@ -106,30 +112,31 @@ def track_steps(
     track: LabelledTrack, grid: CellGrid, config: IntentConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every displacement of ``track`` as the model sees it (the same rules as
-    :class:`~stack.planning.intent.inference.GoalInference`): the progress toward the
-    track's goal, and the progress of the same length in each direction.
+    :class:`~stack.planning.intent.inference.GoalInference`): the progress toward
+    each place of the track's goal (``config.goal_spots``; K = 1 for its nearest
+    point), and the progress of the same length in each direction.
 
     Returns:
-        (progress (N,), candidates (N, directions)) [m].
+        (progress (N, K), candidates (N, K, directions)) [m].
     """
-    rect = np.array([goal_rect(grid, track.goal)], dtype=float)
+    spots = goal_spots(goal_rect(grid, track.goal), config.goal_spots)
     disp = Displacements(config)
     ps, qs = [], []
     for obs in track.observations:
         step = disp.push(obs)
         if step is not None:
-            p, q = step_progress(rect, step[0], step[1], config.directions)
-            ps.append(p[0])
-            qs.append(q[0])
+            p, q = step_progress(spots, step[0], step[1], config.directions)
+            ps.append(p)
+            qs.append(q)
     if not ps:
-        return np.zeros(0), np.zeros((0, config.directions))
+        return np.zeros((0, len(spots))), np.zeros((0, len(spots), config.directions))
     return np.array(ps), np.array(qs)
 
 
 def _log_likelihood(p: np.ndarray, q: np.ndarray, beta: float, lapse: float) -> float:
-    top = q.max(axis=1)
-    z = np.mean(np.exp(beta * (q - top[:, None])), axis=1)
-    lik = (1.0 - lapse) * np.exp(beta * (p - top)) / z + lapse
+    """Steps' (N, K) progress toward a goal's K places and (N, K, directions)
+    candidates: the sum over steps of the log of the mean likelihood of the places."""
+    lik = boltzmann_likelihood(p, q, beta, lapse).mean(axis=-1)
     return float(np.sum(np.log(np.maximum(lik, 1e-300))))
 
 
@@ -193,20 +200,77 @@ def fit_rationality(
         raise ConfigError("beta_max", beta_max, "must be in (0, 100] per metre")
     if not tracks:
         raise ConfigError("tracks", [], "needs at least one walk")
-    parts = [track_steps(tr, grid, cfg) for tr in tracks]
-    p = np.concatenate([x[0] for x in parts])
-    q = np.concatenate([x[1] for x in parts])
-    if len(p) == 0:
+    by_places: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for tr in tracks:  # goals with as many places together (a cell's spots, a point)
+        p, q = track_steps(tr, grid, cfg)
+        by_places.setdefault(p.shape[1], []).append((p, q))
+    groups = [
+        (np.concatenate([x[0] for x in g]), np.concatenate([x[1] for x in g]))
+        for g in by_places.values()
+    ]
+    steps = sum(len(p) for p, _ in groups)
+    if steps == 0:
         raise ConfigError("tracks", len(tracks), "the walks give no displacement to fit on")
+
+    def total(beta: float, lapse: float) -> float:
+        return sum(_log_likelihood(p, q, beta, lapse) for p, q in groups if len(p))
+
     beta, lapse = cfg.rationality_per_m, cfg.lapse
     for _ in range(max(1, rounds)):
-        beta = _golden_max(lambda b, e=lapse: _log_likelihood(p, q, b, e), 0.0, beta_max)
+        beta = _golden_max(lambda b, e=lapse: total(b, e), 0.0, beta_max)
         if fit_lapse:
-            lapse = _golden_max(lambda e, b=beta: _log_likelihood(p, q, b, e), 0.0, 0.99)
+            lapse = _golden_max(lambda e, b=beta: total(b, e), 0.0, 0.99)
     fitted = dataclasses.replace(cfg, rationality_per_m=float(beta), lapse=float(lapse))
-    return RationalityFit(
-        float(beta), float(lapse), _log_likelihood(p, q, beta, lapse), len(p), fitted
-    )
+    return RationalityFit(float(beta), float(lapse), total(beta, lapse), steps, fitted)
+
+
+# the rationalities calibrate_rationality tries [1/m]
+CALIBRATION_BETAS = (1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 14.0, 20.0, 30.0, 40.0)
+
+
+def goal_log_score(tracks: Sequence[LabelledTrack], inference: GoalInference) -> float:
+    """How well ``inference`` (its goals, prior and parameters) tells where each walk
+    is going: the mean over the walks' observations of the log-probability its belief
+    gives the walk's true goal, each walk from the prior (a fresh copy). A walk whose
+    goal is no hypothesis of the inference (a point that is not one of its exits) is
+    left out. Higher is better; 0 is certainty on the truth."""
+    names = {g.cell: g.name for g in inference.goals if g.cell is not None}
+    points = {g.rect[:2]: g.name for g in inference.goals if g.rect and g.cell is None}
+    total, n = 0.0, 0
+    for tr in tracks:
+        if isinstance(tr.goal, int):
+            name = names.get(tr.goal)
+        else:
+            near = [p for p in points if math.dist(p, tr.goal) < 1e-6]
+            name = points[near[0]] if near else None
+        if name is None:
+            continue
+        model = inference.fresh()
+        for obs in tr.observations:
+            est = model.update(obs)
+            total += math.log(max(est.hypotheses[name], 1e-12))
+            n += 1
+    if n == 0:
+        raise ConfigError("tracks", len(tracks), "no walk heads for a goal of the inference")
+    return total / n
+
+
+def calibrate_rationality(
+    tracks: Sequence[LabelledTrack],
+    inference: GoalInference,
+    betas: Sequence[float] = CALIBRATION_BETAS,
+) -> tuple[float, dict[float, float]]:
+    """The rationality among ``betas`` whose beliefs score best on the walks
+    (:func:`goal_log_score`), and every score. Unlike :func:`fit_rationality`, which
+    scores each step as independent evidence, this scores the belief the guard acts
+    on: the successive steps of a real walk agree with each other, and a beta fitted
+    to them as independent makes the belief overconfident."""
+    scores = {}
+    for b in betas:
+        cfg = dataclasses.replace(inference.config, rationality_per_m=float(b))
+        model = GoalInference(inference.grid, inference.restricted, cfg, inference.exits)
+        scores[float(b)] = goal_log_score(tracks, model)
+    return max(scores, key=lambda b: scores[b]), scores
 
 
 def simulate_goal_walk(

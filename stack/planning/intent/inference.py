@@ -18,10 +18,10 @@ from stack.planning.intent.model import (
     Displacements,
     IntentConfig,
     TrackObservation,
-    boltzmann_likelihood,
     distances_to,
+    goal_spots,
     make_goals,
-    step_progress,
+    spot_likelihood,
 )
 
 __all__ = ["CellForecast", "GoalInference", "IntentEstimate", "IntentTracker"]
@@ -153,6 +153,10 @@ class GoalInference:
         self.goals = make_goals(grid, self.restricted, exits, config.other_cells_as_goals)
         self._doors = np.array([(float(x), float(y)) for x, y in exits], dtype=float).reshape(-1, 2)
         self._rects = np.array([g.rect for g in self.goals if g.rect is not None], dtype=float)
+        # the places a walker heading for each goal may walk to (config.goal_spots)
+        parts = [goal_spots(r, config.goal_spots) for r in self._rects]
+        self._spots = np.concatenate(parts)
+        self._owner = np.repeat(np.arange(len(parts)), [len(x) for x in parts])
         n_r = len(self.restricted)
         n_dest = len(self.goals) - n_r - 1
         prior = np.empty(len(self.goals))
@@ -192,6 +196,7 @@ class GoalInference:
         self.belief = self.prior.copy()
         self.t: float | None = None
         self._steps.reset()
+        self._visiting: int | None = None  # the restricted cell the person was last in
 
     # -- the two steps ------------------------------------------------------------------
     def _diffuse(self, t: float) -> None:
@@ -204,9 +209,9 @@ class GoalInference:
     def evidence(self, x: np.ndarray, d: np.ndarray) -> np.ndarray:
         """The likelihood of displacement ``d`` from ``x`` under every hypothesis."""
         cfg = self.config
-        p, q = step_progress(self._rects, x, d, cfg.directions)
         lik = np.ones(len(self.goals))
-        lik[:-1] = boltzmann_likelihood(p, q, cfg.rationality_per_m, cfg.lapse)
+        lik[:-1] = spot_likelihood(self._spots, self._owner, len(self._rects), x, d,
+                                   cfg.directions, cfg.rationality_per_m, cfg.lapse)  # fmt: skip
         return lik
 
     def update(self, obs: TrackObservation) -> IntentEstimate:
@@ -219,6 +224,7 @@ class GoalInference:
             return self.estimate()
         self._diffuse(obs.t)
         step = self._steps.push(obs)
+        self._renew_after_visit()
         if step is not None and not self._in_door_zone(step[0]):
             post = self.belief * self.evidence(*step)
             total = post.sum()
@@ -233,6 +239,21 @@ class GoalInference:
                 self.belief = self.belief * scale
                 self.belief[k] = self.config.inside_belief
         return self.estimate()
+
+    def _renew_after_visit(self) -> None:
+        """A person ``renew_after_visit_m`` out of the restricted cell they were in has
+        reached that goal: the belief starts again from the prior."""
+        margin = self.config.renew_after_visit_m
+        inside, pos = self._inside(), self._steps.position
+        if inside is not None or pos is None:
+            self._visiting = inside if margin >= 0 else None
+            return
+        if self._visiting is None:
+            return
+        k = self.restricted.index(self._visiting)
+        if distances_to(self._rects[k : k + 1], pos)[0] >= margin:
+            self.belief = self.prior.copy()
+            self._visiting = None
 
     def predict(self, t: float) -> IntentEstimate:
         """The belief at ``t`` with no new observation (it diffuses toward the prior);

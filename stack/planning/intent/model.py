@@ -23,7 +23,9 @@ __all__ = [
     "TrackObservation",
     "boltzmann_likelihood",
     "distances_to",
+    "goal_spots",
     "make_goals",
+    "spot_likelihood",
     "step_progress",
 ]
 
@@ -63,11 +65,21 @@ class IntentConfig(Config):
             of a goal: a person coming in walks straight through the doorway, whatever
             they came for (everyone entering the twin's room first walks south, towards
             the restricted cell below the door). 0: every step counts.
+        goal_spots: how a person heads for a cell: 0, for its nearest point (the
+            cost-to-go is the distance to the cell); n >= 1, for one of n x n spots
+            spread evenly over it, each equally likely (a person walks to a place in
+            the cell, a machine or a shelf, not to its nearest corner: a step is
+            likely under the cell when it heads for any of its spots).
+        renew_after_visit_m: a person who was inside a restricted cell and is this far
+            out of it again has reached that goal: they draw a new one, and the belief
+            starts again from the prior (a visitor walking out is not still heading for
+            the cell they leave). Negative: never (the belief only learns it from their
+            steps).
     """
 
     section = "intent"
 
-    rationality_per_m: float = setting(3.0, "in [0, 100] per metre")
+    rationality_per_m: float = setting(10.0, "in [0, 100] per metre")
     lapse: float = setting(0.05, "a probability in [0, 1)")
     restricted_prior: float = setting(0.5, "a probability in (0, 1)")
     wander_share: float = setting(0.3, "a probability in [0, 1]")
@@ -81,6 +93,8 @@ class IntentConfig(Config):
     directions: int = setting(32, "in [8, 720]")
     max_gap_s: float = setting(2.0, "> 0 s")
     door_zone_m: float = setting(1.0, "in [0, 5] m")
+    goal_spots: int = setting(0, "in [0, 10] (0: the nearest point)")
+    renew_after_visit_m: float = setting(0.3, "in [-1, 5] m (negative: never)")
 
 
 # -- goals -------------------------------------------------------------------------------
@@ -150,6 +164,40 @@ def distances_to(rects: np.ndarray, points: np.ndarray) -> np.ndarray:
     dx = np.maximum(np.maximum(r[..., 0] - p[..., 0], 0.0), p[..., 0] - r[..., 2])
     dy = np.maximum(np.maximum(r[..., 1] - p[..., 1], 0.0), p[..., 1] - r[..., 3])
     return np.hypot(dx, dy)
+
+
+def goal_spots(rect: Sequence[float], n: int) -> np.ndarray:
+    """The places a person heading for ``rect`` may walk to (see
+    ``IntentConfig.goal_spots``): with ``n`` >= 1 the n x n points at the centres of an
+    even n x n split of it (a point rectangle: itself), as point rectangles; with 0 the
+    rectangle itself. Returns (K, 4)."""
+    x0, y0, x1, y1 = (float(v) for v in rect)
+    if n <= 0 or (x0 == x1 and y0 == y1):
+        return np.array([[x0, y0, x1, y1]], dtype=float)
+    f = (np.arange(n) + 0.5) / n
+    xs, ys = np.meshgrid(x0 + f * (x1 - x0), y0 + f * (y1 - y0), indexing="ij")
+    pts = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    return np.concatenate([pts, pts], axis=1)
+
+
+def spot_likelihood(
+    spots: np.ndarray,
+    owner: np.ndarray,
+    n_goals: int,
+    x: np.ndarray,
+    d: np.ndarray,
+    directions: int,
+    beta: float,
+    lapse: float,
+) -> np.ndarray:
+    """The likelihood of displacement ``d`` from ``x`` under each of ``n_goals`` goals
+    whose places are ``spots`` ((K, 4) rectangles; ``owner[k]`` the goal of spot k):
+    the mean over a goal's spots of the Boltzmann likelihood toward each. Returns
+    (n_goals,)."""
+    p, q = step_progress(spots, x, d, directions)
+    lik = boltzmann_likelihood(p, q, beta, lapse)
+    total = np.bincount(owner, weights=lik, minlength=n_goals)
+    return total / np.maximum(np.bincount(owner, minlength=n_goals), 1)
 
 
 def step_progress(
