@@ -31,10 +31,10 @@ observation: the same walk observed at 5 or 15 Hz gives about the same belief.
 observations (a camera outage, the track lost) the belief diffuses back to the
 prior. A person **stopped** (speed under ``stop_speed_mps``) shows no direction, so
 their belief only diffuses. A person **inside a restricted cell** has reached it:
-that cell's belief is raised to at least ``inside_belief`` while they are in it; once
-they are ``renew_after_visit_m`` out of it again, that goal is reached and they draw
-a new one: the belief starts again from the prior (a visitor walking out is not still
-heading for the cell they leave, and may head for another).
+that cell's belief is raised to at least ``inside_belief`` while they are in it; with
+``renew_after_visit_m`` set, once they are that far out of it again, that goal is
+reached and they draw a new one: the belief starts again from the prior (a visitor
+walking out is not still heading for the cell they leave, and may head for another).
 
 **Forecast.** Per restricted cell: the probability that it is the goal, the distance
 to it (along the shortest path) and the predicted time to entry, distance / speed

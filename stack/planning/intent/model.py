@@ -73,8 +73,8 @@ class IntentConfig(Config):
         renew_after_visit_m: a person who was inside a restricted cell and is this far
             out of it again has reached that goal: they draw a new one, and the belief
             starts again from the prior (a visitor walking out is not still heading for
-            the cell they leave). Negative: never (the belief only learns it from their
-            steps).
+            the cell they leave). Negative (the default): never, the belief learns it
+            from their steps (docs/EXPERIMENTS.md, issue 26: a wash on the studies).
     """
 
     section = "intent"
@@ -94,7 +94,7 @@ class IntentConfig(Config):
     max_gap_s: float = setting(2.0, "> 0 s")
     door_zone_m: float = setting(1.0, "in [0, 5] m")
     goal_spots: int = setting(0, "in [0, 10] (0: the nearest point)")
-    renew_after_visit_m: float = setting(0.3, "in [-1, 5] m (negative: never)")
+    renew_after_visit_m: float = setting(-1.0, "in [-1, 5] m (negative: never)")
 
 
 # -- goals -------------------------------------------------------------------------------
