@@ -302,6 +302,9 @@ def chaos_files(
     # machine): the twin excuses it after 1 s and runs on for 2 s of wall time without
     # its commands, so the base's own timeout is what stops it, on any machine
     config["nodes"].update(max_restarts=100, restart_delay_s=3.0)
+    # chaos kills node processes from outside: each node in a process of its own (one
+    # process for the whole lock-step twin, nodes.processes: auto, has none to kill)
+    config["nodes"]["processes"] = "separate"
     config["task"] = str(task)
     write_text(folder / "dep.yaml", dump_yaml(config))
     return folder / "chaos.yaml", folder / "dep.yaml"
