@@ -137,7 +137,7 @@ def main() -> int:
         cfg = t.anticipation.intent
         if beta is not None:
             cfg = dataclasses.replace(cfg, rationality_per_m=beta)
-        return GoalInference(t.grid, t.restricted_cells, cfg, t.anticipation.exits_m)
+        return GoalInference.for_task(t, cfg, t.anticipation.exits_m)
 
     calibrated, scores = calibrate_rationality(tracks, inference(task))
     print("mean log P(true goal) by rationality_per_m: "

@@ -129,6 +129,14 @@ def split_log(log_dir: Path, names: list[str]) -> None:
             return
 
 
+def split_logs(system: System, log_dir: Path) -> None:
+    """After a run: with its nodes in one process (:func:`one_process`), each node's
+    log lines in ``<node>.log`` too, as with a process a node; else nothing."""
+    for spec in system.specs:
+        if spec.name == PROCESS_NAME and spec.command:
+            split_log(log_dir, spec.command[spec.command.index("--nodes") + 1].split(","))
+
+
 def makers(names: list[str]) -> list[tuple[Callable[[], Any], Callable[[Any], None] | None]]:
     """(node class, last words) of each node, in order.
 

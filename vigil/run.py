@@ -21,7 +21,7 @@ from pathlib import Path
 from stack.cells import ConfigError
 from stack.files import MAX_RECORD_BYTES, read_text_capped
 from stack.lockstep import RUN_ID_ENV  # read by stack.ros_lockstep (acks) and the twin bridge
-from vigil.container import one_process
+from vigil.container import one_process, split_logs
 from vigil.deployment import load_deployment
 from vigil.ending import (
     KINDS,
@@ -179,7 +179,7 @@ def _run(scenario, dep, run_dir: Path, run_id: str, observations: str, timeout_s
     finally:
         signals.cleaning()  # from here a signal waits: the nodes stop, the bag closes
         codes = launcher.stop(dep.nodes.stop_timeout_s)
-        split_container_log(system, run_dir / "logs")
+        split_logs(system, run_dir / "logs")
         if claim is not None:
             claim.release()
         release(run_dir)
@@ -209,17 +209,6 @@ def _prepare(scenario, dep, run_dir: Path, observations: str, say):
         system = prepare(dep, run_dir, scenario, say=say)
         return one_process(dep, system, scenario, say)
     raise ConfigError("observations", observations, "must be twin or table")
-
-
-def split_container_log(system, log_dir: Path) -> None:
-    """With the nodes in one process (:mod:`vigil.container`): each node's log lines
-    in ``<node>.log`` too, as with a process a node."""
-    from vigil.container import PROCESS_NAME, split_log
-
-    for spec in system.specs:
-        if spec.name == PROCESS_NAME and spec.command:
-            names = spec.command[spec.command.index("--nodes") + 1].split(",")
-            split_log(log_dir, names)
 
 
 def _early_ending(err: BaseException) -> Ending:

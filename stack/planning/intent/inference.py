@@ -224,13 +224,13 @@ class GoalInference:
             return self.estimate()
         self._diffuse(obs.t)
         step = self._steps.push(obs)
-        self._renew_after_visit()
+        inside = self._inside()
+        self._renew_after_visit(inside)
         if step is not None and not self._in_door_zone(step[0]):
             post = self.belief * self.evidence(*step)
             total = post.sum()
             if total > 0 and np.isfinite(total):
                 self.belief = post / total
-        inside = self._inside()
         if inside is not None:
             k = self.restricted.index(inside)
             if self.belief[k] < self.config.inside_belief:
@@ -240,11 +240,12 @@ class GoalInference:
                 self.belief[k] = self.config.inside_belief
         return self.estimate()
 
-    def _renew_after_visit(self) -> None:
-        """A person ``renew_after_visit_m`` out of the restricted cell they were in has
-        reached that goal: the belief starts again from the prior."""
+    def _renew_after_visit(self, inside: int | None) -> None:
+        """A person ``renew_after_visit_m`` out of the restricted cell they were in (now
+        ``inside``, None: none) has reached that goal: the belief starts again from the
+        prior."""
         margin = self.config.renew_after_visit_m
-        inside, pos = self._inside(), self._steps.position
+        pos = self._steps.position
         if inside is not None or pos is None:
             self._visiting = inside if margin >= 0 else None
             return

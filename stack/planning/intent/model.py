@@ -196,6 +196,8 @@ def spot_likelihood(
     (n_goals,)."""
     p, q = step_progress(spots, x, d, directions)
     lik = boltzmann_likelihood(p, q, beta, lapse)
+    if len(spots) == n_goals:  # one place a goal (goal_spots 0): its own likelihood
+        return lik
     total = np.bincount(owner, weights=lik, minlength=n_goals)
     return total / np.maximum(np.bincount(owner, minlength=n_goals), 1)
 
