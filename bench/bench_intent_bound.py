@@ -16,6 +16,15 @@ would be first and the mean delay: a bound for the rule, not for a better infere
 The last rows, "goal known on entry", are a clairvoyant guard's: it sets off for the
 person's true cell the moment they come into the room (no inference at all, no
 acceleration): a bound for any guard of this base waiting in that cell.
+
+The last table, "leg known when it starts", counts every visit, not only the first: a
+guard that learns where the person is going the moment they set off on the leg that
+ends in the restricted cell (leave their last stop, or come in at the door) and goes
+there at 0.5 m/s straight into the cell, from the rest cell before a walk's first
+visit and from the restricted cell it guarded before the next. No goal inference can
+know more than this at the leg's start; a walker who stops at a cell's border
+(hesitate, decoy) counts from the door, the way to the border showing where they
+go. Its share is what 50 % first asks of an inference.
 """
 
 from __future__ import annotations
@@ -125,7 +134,49 @@ def main() -> int:
             t = cross["known"][0] + leg(wait, cell, "trip")[0] / 0.5
             first += t < arrival
         print(f"| {kind} | {len(rows)} | {100 * first / len(rows):.0f} % |")
+    leg_known(files[: args.episodes], task, args.door_y)
     return 0
+
+
+def leg_known(files: list[str], task, door_y: float) -> dict[str, list[int]]:
+    """The "leg known when it starts" table (module docstring), per behaviour; returns
+    {behaviour: [visits, first if the leg is known when it starts, first in the study]}."""
+    grid, rows = task.grid, {}
+    for f in files:
+        episode = json.loads(Path(f).read_text())
+        if not episode["visits"]:
+            continue
+        trace = [json.loads(x) for x in (Path(f).parent / "trace.jsonl").read_text().splitlines()]
+        words = episode.get("title", "").split()
+        kind = next((w for w in words if w in BEHAVIOURS), "?")
+        wait = grid.center(task.rest_cell)
+        for visit in episode["visits"]:
+            arrival, cell = visit["person_arrival_t"], visit["cell"]
+            start = trace[0]["t"]
+            # the last moment before arrival the person stood or came in (a stop at the
+            # border, hesitate's or a decoy's, is part of the leg: the way to the border
+            # shows where they go)
+            border = kind in ("hesitate", "decoy")
+            for rec in trace:
+                if rec["t"] >= arrival:
+                    break
+                vx, vy = rec.get("person_velocity") or (0.0, 0.0)
+                outside = not rec["person"] or rec["person"][1] > door_y
+                if outside or (not border and math.hypot(vx, vy) < 0.05):
+                    start = rec["t"]
+            end = grid.nearest_inside(cell, wait[0], wait[1], TRIP_INSET_M)
+            row = rows.setdefault(kind, [0, 0, 0])
+            row[0] += 1
+            row[1] += start + math.dist(wait, end) / 0.5 < arrival
+            row[2] += bool(visit["robot_first"])
+            wait = grid.center(cell)
+    print()
+    print("| behaviour | visits | leg known when it starts: robot first | the study's guard |")
+    print("|---|---:|---:|---:|")
+    for kind in sorted(rows) + ["all"]:
+        n, known, first = rows[kind] if kind != "all" else np.sum(list(rows.values()), axis=0)
+        print(f"| {kind} | {n} | {100 * known / n:.0f} % | {100 * first / n:.0f} % |")
+    return rows
 
 
 if __name__ == "__main__":
