@@ -7,7 +7,14 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from stack.nav.astar import NoPathError, NoPathReason, astar_grid, path_cost_cells, plan
+from stack.nav.astar import (
+    NoPathError,
+    NoPathReason,
+    astar_grid,
+    path_cost_cells,
+    plan,
+    reachable,
+)
 from stack.nav.occupancy import OCCUPIED, OccupancyMap
 
 
@@ -125,3 +132,21 @@ def test_plan_in_map_coordinates_goes_around_a_wall():
     assert path.cost_m == pytest.approx(seg)
     with pytest.raises(NoPathError, match="goal inside an obstacle"):
         plan(m, (0.0, 0.0), (wall_x, 0.0), inflation_radius_m=0.2)
+
+
+def test_reachable_is_what_astar_can_reach_from_the_start():
+    blocked = np.zeros((5, 7), dtype=bool)
+    blocked[:, 3] = True  # a wall down the middle
+    blocked[2, 3] = False  # with a one-cell gap
+    blocked[0, 1] = blocked[1, 0] = True  # the corner cell (0, 0) only diagonally open
+    region = reachable(blocked, (4, 0))
+    for cell in np.ndindex(blocked.shape):
+        try:
+            astar_grid(blocked, (4, 0), cell)
+            ok = True
+        except NoPathError:
+            ok = False
+        assert region[cell] == ok, cell
+    assert not region[0, 0] and region[0, 6]  # no corner cutting; through the gap
+    assert not reachable(blocked, (0, 3)).any()  # from a blocked cell: nothing
+    assert not reachable(blocked, (9, 9)).any()  # from outside: nothing

@@ -182,6 +182,40 @@ def test_person_on_the_waypoint_the_robot_still_enters_the_cell():
     assert clearance >= CFG.person_radius_m + CFG.robot_radius_m - 0.05
 
 
+def test_a_person_who_stepped_up_to_the_robot_at_the_cells_border_is_walked_round():
+    # the person stopped at cell 1's border right in front of the robot, nearer than
+    # the gap it keeps (robot radius + 0.15 m): it steps back to that gap, goes round
+    # them and enters the cell where they are not, never closer than it started
+    follower = PathFollower(CFG, room())
+    start = (4.75, 0.64)
+    base = KinematicBase(Pose2D(*start))
+    person = (5.1, 0.5)
+    gap = math.dist(start, person)
+    assert gap < CFG.robot_radius_m + 0.15
+    status, _, poses, _ = drive(
+        follower, base, (5.35, 0.6), people=[person], region=GRID.bounds(1), max_s=15
+    )
+    assert status.result is NavResult.SUCCEEDED
+    assert GRID.cell_at(base.pose.x_m, base.pose.y_m) == 1
+    assert min(math.dist((p.x_m, p.y_m), person) for p in poses) >= gap - 0.03
+
+
+def test_the_cell_is_entered_on_the_far_side_of_a_person_when_the_near_one_is_closed():
+    # a person in the south-west of cell 1, 0.6 m from the robot: the nearest free
+    # points of the cell are behind them or across; the robot goes round, keeping
+    # contact clearance
+    follower = PathFollower(CFG, room())
+    base = KinematicBase(Pose2D(4.5, 0.4))
+    person = (5.15, 0.35)
+    status, _, poses, _ = drive(
+        follower, base, (5.35, 0.4), people=[person], region=GRID.bounds(1), max_s=15
+    )
+    assert status.result is NavResult.SUCCEEDED
+    assert GRID.cell_at(base.pose.x_m, base.pose.y_m) == 1
+    clearance = min(math.dist((p.x_m, p.y_m), person) for p in poses)
+    assert clearance >= CFG.person_radius_m + CFG.robot_radius_m - 0.05
+
+
 def test_person_in_a_doorway_blocks_after_the_robot_stops_short():
     # a wall between cells 7 and 5 with a 0.9 m door: a person in it closes the only way
     cfg = FollowerConfig(blocked_timeout_s=1.5)

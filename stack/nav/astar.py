@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from stack.nav.occupancy import OccupancyMap, inflate
 
@@ -74,6 +75,20 @@ class Path:
 
     def __len__(self) -> int:
         return len(self.points_m)
+
+
+def reachable(blocked: np.ndarray, start: tuple[int, int]) -> np.ndarray:
+    """The cells :func:`astar_grid` can reach from ``start`` on ``blocked``: a bool
+    array of its shape, all False when ``start`` is outside or blocked. (Without corner
+    cutting a diagonal move is two orthogonal ones, so this is the start's 4-connected
+    free component.)"""
+    blocked = np.asarray(blocked, dtype=bool)
+    r, c = int(start[0]), int(start[1])
+    h, w = blocked.shape
+    if not (0 <= r < h and 0 <= c < w) or blocked[r, c]:
+        return np.zeros_like(blocked)
+    labels, _ = ndimage.label(~blocked)
+    return labels == labels[r, c]
 
 
 def astar_grid(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> GridPath:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stack.geometry import Pose2D
-from stack.nav.astar import NoPathError, NoPathReason, astar_grid
+from stack.nav.astar import NoPathError, NoPathReason, astar_grid, reachable
 from stack.nav.config import FollowerConfig
 from stack.nav.occupancy import OccupancyMap, disc_mask, inflate
 
@@ -433,7 +433,8 @@ class PathFollower:
         return None
 
     def _plan_into_region(self, start: tuple[int, int], pos_xy: tuple[float, float]):
-        """A path to the free point of the target region nearest the goal, or None.
+        """A path to the free point of the target region nearest the robot that it can
+        reach (round the person), or None.
 
         Beside a person the robot keeps contact clearance (person + robot radius, no
         inflation margin): close, as a robot asking someone to leave would stand. A
@@ -462,34 +463,43 @@ class PathFollower:
             keep = max(closest, min(contact, gap - 0.5 * self.map.resolution_m))
             near |= disc_mask(self.map, [person], keep)
         blocked = self.static_blocked | near
-        free = np.argwhere(~blocked[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
+        # the free points of the region the robot can reach (round the person, to the
+        # far side of the cell when the near side is theirs)
+        # a robot nearer than ``closest`` to someone (they stepped up to it) starts by
+        # stepping back to that distance: it never closes in, and is not frozen there
+        start = self._nearest_free(blocked, start)
+        region = reachable(blocked, start)[r0 : r1 + 1, c0 : c1 + 1]
+        free = np.argwhere(region) + (r0, c0)
         if len(free) == 0:
             return None
-        assert self._goal is not None
-        goal_rc = np.array(self.map.world_to_cell(self._goal[0], self._goal[1]))
-        order = np.argsort(((free - goal_rc) ** 2).sum(axis=1), kind="stable")
-        for k in order[:5]:  # the nearest few: one of them is reachable if any is
-            cell = (int(free[k, 0]), int(free[k, 1]))
-            try:
-                path = astar_grid(blocked, start, cell)
-            except NoPathError:
-                continue
-            x, y = self.map.cells_to_world(np.array([cell]))[0]
-            self._goal = (float(x), float(y))
-            self._beside = True
-            return path
-        return None
+        # the one nearest the robot: inside the cell as soon as may be, and a goal that
+        # stays put while the person shifts (nearest the last goal, it drifted with them)
+        k = int(np.argmin(((free - np.array(start)) ** 2).sum(axis=1)))  # first of the nearest
+        cell = (int(free[k, 0]), int(free[k, 1]))
+        path = astar_grid(blocked, start, cell)
+        x, y = self.map.cells_to_world(np.array([cell]))[0]
+        self._goal = (float(x), float(y))
+        self._beside = True
+        return path
 
     def _start_cell(self, pose: Pose2D) -> tuple[int, int]:
         """The robot's cell, or the nearest statically free cell when it stands in the
         inflated zone (it drifted close to a wall): planning from there lets it get out."""
         r, c = self.map.world_to_cell(pose.x_m, pose.y_m)
-        if not self.map.contains(r, c) or not self.static_blocked[r, c]:
+        if not self.map.contains(r, c):
+            return (r, c)
+        return self._nearest_free(self.static_blocked, (r, c))
+
+    def _nearest_free(self, blocked: np.ndarray, cell: tuple[int, int]) -> tuple[int, int]:
+        """``cell``, or when ``blocked`` there the nearest free cell within
+        ``max_start_escape_m`` (``cell`` itself when there is none)."""
+        r, c = cell
+        if not blocked[r, c]:
             return (r, c)
         n = int(math.ceil(self.config.max_start_escape_m / self.map.resolution_m))
         h, w = self.map.shape
         r0, r1, c0, c1 = max(r - n, 0), min(r + n + 1, h), max(c - n, 0), min(c + n + 1, w)
-        free = np.argwhere(~self.static_blocked[r0:r1, c0:c1])
+        free = np.argwhere(~blocked[r0:r1, c0:c1])
         if len(free) == 0:
             return (r, c)
         free += (r0, c0)
