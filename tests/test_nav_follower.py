@@ -200,6 +200,20 @@ def test_a_person_who_stepped_up_to_the_robot_at_the_cells_border_is_walked_roun
     assert min(math.dist((p.x_m, p.y_m), person) for p in poses) >= gap - 0.03
 
 
+def test_a_robot_already_in_the_cell_does_not_step_out_of_it_for_a_person_who_comes_close():
+    # in cell 12 by its corner, short of its waypoint; the visitor steps up to it: it
+    # keeps still in the cell (stepping back would take it out of what it guards)
+    follower = PathFollower(FollowerConfig(blocked_timeout_s=2.0), room())
+    base = KinematicBase(Pose2D(0.95, 1.56))
+    person = (0.9, 1.95)
+    assert math.dist((0.95, 1.56), person) < CFG.robot_radius_m + 0.15
+    status, cmds, poses, _ = drive(
+        follower, base, (0.65, 1.85), people=[person], region=GRID.bounds(12), max_s=3
+    )
+    assert all(GRID.cell_at(p.x_m, p.y_m) == 12 for p in poses)
+    assert all(c.is_zero() for c in cmds)
+
+
 def test_the_cell_is_entered_on_the_far_side_of_a_person_when_the_near_one_is_closed():
     # a person in the south-west of cell 1, 0.6 m from the robot: the nearest free
     # points of the cell are behind them or across; the robot goes round, keeping

@@ -466,7 +466,10 @@ class PathFollower:
         # the free points of the region the robot can reach (round the person, to the
         # far side of the cell when the near side is theirs)
         # a robot nearer than ``closest`` to someone (they stepped up to it) starts by
-        # stepping back to that distance: it never closes in, and is not frozen there
+        # stepping back to that distance: it never closes in, and is not frozen there;
+        # already in the cell it stays (stepping back could take it out)
+        if blocked[start] and x0 <= pos_xy[0] <= x1 and y0 <= pos_xy[1] <= y1:
+            return None
         start = self._nearest_free(blocked, start)
         region = reachable(blocked, start)[r0 : r1 + 1, c0 : c1 + 1]
         free = np.argwhere(region) + (r0, c0)
