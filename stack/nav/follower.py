@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stack.geometry import Pose2D
-from stack.nav.astar import NoPathError, NoPathReason, astar_grid, reachable
+from stack.nav.astar import GridPath, NoPathError, NoPathReason, astar_grid, reachable
 from stack.nav.config import FollowerConfig
 from stack.nav.occupancy import OccupancyMap, disc_mask, inflate
 
@@ -434,7 +434,9 @@ class PathFollower:
 
     def _plan_into_region(self, start: tuple[int, int], pos_xy: tuple[float, float]):
         """A path to the free point of the target region nearest the robot that it can
-        reach (round the person), or None.
+        reach (round the person), or None: a point ``trip_inset_m`` inside the region's
+        borders when one is free, else ``region_margin_m`` inside (well inside the cell
+        when there is room, at its edge only when there is not).
 
         Beside a person the robot keeps contact clearance (person + robot radius, no
         inflation margin): close, as a robot asking someone to leave would stand. A
@@ -444,16 +446,7 @@ class PathFollower:
         was: the path keeps the distance, the carrot cuts its corners by a few cm)."""
         if self._region is None:
             return None
-        m = self.config.region_margin_m
         x0, y0, x1, y1 = self._region
-        r_a, c_a = self.map.world_to_cell(x0 + m, y0 + m)
-        r_b, c_b = self.map.world_to_cell(x1 - m, y1 - m)
-        r0, r1 = sorted((r_a, r_b))
-        c0, c1 = sorted((c_a, c_b))
-        h, w = self.map.shape
-        r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, h - 1), min(c1, w - 1)
-        if r1 < r0 or c1 < c0:
-            return None
         cfg = self.config
         contact = cfg.person_radius_m + cfg.robot_radius_m
         closest = cfg.robot_radius_m + CLOSEST_EXTRA_M  # however close they came
@@ -463,27 +456,47 @@ class PathFollower:
             keep = max(closest, min(contact, gap - 0.5 * self.map.resolution_m))
             near |= disc_mask(self.map, [person], keep)
         blocked = self.static_blocked | near
-        # the free points of the region the robot can reach (round the person, to the
-        # far side of the cell when the near side is theirs)
         # a robot nearer than ``closest`` to someone (they stepped up to it) starts by
         # stepping back to that distance: it never closes in, and is not frozen there;
-        # already in the cell it stays (stepping back could take it out)
-        if blocked[start] and x0 <= pos_xy[0] <= x1 and y0 <= pos_xy[1] <= y1:
-            return None
-        start = self._nearest_free(blocked, start)
-        region = reachable(blocked, start)[r0 : r1 + 1, c0 : c1 + 1]
-        free = np.argwhere(region) + (r0, c0)
-        if len(free) == 0:
-            return None
-        # the one nearest the robot: inside the cell as soon as may be, and a goal that
-        # stays put while the person shifts (nearest the last goal, it drifted with them)
-        k = int(np.argmin(((free - np.array(start)) ** 2).sum(axis=1)))  # first of the nearest
-        cell = (int(free[k, 0]), int(free[k, 1]))
-        path = astar_grid(blocked, start, cell)
-        x, y = self.map.cells_to_world(np.array([cell]))[0]
-        self._goal = (float(x), float(y))
-        self._beside = True
-        return path
+        # unless that takes it out of the cell it is in (it would leave what it guards):
+        # then, far enough inside, the trip is done, and at the very edge it waits
+        if blocked[start]:
+            back = self._nearest_free(blocked, start)
+            bx, by = self.map.cells_to_world(np.array([back]))[0]
+            inside = x0 <= pos_xy[0] <= x1 and y0 <= pos_xy[1] <= y1
+            if inside and not (x0 <= bx <= x1 and y0 <= by <= y1):
+                m = cfg.region_margin_m
+                if not (x0 + m <= pos_xy[0] <= x1 - m and y0 + m <= pos_xy[1] <= y1 - m):
+                    return None
+                self._goal = (float(pos_xy[0]), float(pos_xy[1]))
+                self._beside = True
+                return GridPath(np.array([start], dtype=int), 0.0)
+            start = back
+        # the free points of the region the robot can reach (round the person, to the
+        # far side of the cell when the near side is theirs)
+        reach = reachable(blocked, start)
+        h, w = self.map.shape
+        for m in sorted({max(cfg.trip_inset_m, cfg.region_margin_m), cfg.region_margin_m})[::-1]:
+            r_a, c_a = self.map.world_to_cell(x0 + m, y0 + m)
+            r_b, c_b = self.map.world_to_cell(x1 - m, y1 - m)
+            r0, r1 = sorted((r_a, r_b))
+            c0, c1 = sorted((c_a, c_b))
+            r0, c0, r1, c1 = max(r0, 0), max(c0, 0), min(r1, h - 1), min(c1, w - 1)
+            if r1 < r0 or c1 < c0:
+                continue
+            free = np.argwhere(reach[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
+            if len(free) == 0:
+                continue
+            # the one nearest the robot: a goal that stays put while the person shifts
+            # (nearest the last goal, it drifted with them into the corner behind them)
+            k = int(np.argmin(((free - np.array(start)) ** 2).sum(axis=1)))
+            cell = (int(free[k, 0]), int(free[k, 1]))
+            path = astar_grid(blocked, start, cell)
+            x, y = self.map.cells_to_world(np.array([cell]))[0]
+            self._goal = (float(x), float(y))
+            self._beside = True
+            return path
+        return None
 
     def _start_cell(self, pose: Pose2D) -> tuple[int, int]:
         """The robot's cell, or the nearest statically free cell when it stands in the
