@@ -487,10 +487,17 @@ class PathFollower:
             free = np.argwhere(reach[r0 : r1 + 1, c0 : c1 + 1]) + (r0, c0)
             if len(free) == 0:
                 continue
-            # the one nearest the robot: a goal that stays put while the person shifts
-            # (nearest the last goal, it drifted with them into the corner behind them)
-            k = int(np.argmin(((free - np.array(start)) ** 2).sum(axis=1)))
-            cell = (int(free[k, 0]), int(free[k, 1]))
+            # the point chosen before while it stays free and reachable (no swinging
+            # from one side of the person to the other as their track jitters), else
+            # the one nearest the robot (nearest the last goal, it drifted with them)
+            held: tuple[int, int] | None = None
+            if self._beside and self._goal is not None:
+                held = self.map.world_to_cell(self._goal[0], self._goal[1])
+            if held is not None and (free == np.array(held)).all(axis=1).any():
+                cell = (int(held[0]), int(held[1]))
+            else:
+                k = int(np.argmin(((free - np.array(start)) ** 2).sum(axis=1)))
+                cell = (int(free[k, 0]), int(free[k, 1]))
             path = astar_grid(blocked, start, cell)
             x, y = self.map.cells_to_world(np.array([cell]))[0]
             self._goal = (float(x), float(y))
