@@ -162,6 +162,7 @@ def limit_accel(cmd: Twist2D, prev: Twist2D, dt_s: float, config: FollowerConfig
 
 
 CLOSEST_EXTRA_M = 0.15  # beside a person who stepped up to the robot: the least gap kept
+REPLAN_SLACK_M = 0.1  # a person this much nearer a path than planned does not void it
 
 
 def _wrap(a: float) -> float:
@@ -343,7 +344,11 @@ class PathFollower:
         keep = cfg.robot_radius_m if self._beside else cfg.inflation_radius_m
         person_mask = disc_mask(self.map, people, cfg.person_radius_m + keep)
         self._people = people
-        need_plan = len(self._path) == 0 or self._path_blocked(person_mask)
+        # a path planned round people stays valid while they stay within
+        # REPLAN_SLACK_M of where it assumed them: a track's jitter does not flip the
+        # way round a person from one side to the other
+        slack_mask = disc_mask(self.map, people, cfg.person_radius_m + keep - REPLAN_SLACK_M)
+        need_plan = len(self._path) == 0 or self._path_blocked(slack_mask)
         if self._state is FollowerState.WAITING:
             need_plan = now_s - self._last_try_s >= cfg.replan_period_s
         if need_plan:
