@@ -230,6 +230,32 @@ def test_the_cell_is_entered_on_the_far_side_of_a_person_when_the_near_one_is_cl
     assert clearance >= CFG.person_radius_m + CFG.robot_radius_m - 0.05
 
 
+@pytest.mark.parametrize("slack", [None, 0.0])
+def test_a_jittering_track_on_the_path_does_not_flip_the_way_round(slack, monkeypatch):
+    # a person standing on the way from cell 9 to cell 3, their track jumping 8 cm
+    # north and south: the way round them planned first stays (with no slack each jump
+    # voids it, the robot swings from one side to the other and never gets past)
+    from stack.nav import follower as follower_module
+
+    if slack is not None:
+        monkeypatch.setattr(follower_module, "REPLAN_SLACK_M", slack)
+    follower = PathFollower(CFG, room())
+    base = KinematicBase(Pose2D(*GRID.center(9)))
+    follower.start(GRID.center(3), 0.0)
+    t = 0.0
+    for k in range(400):
+        person = (3.0, 0.71 + (0.08 if k % 2 else 0.0))
+        status = follower.step(base.pose, t, t, [person])
+        if status.result is not None:
+            break
+        base.step(status.cmd, DT)
+        t += DT
+    if slack is None:
+        assert status.result is NavResult.SUCCEEDED and status.replans <= 1
+    else:
+        assert status.result is not NavResult.SUCCEEDED and status.replans > 5
+
+
 def test_person_in_a_doorway_blocks_after_the_robot_stops_short():
     # a wall between cells 7 and 5 with a 0.9 m door: a person in it closes the only way
     cfg = FollowerConfig(blocked_timeout_s=1.5)
