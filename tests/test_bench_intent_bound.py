@@ -15,6 +15,7 @@ from bench_intent_bound import leg_known  # noqa: E402
 from stack.planning.task import load_task  # noqa: E402
 
 TASK = REPO / "config" / "task-r2-goal.yaml"  # rest cell 5, restricted 1 and 12
+GRID = load_task(TASK).grid
 
 
 def _episode(folder: Path, stop: tuple[float, float], end_x: float, speed: float, cell: int):
@@ -30,7 +31,7 @@ def _episode(folder: Path, stop: tuple[float, float], end_x: float, speed: float
         lines.append(
             {"t": round(t, 2), "person": [x, stop[1]], "person_velocity": [step * 10, 0.0]}
         )
-        if arrival is None and load_task(TASK).grid.cell_at(x, stop[1]) == cell:
+        if arrival is None and GRID.cell_at(x, stop[1]) == cell:
             arrival = round(t, 2)
         t += 0.1
     folder.mkdir(parents=True)

@@ -342,17 +342,18 @@ class PathFollower:
             )  # fmt: skip
         # beside a person in the target cell: contact clearance only (see _plan_into_region)
         keep = cfg.robot_radius_m if self._beside else cfg.inflation_radius_m
-        person_mask = disc_mask(self.map, people, cfg.person_radius_m + keep)
+        radius = cfg.person_radius_m + keep
         self._people = people
-        # a path planned round people stays valid while they stay within
-        # REPLAN_SLACK_M of where it assumed them: a track's jitter does not flip the
-        # way round a person from one side to the other
-        slack_mask = disc_mask(self.map, people, cfg.person_radius_m + keep - REPLAN_SLACK_M)
-        need_plan = len(self._path) == 0 or self._path_blocked(slack_mask)
         if self._state is FollowerState.WAITING:
             need_plan = now_s - self._last_try_s >= cfg.replan_period_s
+        else:
+            # a path planned round people stays valid while they stay within
+            # REPLAN_SLACK_M of where it assumed them: a track's jitter does not flip
+            # the way round a person from one side to the other
+            slack = disc_mask(self.map, people, radius - REPLAN_SLACK_M)
+            need_plan = len(self._path) == 0 or self._path_blocked(slack)
         if need_plan:
-            status = self._replan(pose, person_mask, now_s)
+            status = self._replan(pose, disc_mask(self.map, people, radius), now_s)
             if status is not None:
                 return status
         if self._state is FollowerState.WAITING:
@@ -369,15 +370,18 @@ class PathFollower:
         self, pos: np.ndarray, goal: np.ndarray, people: np.ndarray
     ) -> bool:
         """Inside the target cell (``region_margin_m`` in) with a person on its waypoint."""
-        if self._region is None or len(people) == 0:
-            return False
         cfg = self.config
-        m = cfg.region_margin_m
-        x0, y0, x1, y1 = self._region
-        if not (x0 + m <= pos[0] <= x1 - m and y0 + m <= pos[1] <= y1 - m):
+        if len(people) == 0 or not self._in_region(pos[0], pos[1], cfg.region_margin_m):
             return False
         reach = cfg.person_radius_m + cfg.robot_radius_m + cfg.goal_tolerance_m
         return bool(np.hypot(*(people - goal).T).min() <= reach)
+
+    def _in_region(self, x: float, y: float, margin_m: float = 0.0) -> bool:
+        """(x, y) lies in the target region, ``margin_m`` inside its borders."""
+        if self._region is None:
+            return False
+        x0, y0, x1, y1 = self._region
+        return x0 + margin_m <= x <= x1 - margin_m and y0 + margin_m <= y <= y1 - margin_m
 
     def _hold(self, now_s: float, d_goal: float) -> FollowerStatus:
         assert self._waiting_since is not None
@@ -468,10 +472,8 @@ class PathFollower:
         if blocked[start]:
             back = self._nearest_free(blocked, start)
             bx, by = self.map.cells_to_world(np.array([back]))[0]
-            inside = x0 <= pos_xy[0] <= x1 and y0 <= pos_xy[1] <= y1
-            if inside and not (x0 <= bx <= x1 and y0 <= by <= y1):
-                m = cfg.region_margin_m
-                if not (x0 + m <= pos_xy[0] <= x1 - m and y0 + m <= pos_xy[1] <= y1 - m):
+            if self._in_region(*pos_xy) and not self._in_region(bx, by):
+                if not self._in_region(*pos_xy, cfg.region_margin_m):
                     return None
                 self._goal = (float(pos_xy[0]), float(pos_xy[1]))
                 self._beside = True
@@ -481,7 +483,8 @@ class PathFollower:
         # far side of the cell when the near side is theirs)
         reach = reachable(blocked, start)
         h, w = self.map.shape
-        for m in sorted({max(cfg.trip_inset_m, cfg.region_margin_m), cfg.region_margin_m})[::-1]:
+        margins = (cfg.trip_inset_m, cfg.region_margin_m)
+        for m in margins if cfg.trip_inset_m > cfg.region_margin_m else margins[1:]:
             r_a, c_a = self.map.world_to_cell(x0 + m, y0 + m)
             r_b, c_b = self.map.world_to_cell(x1 - m, y1 - m)
             r0, r1 = sorted((r_a, r_b))
@@ -495,10 +498,10 @@ class PathFollower:
             # the point chosen before while it stays free and reachable (no swinging
             # from one side of the person to the other as their track jitters), else
             # the one nearest the robot (nearest the last goal, it drifted with them)
-            held: tuple[int, int] | None = None
+            held = None
             if self._beside and self._goal is not None:
                 held = self.map.world_to_cell(self._goal[0], self._goal[1])
-            if held is not None and (free == np.array(held)).all(axis=1).any():
+            if held is not None and r0 <= held[0] <= r1 and c0 <= held[1] <= c1 and reach[held]:
                 cell = (int(held[0]), int(held[1]))
             else:
                 k = int(np.argmin(((free - np.array(start)) ** 2).sum(axis=1)))
