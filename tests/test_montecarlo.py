@@ -162,6 +162,26 @@ def test_same_seed_same_results_whatever_the_workers(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_study_into_a_used_folder_goes_beside_it_and_a_foreign_folder_is_refused(tmp_path):
+    """vigil run's folder rule: a second study with the same --out goes to <out>-2 and
+    leaves the first's files as they were (before, its episodes appended to the first's
+    speech logs); a non-empty folder vigil did not make is refused before anything runs."""
+    kw = dict(seed=3, workers=1, study=SHORT, say=lambda _s: None)
+    first = run_study(TASK, 1, tmp_path / "s", **kw)
+    files = {p: p.read_bytes() for p in (tmp_path / "s").rglob("*") if p.is_file()}
+    again = run_study(TASK, 1, tmp_path / "s", **kw)
+    assert first["out"] == str(tmp_path / "s") and again["out"] == str(tmp_path / "s-2")
+    assert {p: p.read_bytes() for p in (tmp_path / "s").rglob("*") if p.is_file()} == files
+    assert _strip(first) == _strip(again)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    with pytest.raises(ConfigError, match="non-empty folder that vigil did not make"):
+        run_study(TASK, 1, mine, **kw)
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.slow
 def test_a_local_ray_instance_gives_the_same_results(tmp_path):
     pytest.importorskip("ray")  # `make test` installs it (.[dev,ray]): skipped only without
     from tests.test_perception_model import truth_model

@@ -82,6 +82,26 @@ def test_clear_errors(tmp_path):
     assert not (tmp_path / "x.wav").exists()
 
 
+def test_a_restarted_speaker_numbers_after_the_clips_there_and_keeps_them(tmp_path):
+    """A speech node restarted mid-run (or a run into a folder holding clips) goes on
+    from the highest clip number: before, it numbered from 1 and overwrote
+    utterance_0001.wav, and the log's first line then named the wrong clip."""
+    first = Speaker(SpeechConfig(policy="queue"), tmp_path)
+    first.say("First run.", now_s=0.0)
+    first.poll(100.0)
+    (tmp_path / "utterance_0007.wav").write_bytes((tmp_path / "utterance_0001.wav").read_bytes())
+    (tmp_path / "utterance_notes.wav").write_bytes(b"not a clip of ours")
+    kept = {p.name: p.read_bytes() for p in tmp_path.glob("*.wav")}
+    again = Speaker(SpeechConfig(policy="queue"), tmp_path)
+    rid = again.say("After the restart.", now_s=0.0)
+    events = again.poll(100.0)
+    assert rid == 8 and [e.kind for e in events] == ["started", "finished"]
+    assert events[0].utterance.wav_path.name == "utterance_0008.wav"
+    assert {p.name: p.read_bytes() for p in tmp_path.glob("*.wav") if p.name in kept} == kept
+    log = (tmp_path / Speaker.LOG_NAME).read_text().splitlines()
+    assert [line.split("\t")[3] for line in log[1:]] == ["utterance_0001.wav", "utterance_0008.wav"]
+
+
 def test_speaker_queues_and_logs_each_utterance(tmp_path):
     sp = Speaker(SpeechConfig(policy="queue"), tmp_path / "run")
     first = sp.say(None, now_s=0.0)

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 import yaml
 
+from stack.exits import TEARDOWN_SIGNAL
 from vigil import ending as E
 
 REPO = Path(__file__).resolve().parents[1]
@@ -92,6 +93,20 @@ def _run_json(out: Path) -> dict:
     return json.loads((out / "run.json").read_text())
 
 
+def _assert_left_cleanly(record: dict, names: tuple[str, ...]) -> None:
+    """Each node exited 0 on the launcher's SIGINT, or its work was done and only its
+    Fast DDS teardown hung (eProsima/Fast-DDS#6502, seen in CI under load): then its own
+    alarm ended it, and run.json carries the launcher's warning naming it, no failure."""
+    assert set(record["exit_codes"]) == set(names)
+    for name in names:
+        code = record["exit_codes"][name]
+        if code == -TEARDOWN_SIGNAL:
+            assert any(w.startswith(f"{name}: its ROS teardown hung") for w in record["warnings"])
+        else:
+            assert code == 0, (name, code)
+    assert record["failures"] == []
+
+
 @pytest.mark.parametrize(
     ("sig", "code"), [(signal.SIGTERM, E.EXIT_SIGTERM), (signal.SIGINT, E.EXIT_SIGINT)]
 )
@@ -113,7 +128,7 @@ def test_a_signal_to_vigil_run_mid_run_writes_run_json_and_exits_with_its_code(t
     record = _run_json(out)
     assert record["ending"] == name and record["exit_code"] == code
     assert re.fullmatch(rf"{name}: stopped at step \d+/{LONG_STEPS}", record["cause"])
-    assert record["exit_codes"] == {"planner": 0, "table_player": 0}  # they left cleanly
+    _assert_left_cleanly(record, ("planner", "table_player"))
     assert record["report"] == "written" and (out / "steps.md").read_text().strip()
     assert stderr.strip().splitlines()[-1] == f"vigil run: {record['cause']}"
     assert "Traceback" not in stderr

@@ -688,9 +688,9 @@ def cmd_fit_perception(args: argparse.Namespace) -> int:
         from vigil.walks import DEFAULT_WALKS, load_walks
 
         study = load_walks(args.walks or DEFAULT_WALKS)
-        run_study(args.task, args.episodes, args.out, args.seed, args.workers, study=study,
-                  perception="rendered")  # fmt: skip
-        folders.append(args.out)
+        record = run_study(args.task, args.episodes, args.out, args.seed, args.workers,
+                           study=study, perception="rendered")  # fmt: skip
+        folders.append(Path(record["out"]))  # <out>-2 when OUT held an earlier run
     if not folders:
         from stack.cells import ConfigError
 

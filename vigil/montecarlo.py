@@ -33,6 +33,7 @@ import json
 import math
 import os
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict
@@ -295,7 +296,10 @@ def run_study(
         task_path: the task file (its grid, restricted cells and rest cell); None with
             ``scenarios``.
         episodes: how many random walks (ignored with ``scenarios``).
-        out: the study's folder (episodes in ``out/episodes``).
+        out: the study's folder (episodes in ``out/episodes``), under ``vigil run``'s
+            rule (:func:`vigil.run_folder.fresh_run_dir`): a folder of an earlier run
+            or study is kept and the study goes to ``<out>-2``, ``-3``, ...; any other
+            non-empty folder is refused.
         seed: the study's seed (same seed, same episodes, same results).
         workers: local worker processes (or Ray CPUs with ``ray="local"``).
         ray: None (local processes), "local" or a Ray cluster address.
@@ -341,7 +345,12 @@ def run_study(
 
         model_file = str(Path(perception_model or DEFAULT_PERCEPTION_MODEL).resolve())
         PerceptionModel.load(model_file)  # a bad file is refused before any episode runs
-    out = Path(out).resolve()
+    from vigil.run_folder import fresh_run_dir
+
+    # vigil run's folder rule: an earlier study's folder is kept (this one goes to
+    # <out>-2, ...), any other non-empty folder is refused; episodes never mix with
+    # an earlier study's files (its speech logs, its clips)
+    out = fresh_run_dir(Path(out).resolve(), uuid.uuid4().hex[:12])
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     from vigil.system import policy_for
 
@@ -377,6 +386,7 @@ def run_study(
         "ray": ray,
         "perception": perception,
         "perception_model": model_file,
+        "out": str(out),
         "wall_s": round(time.monotonic() - t0, 1),
         "episodes": eps,
     }

@@ -251,6 +251,18 @@ class SpeechEvent:
 LOG_HEADER = "time_s\tvoice\tduration_s\twav\tframe_stamp_s\ttext\n"
 
 
+def _last_clip(out_dir: Path | None) -> int:
+    """The highest N of the ``utterance_NNNN.wav`` clips in ``out_dir`` (0 if none)."""
+    if out_dir is None:
+        return 0
+    numbers = [0]
+    for wav in out_dir.glob("utterance_*.wav"):
+        digits = wav.stem.removeprefix("utterance_")
+        if digits.isdigit():
+            numbers.append(int(digits))
+    return max(numbers)
+
+
 @dataclass
 class _Request:
     id: int
@@ -290,7 +302,7 @@ class Speaker:
         self._current_utt: Utterance | None = None
         self._busy_until = 0.0
         self._proc: subprocess.Popen | None = None
-        self._next_id = 1
+        self._next_id = 1 + _last_clip(self.out_dir)  # a restarted node keeps its clips
         self._pending: list[SpeechEvent] = []
 
     @property
