@@ -127,6 +127,59 @@ def test_positions_alone_also_work():
     assert est.p(1) == pytest.approx(0.5, abs=0.02) and not est.moving
 
 
+def test_a_standing_person_with_jitter_and_false_detections_is_no_walk():
+    """Positions only: 30 s of a person standing, seen with 5 cm of jitter and, every
+    2 s, one false detection 1-2 m away (the camera's false positives reach the planner
+    as the person's position) give no evidence of a goal. Before, the first,
+    unsmoothed position was a step's start, and a false detection pulled the smoothed
+    position into a step (in a study it sent the guard out of the cell it held)."""
+    rng = np.random.default_rng(5)
+    for trial in range(5):
+        model = GoalInference(GRID, [1])
+        for k in range(300):
+            x = np.array([3.0, 2.0]) + 0.05 * rng.standard_normal(2)
+            if k % 20 == 19:
+                angle = rng.uniform(0, 2 * np.pi)
+                x = x + rng.uniform(1.0, 2.0) * np.array([np.cos(angle), np.sin(angle)])
+            est = model.update(TrackObservation(0.1 * k, (x[0], x[1])))
+            assert est.p(1) == pytest.approx(0.5, abs=0.02), (trial, k)
+            assert est.position_m is not None and math.dist(est.position_m, (3.0, 2.0)) < 0.3
+        assert not est.moving
+
+
+def test_a_person_who_is_really_elsewhere_is_followed_after_two_detections():
+    """A jump no walker makes, seen twice in a row, is where the person is (the track
+    had gone stale, as in a camera outage), and their walk from there is evidence at
+    once: no new start-up of the smoothing."""
+    model = GoalInference(GRID, [1])
+    for k in range(10):
+        model.update(TrackObservation(0.1 * k, (1.0, 2.5)))
+    assert model.update(TrackObservation(1.0, (3.0, 0.75))).position_m == (1.0, 2.5)
+    assert model.update(TrackObservation(1.1, (3.1, 0.75))).position_m == (3.1, 0.75)
+    for k in range(2, 6):  # on east at 1 m/s, toward cell 1
+        est = model.update(TrackObservation(1.0 + 0.1 * k, (3.0 + 0.1 * k, 0.75)))
+    assert est.p(1) > 0.75 and est.moving
+
+
+def test_a_walk_after_a_long_stop_is_evidence_at_once():
+    """A person who stood 10 s and then walks to cell 1: their walk is measured from
+    where they stood, not from where the track began (no slow average over the stop)."""
+    model = GoalInference(GRID, [1])
+    rng = np.random.default_rng(6)
+    t = 0.0
+    for _ in range(100):
+        x = np.array([2.0, 0.75]) + 0.05 * rng.standard_normal(2)
+        model.update(TrackObservation(t, (x[0], x[1])))
+        t += 0.1
+    start = t
+    for k in range(1, 40):  # east along the row at 1 m/s
+        est = model.update(TrackObservation(t, (2.0 + 0.1 * k, 0.75)))
+        t += 0.1
+        if est.p(1) > 0.8:
+            break
+    assert est.p(1) > 0.8 and t - start <= 1.2 and est.moving
+
+
 def test_missing_observations_diffuse_toward_the_prior():
     model = GoalInference(GRID, [1])
     history = feed(model, walk([DOOR, (6.0, 2.5)]))
