@@ -46,6 +46,7 @@ from stack.cells import ConfigError
 from stack.config import read_text_capped, write_text
 from stack.planning.task import load_task
 from stack.planning.threads import ENV_VARS
+from vigil.run_folder import fresh_run_dir
 from vigil.scenario import Scenario
 from vigil.study_stats import (  # noqa: F401 - the study's statistics, re-exported
     bootstrap_mean,
@@ -296,10 +297,7 @@ def run_study(
         task_path: the task file (its grid, restricted cells and rest cell); None with
             ``scenarios``.
         episodes: how many random walks (ignored with ``scenarios``).
-        out: the study's folder (episodes in ``out/episodes``), under ``vigil run``'s
-            rule (:func:`vigil.run_folder.fresh_run_dir`): a folder of an earlier run
-            or study is kept and the study goes to ``<out>-2``, ``-3``, ...; any other
-            non-empty folder is refused.
+        out: the study's folder, episodes in ``out/episodes`` (a used one is kept: ``-2``).
         seed: the study's seed (same seed, same episodes, same results).
         workers: local worker processes (or Ray CPUs with ``ray="local"``).
         ray: None (local processes), "local" or a Ray cluster address.
@@ -345,12 +343,7 @@ def run_study(
 
         model_file = str(Path(perception_model or DEFAULT_PERCEPTION_MODEL).resolve())
         PerceptionModel.load(model_file)  # a bad file is refused before any episode runs
-    from vigil.run_folder import fresh_run_dir
-
-    # vigil run's folder rule: an earlier study's folder is kept (this one goes to
-    # <out>-2, ...), any other non-empty folder is refused; episodes never mix with
-    # an earlier study's files (its speech logs, its clips)
-    out = fresh_run_dir(Path(out).resolve(), uuid.uuid4().hex[:12])
+    out = fresh_run_dir(Path(out).resolve(), uuid.uuid4().hex[:12])  # never mixed with a used one
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     from vigil.system import policy_for
 
