@@ -14,7 +14,7 @@ from vigil.chaos import GATE_VICTIMS, VICTIMS, base_holds, chaos_files, check_ru
 from vigil.ending import EXIT_NODE
 
 
-def _kill_while_driving(tmp_path: Path, first: str, realtime: bool = False):
+def _kill_while_driving(tmp_path: Path, first: str, realtime: bool = False, seed: int = 3):
     """5.1.1 cut to 6 steps, ``first`` SIGKILLed once the robot drives, then one more
     random victim (seeded); in lock-step, or at real time with the velocity gate."""
     scenario, config = chaos_files(tmp_path, steps=6, realtime=realtime)
@@ -23,13 +23,13 @@ def _kill_while_driving(tmp_path: Path, first: str, realtime: bool = False):
         config,
         tmp_path / "run",
         kills=2,
-        seed=3,
+        seed=seed,
         first_s=1.0,
         gap_s=(5.0, 10.0),
         victims=GATE_VICTIMS if realtime else VICTIMS,
         first=first,
-        # 5.1.1's robot makes a 0.26 m move at step 3 (0.6 s, too short to catch before
-        # navigation stops it), then drives 3 s east from step 4
+        # 5.1.1's robot drives about 2 s east, from cell 7 into 5, as step 3 ends (a
+        # step's line is printed at its end), then on from step 5
         after_line=r"\[run\] step 3/",
         when_driving=True,
         timeout_s=600.0 if realtime else 1500.0,
@@ -39,9 +39,17 @@ def _kill_while_driving(tmp_path: Path, first: str, realtime: bool = False):
 
 @pytest.mark.slow
 def test_killing_navigation_while_the_robot_drives_stops_the_base_within_its_timeout(tmp_path):
-    run = _kill_while_driving(tmp_path, "navigation")
-    assert [k.node for k in run.kills][:1] == ["navigation"], (run.lines[-20:], run.stderr)
-    result = check_run(run.out)
+    for seed in (3, 4):  # a kill that missed the drive is run again (another delay)
+        folder = tmp_path / f"seed-{seed}"
+        folder.mkdir()
+        run = _kill_while_driving(folder, "navigation", seed=seed)
+        assert [k.node for k in run.kills][:1] == ["navigation"], (run.lines[-20:], run.stderr)
+        result = check_run(run.out)
+        # the trace shows the robot driving a moment before the kill; the kill lands a
+        # poll later, and may find the trip already braked to its goal (its last command
+        # a zero: no silence to test). Seen in CI once: the drives of 5.1.1 are 2 s long
+        if sum(b["silences"] for b in result["bags"].values()) >= 1:
+            break
     # the run ends with one line naming the first kill, and run.json holds it
     assert run.returncode == EXIT_NODE, run.lines[-20:]
     assert run.last_line.startswith("vigil run: navigation exited (code -9, SIGKILL)")

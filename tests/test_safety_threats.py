@@ -68,9 +68,15 @@ class Intruder(Node if HAVE_ROS else object):  # type: ignore[misc]
         self.beats.append(time.monotonic())
 
     def call(self, ros, client, request):
-        future = client.call_async(request)
-        assert spin_until(ros, future.done, 10.0), "the gate's parameter service did not answer"
-        return future.result()
+        # a service ready for requests may not yet have matched this client's reply
+        # reader (DDS discovers each side in its own time; seen in CI under load): the
+        # reply is then lost, and a request sent again is answered
+        for _ in range(3):
+            future = client.call_async(request)
+            if spin_until(ros, future.done, 10.0):
+                return future.result()
+            client.remove_pending_request(future)
+        raise AssertionError("the gate's parameter service did not answer three requests")
 
     def set_double(self, ros, name: str, value: float):
         value_msg = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
