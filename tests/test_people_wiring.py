@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from stack.perception.multi import SlotPerson, slot_labels
+from stack.perception.slots import SlotPerson, slot_labels
 from stack.planning.agent import ObservationError, Observed, StateFileError
 from stack.planning.factored import PeopleModel
 from stack.planning.people_agent import PeopleAgent, initial_people_belief

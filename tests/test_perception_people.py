@@ -17,11 +17,10 @@ from stack.perception.multi import (
     MultiTracker,
     MultiTrackerConfig,
     PeoplePerception,
-    PersonSlots,
-    SlotConfig,
     associate,
     gnn_assign,
 )
+from stack.perception.slots import PersonSlots, SlotConfig
 from stack.perception.synthetic import (
     PinholeCamera,
     crossing_paths,
@@ -263,7 +262,7 @@ def test_camera_state_lists_every_person_of_the_frame_and_only_of_that_frame():
 
 
 def test_slots_become_the_models_per_person_observation():
-    from stack.perception.multi import SlotPerson, model_persons
+    from stack.perception.slots import SlotPerson, model_persons
 
     people = (
         SlotPerson(1),  # nobody in slot 1

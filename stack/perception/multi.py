@@ -26,55 +26,33 @@ Pure (numpy, scipy), no rclpy. The pieces:
 - :func:`associate`: camera tracks to laser tracks, Hungarian on the Euclidean
   distance within a gate (the speed class of each camera person comes from its
   laser track, thesis 4.5, per person).
-- :class:`PersonSlots`: which track is "person 1", "person 2", ... for the planner.
+- :class:`stack.perception.slots.PersonSlots`: which track is "person 1", "person
+  2", ... for the planner (the rules in :mod:`stack.perception.slots`).
 - :class:`PeoplePerception`: the three together, per frame, giving one
   :class:`SlotPerson` per slot; :func:`model_persons` turns them into the per-person
   observation ``FactoredModel.observation_index`` takes.
 
-Person slots. The n-person model is symmetric between people: every person has the
-same transition and observation tables and the reward asks only whether *some*
-person makes a restricted cell worth guarding, so permuting the people permutes the
-belief's factors and changes no value. The order of the slots therefore carries no
-meaning and needs only to be *consistent over time*: the factored belief keeps one
-factor per slot, and a person must keep feeding the same factor. The rules:
-
-1. a track keeps its slot for as long as it lives (through misses and crossings);
-2. a slot whose track ended is free; it remembers where its person was last seen;
-3. newly confirmed tracks fill free slots by a Hungarian assignment on the distance
-   from the slot's last seen position (a slot never used, or whose person left,
-   costs ``fresh_cost_m``): a person lost for a moment and found again near where
-   they vanished gets their old slot, so their belief factor continues;
-4. with more confirmed tracks than slots, the tracks already holding slots keep
-   them; the others wait (oldest first) for a slot to free;
-5. ties put the i-th waiting track in the i-th free slot, so the result is
-   deterministic.
-
-A free slot is observed as "No person" (or as hidden, when the camera could not
-look); because of the symmetry it does not matter which free slot a new person
-takes when none remembers a nearby person.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from stack.cells import CellGrid, Direction
+from stack.cells import CellGrid
 from stack.config import Config, require
 from stack.perception.direction import DirectionConfig, DirectionEstimator
-from stack.perception.observation import speed_class
+from stack.perception.slots import PersonSlots, SlotConfig, SlotPerson
 from stack.perception.tracker import (
     TrackerConfig,
     TrackEstimate,
     TrackSet,
     measurements,
 )
-from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
 
 _FAR = 1e6  # cost of a forbidden pair (outside the gate)
 
@@ -216,6 +194,19 @@ class MultiTracker(TrackSet):
                     out.add(di)
         return out
 
+    def correct(
+        self, positions_m: Mapping[int, tuple[float, float]], sigma_m: float
+    ) -> tuple[TrackEstimate, ...]:
+        """Correct the tracks named in ``positions_m`` (track id -> map position [m])
+        with another sensor's measurement at the latest update's time, ``sigma_m`` its
+        standard deviation; a track the frame's detections already corrected is left
+        alone. Returns all live tracks, as :meth:`update`."""
+        for t in self._tracks:
+            z = positions_m.get(t.id)
+            if z is not None and t.last_update_s < self._stamp_s:
+                t.correct(z, sigma_m, self._stamp_s)
+        return self.tracks()
+
     def tracks(self) -> tuple[TrackEstimate, ...]:
         """Snapshots of the live tracks (at the latest update's time)."""
         return self._snapshots(self.config.filter.min_hits)
@@ -251,141 +242,6 @@ def associate(
     }
 
 
-@dataclass(frozen=True)
-class SlotConfig(Config):
-    """Attributes:
-    slots: the number of people the planner's model has (the task's ``people``).
-    fresh_cost_m: the cost of putting a new person in a slot that remembers nobody
-        (never used, or its person left the map) [m]: a slot whose person vanished
-        nearer than this to the new one is preferred.
-    """
-
-    section = "slots"
-
-    slots: int = 2
-    fresh_cost_m: float = 1.5
-
-    def __post_init__(self) -> None:
-        require(self.slots >= 1, "slots", self.slots, "must be >= 1")
-        require(self.fresh_cost_m > 0, "fresh_cost_m", self.fresh_cost_m, "must be > 0")
-
-
-class PersonSlots:
-    """Which track is person 1, 2, ... (the rules in the module docstring).
-
-    Args:
-        config: the number of slots and the cost of a fresh slot.
-        grid: when given, a slot whose person was last seen outside the region
-            (left the map) remembers nobody.
-    """
-
-    def __init__(self, config: SlotConfig = SlotConfig(), grid: CellGrid | None = None):
-        self.config = config
-        self.grid = grid
-        self._track: list[int | None] = [None] * config.slots
-        self._last: list[tuple[float, float] | None] = [None] * config.slots
-
-    @property
-    def track_ids(self) -> tuple[int | None, ...]:
-        """The track id in each slot (None: free)."""
-        return tuple(self._track)
-
-    def assign(self, tracks: Sequence[TrackEstimate]) -> tuple[TrackEstimate | None, ...]:
-        """Update the slots with the live tracks.
-
-        Args:
-            tracks: the tracks after this frame (only confirmed ones take slots).
-
-        Returns:
-            The track in each slot, slot 0 first (None: nobody).
-        """
-        live = {t.track_id: t for t in tracks if t.confirmed}
-        for k, tid in enumerate(self._track):
-            if tid is not None and tid not in live:
-                self._track[k] = None  # rule 2: the slot is free, _last remembers
-        held = {tid for tid in self._track if tid is not None}
-        free = [k for k, tid in enumerate(self._track) if tid is None]
-        # rule 4: the oldest waiting tracks first (lowest id = created first)
-        waiting = sorted(
-            (t for tid, t in live.items() if tid not in held), key=lambda t: t.track_id
-        )
-        if free and waiting:
-            cost = np.empty((len(waiting), len(free)))
-            for i, t in enumerate(waiting):
-                for j, k in enumerate(free):
-                    last = self._last[k]
-                    near = math.dist(last, t.position_m) if last is not None else math.inf
-                    # rule 4: older waiting tracks cost less (1 mm per place in line);
-                    # rule 5: ties put the i-th waiting track in the i-th free slot
-                    cost[i, j] = min(near, self.config.fresh_cost_m) + 1e-3 * i + 1e-6 * abs(i - j)
-            rows, cols = linear_sum_assignment(cost)
-            for i, j in zip(rows, cols, strict=True):
-                self._track[free[j]] = waiting[i].track_id
-        out: list[TrackEstimate | None] = []
-        for k, tid in enumerate(self._track):
-            holder = live.get(tid) if tid is not None else None
-            if holder is not None:
-                inside = self.grid is None or self.grid.cell_at(*holder.position_m) is not None
-                self._last[k] = holder.position_m if inside else None
-            out.append(holder)
-        return tuple(out)
-
-
-@dataclass(frozen=True)
-class SlotPerson:
-    """What the perception reports for one person slot.
-
-    Attributes:
-        slot: 0-based slot index (person ``slot + 1`` of the model).
-        track_id: the camera track in the slot; None: nobody.
-        position_m: its map position [m].
-        cell: the cell there; None outside the region (or nobody): "No person".
-        direction: from the track's positions (thesis rule, per person).
-        speed_mps: the associated laser track's speed (eq. 4.8); None without one.
-        laser_track_id: that laser track's id; None without one.
-    """
-
-    slot: int
-    track_id: int | None = None
-    position_m: tuple[float, float] | None = None
-    cell: int | None = None
-    direction: Direction = Direction.NOT_MOVING
-    speed_mps: float | None = None
-    laser_track_id: int | None = None
-
-    @property
-    def velocity_label(self) -> str:
-        """The model's velocity label, by the thesis's rules (4.5) for this person:
-        "Not moving" outside the region or when the camera sees no movement; else the
-        direction and the laser's speed class ("0-0.2" without a laser track)."""
-        if self.cell is None or self.direction is Direction.NOT_MOVING:
-            return NOT_MOVING
-        return f"{self.direction.label} {speed_class(self.speed_mps or 0.0).label}"
-
-
-def model_persons(people: Sequence[SlotPerson]) -> list[tuple[int | None, str]]:
-    """The slots as ``FactoredModel.observation_index`` takes them: [(cell or None,
-    velocity label)], slot 0 first (None: "No person")."""
-    return [(p.cell, p.velocity_label) for p in sorted(people, key=lambda p: p.slot)]
-
-
-def slot_labels(people: Sequence[SlotPerson], unseen: bool = False) -> list[dict[str, Any]]:
-    """The slots as the observations message carries them (issue 16), slot 0 first:
-    ``{"person": cell or "No person", "velocity": label, "position_m": [x, y] or
-    None}`` each (the position also off the grid, for the goal inference of
-    ``person_model: goal``); every slot "Unseen" (velocity "Not moving", no position)
-    when the camera could not look at all (``unseen``)."""
-    out: list[dict[str, Any]] = []
-    for p in sorted(people, key=lambda p: p.slot):
-        if unseen:
-            out.append({"person": UNSEEN, "velocity": NOT_MOVING, "position_m": None})
-        else:
-            label = NO_PERSON if p.cell is None else str(p.cell)
-            pos = None if p.position_m is None else [round(float(c), 4) for c in p.position_m]
-            out.append({"person": label, "velocity": p.velocity_label, "position_m": pos})
-    return out
-
-
 class PeoplePerception:
     """Camera detections and laser tracks in, one :class:`SlotPerson` per slot out.
 
@@ -395,6 +251,19 @@ class PeoplePerception:
         tracker: the camera tracks' parameters.
         direction: the per-person direction rule (None: ``DirectionConfig()``).
         leg_gate_m: a laser track within this of a camera person is that person's [m].
+        laser_sigma_m: the standard deviation of a laser track's position, when it
+            stands in for the camera (below) [m].
+        laser_max_age_s: a laser track updated longer ago than this does not [s].
+
+    A person the camera misses in a frame (the robot in front of their legs, HOG's
+    runs of misses on a standing person) is not left to coast on their last velocity
+    while the laser sees them: a camera track whose laser track (the one associated with
+    it in the previous frame) is still live and within ``leg_gate_m`` is corrected with
+    the laser's position, so a person who walked behind the robot and stopped is kept
+    where they stand, not carried on past the wall and dropped. The identity rule keeps
+    furniture out: a laser track takes over only for the person it was already the legs
+    of. (One person, :class:`stack.perception.observation.ObservationCombiner` has its
+    own rule: the laser alone where the camera cannot see.)
     """
 
     def __init__(
@@ -404,6 +273,8 @@ class PeoplePerception:
         tracker: MultiTrackerConfig = MultiTrackerConfig(),
         direction: DirectionConfig | None = None,
         leg_gate_m: float = 1.0,
+        laser_sigma_m: float = 0.1,
+        laser_max_age_s: float = 0.3,
     ):
         self.grid = grid
         self.tracker = MultiTracker(tracker)
@@ -411,6 +282,9 @@ class PeoplePerception:
         self._direction_config = direction if direction is not None else DirectionConfig()
         self._directions: dict[int, DirectionEstimator] = {}
         self.leg_gate_m = leg_gate_m
+        self.laser_sigma_m = laser_sigma_m
+        self.laser_max_age_s = laser_max_age_s
+        self._legs_of: dict[int, int] = {}  # camera track id -> its laser track's id
 
     def update(
         self,
@@ -423,7 +297,8 @@ class PeoplePerception:
         Returns:
             One report per slot, slot 0 first.
         """
-        tracks = self.tracker.update(stamp_s, positions_m)
+        tracks = self._laser_keeps(stamp_s, self.tracker.update(stamp_s, positions_m),
+                                   laser_tracks)  # fmt: skip
         live = {t.track_id for t in tracks}
         for tid in list(self._directions):
             if tid not in live:
@@ -436,6 +311,7 @@ class PeoplePerception:
             if t.track_id in fresh:
                 est.update(stamp_s, t.position_m)
         legs = associate(tracks, laser_tracks, self.leg_gate_m)
+        self._legs_of = {cid: leg.track_id for cid, leg in legs.items()}
         out = []
         for k, slot in enumerate(self.slots.assign(tracks)):
             if slot is None:
@@ -451,6 +327,29 @@ class PeoplePerception:
                     direction=self._directions[slot.track_id].direction,
                     speed_mps=None if leg is None else leg.speed_mps,
                     laser_track_id=None if leg is None else leg.track_id,
+                    measured=slot.track_id in fresh,
                 )
             )
         return tuple(out)
+
+    def _laser_keeps(
+        self,
+        stamp_s: float,
+        tracks: tuple[TrackEstimate, ...],
+        laser_tracks: Sequence[TrackEstimate],
+    ) -> tuple[TrackEstimate, ...]:
+        """The camera tracks the frame missed, corrected with their own laser track's
+        position where it is live and near (see the class doc)."""
+        laser = {
+            t.track_id: t
+            for t in laser_tracks
+            if t.confirmed and stamp_s - t.last_update_s <= self.laser_max_age_s
+        }
+        aids = {}
+        for t in tracks:
+            if t.last_update_s >= stamp_s:
+                continue  # the camera saw them
+            leg = laser.get(self._legs_of.get(t.track_id, -1))
+            if leg is not None and math.dist(leg.position_m, t.position_m) <= self.leg_gate_m:
+                aids[t.track_id] = leg.position_m
+        return self.tracker.correct(aids, self.laser_sigma_m) if aids else tracks

@@ -18,8 +18,9 @@ from stack.perception.config import load_config_file
 from stack.perception.errors import CalibrationError
 from stack.perception.homography import load_calibration
 from stack.perception.legs import Pose2D
-from stack.perception.multi import PeoplePerception, SlotConfig, SlotPerson, slot_labels
+from stack.perception.multi import PeoplePerception
 from stack.perception.observation import CombinerConfig, Observation, ObservationCombiner
+from stack.perception.slots import SlotConfig, SlotPerson, slot_labels
 from stack.perception.visibility import CameraVisibility, VisibilityConfig
 
 
