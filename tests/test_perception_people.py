@@ -20,7 +20,7 @@ from stack.perception.multi import (
     associate,
     gnn_assign,
 )
-from stack.perception.slots import PersonSlots, SlotConfig
+from stack.perception.slots import PersonSlots, SlotConfig, slot_labels
 from stack.perception.synthetic import (
     PinholeCamera,
     crossing_paths,
@@ -271,3 +271,51 @@ def test_slots_become_the_models_per_person_observation():
     assert model_persons(people) == [(11, "East higher"), (None, "Not moving")]
     assert SlotPerson(0, 3, (0.5, 0.7), 11, Direction.NORTH, None).velocity_label == "North 0-0.2"
     assert SlotPerson(0, 3, (9.0, 0.7), None, Direction.EAST, 1.0).velocity_label == "Not moving"
+
+
+# -- a person the camera misses, kept by their laser track ----------------------------------
+def _legs(tid, xy, t, speed=(0.0, 0.0)):
+    return TrackEstimate(tid, xy, speed, math.hypot(*speed), 5, t, True)
+
+
+def _walk_in_and_stand(laser_after_stop, furniture=None, frames=26):
+    """A person walks east at 1 m/s along y = 0.75 and stands at x = 4.6 (cell 3) from
+    t = 1.0; the camera misses them from t = 1.1 on; their laser track (30) follows them
+    throughout, or ends when the camera's view does (``laser_after_stop`` False). A
+    confirmed laser track that is not a person's (``furniture``) may stand nearby."""
+    pp = PeoplePerception(GRID)
+    out = ()
+    for k in range(frames):
+        t = round(k * 0.1, 3)
+        x = min(3.6 + t, 4.6)
+        camera = t <= 1.0
+        laser = []
+        if camera or laser_after_stop:
+            laser.append(_legs(30, (x + 0.03, 0.76), t, (1.0 if t < 1.0 else 0.0, 0.0)))
+        if furniture is not None:
+            laser.append(_legs(31, furniture, t))
+        out = pp.update(t, [(x, 0.75)] if camera else [], laser)
+    return out
+
+
+def test_a_person_the_camera_misses_is_kept_where_their_laser_track_stands():
+    out = _walk_in_and_stand(laser_after_stop=True)  # 1.5 s of misses: past max_coast_s
+    person = out[0]
+    assert person.cell == 3 and person.measured
+    assert math.dist(person.position_m, (4.63, 0.76)) < 0.1  # not carried on east
+    assert slot_labels(out)[0]["position_m"] is not None
+
+
+def test_without_their_laser_track_a_missed_person_coasts_unmeasured_and_is_dropped():
+    coasting = _walk_in_and_stand(laser_after_stop=False, frames=14)  # t = 1.3
+    assert not coasting[0].measured and coasting[0].position_m[0] > 4.75  # the prediction
+    assert slot_labels(coasting)[0]["position_m"] is None  # no evidence for the goal inference
+    assert _walk_in_and_stand(laser_after_stop=False)[0].cell is None  # dropped by t = 2.5
+
+
+def test_a_laser_track_that_was_not_the_persons_does_not_keep_them():
+    # a chair's legs 0.5 m from where the person stands: the coasting track drifts past
+    # them, but they were never this person's legs
+    out = _walk_in_and_stand(laser_after_stop=False, furniture=(4.9, 1.2), frames=14)
+    assert not out[0].measured
+    assert math.dist(out[0].position_m, (4.9, 1.2)) > 0.2

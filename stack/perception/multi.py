@@ -255,15 +255,15 @@ class PeoplePerception:
             stands in for the camera (below) [m].
         laser_max_age_s: a laser track updated longer ago than this does not [s].
 
-    A person the camera misses in a frame (the robot in front of their legs, HOG's
-    runs of misses on a standing person) is not left to coast on their last velocity
-    while the laser sees them: a camera track whose laser track (the one associated with
-    it in the previous frame) is still live and within ``leg_gate_m`` is corrected with
-    the laser's position, so a person who walked behind the robot and stopped is kept
+    A person the camera misses (the robot in front of their legs, HOG's runs of misses
+    on a standing person) is not left to coast on their last velocity while the laser
+    sees them: a camera track whose laser track (the one associated with it in the last
+    frame the camera saw them) is still live and within ``leg_gate_m`` is corrected
+    with the laser's position. A person who walked behind the robot and stopped is kept
     where they stand, not carried on past the wall and dropped. The identity rule keeps
-    furniture out: a laser track takes over only for the person it was already the legs
-    of. (One person, :class:`stack.perception.observation.ObservationCombiner` has its
-    own rule: the laser alone where the camera cannot see.)
+    furniture out: a laser track takes over only for the person it was the legs of.
+    (One person: :class:`stack.perception.observation.ObservationCombiner`'s own rule,
+    the laser alone where the camera cannot see.)
     """
 
     def __init__(
@@ -297,8 +297,9 @@ class PeoplePerception:
         Returns:
             One report per slot, slot 0 first.
         """
-        tracks = self._laser_keeps(stamp_s, self.tracker.update(stamp_s, positions_m),
-                                   laser_tracks)  # fmt: skip
+        tracks = self.tracker.update(stamp_s, positions_m)
+        seen = {t.track_id for t in tracks if t.last_update_s >= stamp_s}  # by the camera
+        tracks = self._laser_keeps(stamp_s, tracks, laser_tracks)
         live = {t.track_id for t in tracks}
         for tid in list(self._directions):
             if tid not in live:
@@ -311,7 +312,10 @@ class PeoplePerception:
             if t.track_id in fresh:
                 est.update(stamp_s, t.position_m)
         legs = associate(tracks, laser_tracks, self.leg_gate_m)
-        self._legs_of = {cid: leg.track_id for cid, leg in legs.items()}
+        # a person's legs are learnt while the camera sees them: a coasting track does
+        # not take up the laser track it drifts past (furniture, another person)
+        self._legs_of = {c: leg for c, leg in self._legs_of.items() if c in live}
+        self._legs_of.update({c: leg.track_id for c, leg in legs.items() if c in seen})
         out = []
         for k, slot in enumerate(self.slots.assign(tracks)):
             if slot is None:
