@@ -427,3 +427,43 @@ def test_entry_lateness_weighs_a_person_coming_in_at_the_door():
     assert watch_cell(GRID, (1, 12), exits=[(-1.0, 5.2)]) in (8, 10)  # a door by cell 12
     assert watch_cell(GRID, (1,), exits=[(7.0, 5.2)]) == 3
     assert load_task(REPO / "config" / "task-r2-goal.yaml").rest_cell == 5
+
+
+def test_with_two_visits_under_way_the_guard_moves_on_once_it_has_warned_one():
+    """A visitor the robot has been with for ``serve_s`` (warned) ranks after a visitor
+    nobody has warned: the guard leaves for the other restricted cell then, not before,
+    and does not come back while the one it went to is still inside."""
+    from stack.planning.anticipate import PeopleAnticipator
+
+    cfg = AnticipationConfig(exits_m=((7.0, 5.2),), serve_s=4.0)
+    a = (5.5, 0.75)  # standing in cell 1 from the start
+    b_walk = walk((3.0, 2.25), (0.5, 2.25))  # into cell 12 within 2.5 s, then stands
+    targets = {}
+    for robot_cell in (1, 5):  # with visitor a from t = 0; never in their cell
+        ant = PeopleAnticipator(GRID, (1, 12), cfg, people=2)
+        seq = []
+        for k in range(40):
+            t = 0.25 * k
+            b = b_walk[min(k, len(b_walk) - 1)] if t >= 1.0 else None
+            ant.observe(t, [a, b], robot_cell=robot_cell)
+            seq.append((t, ant.target))
+        targets[robot_cell] = seq
+    with_a = targets[1]
+    assert all(tg == 1 for t, tg in with_a if t < 4.0)  # b is inside by 3.5 s: not yet
+    assert all(tg == 12 for t, tg in with_a if t >= 4.0)  # a warned: on to b
+    assert all(tg == 1 for _, tg in targets[5])  # never with a: a's visit is kept
+    ant = PeopleAnticipator(GRID, (1, 12), cfg, people=2)  # the robot goes: 6 s to 12
+    for k in range(80):
+        t = 0.25 * k
+        robot_cell = 1 if t < 4.25 else (7 if t < 6.0 else 12)
+        ant.observe(t, [a, b_walk[min(k, len(b_walk) - 1)] if t >= 1.0 else None], robot_cell)
+        assert ant.target == (1 if t < 4.0 else 12)  # both warned by 10 s: it stays
+
+
+def test_of_two_visits_under_way_the_guard_takes_the_one_it_is_nearer():
+    from stack.planning.anticipate import PeopleAnticipator
+
+    ant = PeopleAnticipator(GRID, (1, 12), AnticipationConfig(exits_m=((7.0, 5.2),)), people=2)
+    for k in range(8):
+        ant.observe(0.25 * k, [(5.5, 0.75), (0.5, 2.25)], robot_cell=10)
+        assert ant.target == 12

@@ -80,6 +80,10 @@ class AnticipationConfig(Config):
         robot toward it before their goal is clear, and back as they head for the other.
     standby_margin_s: move to a better waiting cell only when it cuts the expected
         lateness by at least this (s): no back and forth on small changes of belief.
+    serve_s: with several people, a visit the robot has been in for this long with the
+        person inside (s; the warning heard: the speech node's ``confirm_s`` and the
+        3 s warning) ranks after every visit it has not been to: a guard who has
+        warned one visitor moves on to a visitor nobody has warned yet.
     intent: the goal inference (:class:`stack.planning.intent.IntentConfig`).
     """
 
@@ -95,6 +99,7 @@ class AnticipationConfig(Config):
     exits_m: tuple[tuple[float, float], ...] = ()
     standby: bool = True
     standby_margin_s: float = 0.3
+    serve_s: float = 4.0
     intent: IntentConfig = field(default_factory=IntentConfig)
 
     def __post_init__(self) -> None:
@@ -112,6 +117,8 @@ class AnticipationConfig(Config):
                 "must be in (0, 60) s")  # fmt: skip
         require(0.0 <= self.standby_margin_s <= 60.0, "standby_margin_s",
                 self.standby_margin_s, "must be in [0, 60] s")  # fmt: skip
+        require(0.0 <= self.serve_s <= 600.0, "serve_s", self.serve_s,
+                "must be in [0, 600] s")  # fmt: skip
 
 
 def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
@@ -241,6 +248,11 @@ class Anticipator:
             return held
         return best
 
+    def trip_s(self, robot_cell: int | None, cell: int) -> float:
+        """The robot's trip time (s) from ``robot_cell`` into restricted ``cell`` at the
+        trip speed (0 with the robot's cell unknown)."""
+        return 0.0 if robot_cell is None else self._trip_s[cell].get(robot_cell, 0.0)
+
     def _due(self, est: IntentEstimate, cell: int, robot_cell: int | None) -> bool:
         """The person may be in ``cell`` within the robot's trip there plus ``lead_s``
         (always, with the robot's cell unknown)."""
@@ -332,10 +344,12 @@ class Anticipator:
 class PeopleAnticipator:
     """The anticipation layer for several people (a task's ``people`` >= 2): one
     :class:`Anticipator` per person slot, and one target for the robot, chosen by
-    expected loss: a visit under way (a person in a restricted cell: a certain loss
-    while unguarded) before a likely one, the likelier before the less likely, the
-    sooner entry on a tie. The target in hand is kept while it stays a candidate,
-    unless a visit under way elsewhere takes precedence over a likely one.
+    expected loss: a visit the robot has not been to before one it has warned
+    (``serve_s`` together in the cell), a visit under way (a person in a restricted
+    cell: a certain loss while unguarded) before a likely one, the likelier before the
+    less likely, the sooner entry on a tie. The target in hand is kept while it stays
+    a candidate, unless it is a warned visit and another is not, or a visit under way
+    elsewhere takes precedence over a likely one.
 
     The interface of :class:`Anticipator` as the agents use it: :meth:`observe` takes
     one floor position (or None) per person slot.
@@ -355,6 +369,10 @@ class PeopleAnticipator:
         self.config = config
         self.target: int | None = None
         self.standby: int | None = None
+        # per slot: (cell, since when the robot is in it with the person), and the
+        # cell of the person's visit under way that the robot has warned
+        self._with: list[tuple[int, float] | None] = [None] * people
+        self._served: list[int | None] = [None] * people
 
     @classmethod
     def for_task(cls, task: Any) -> PeopleAnticipator | None:
@@ -373,30 +391,56 @@ class PeopleAnticipator:
         seen); returns whether the robot's target changed."""
         for k, slot in enumerate(self.slots):
             slot.track_goal(t, positions_m[k] if k < len(positions_m) else None, robot_cell)
+            self._note_served(k, t, robot_cell)
         before, held = self.target, self.standby
-        self.target = self._choose()
+        self.target = self._choose(robot_cell)
         first = self.slots[0]
         waiting = [] if self.target is not None else first.seen([s.estimate for s in self.slots])
         self.standby = first.choose_standby(waiting, robot_cell, held)
         return self.target != before or self.standby != held
 
-    def _choose(self) -> int | None:
-        ranked = []  # (visit under way first, likelier first, sooner first, target)
-        for slot in self.slots:
+    def _note_served(self, k: int, t: float, robot_cell: int | None) -> None:
+        """Slot ``k``'s visit under way is warned once the robot has been in its cell
+        with the person ``serve_s``; a new visit (another cell, or out and in again)
+        is not."""
+        est = self.slots[k].estimate
+        inside = None if est is None else est.inside
+        if inside is None or inside != self._served[k]:
+            self._served[k] = None
+        if inside is None or robot_cell != inside:
+            self._with[k] = None
+            return
+        with_k = self._with[k]
+        if with_k is None or with_k[0] != inside:
+            self._with[k] = with_k = (inside, t)
+        if t - with_k[1] >= self.config.serve_s:
+            self._served[k] = inside
+
+    def _choose(self, robot_cell: int | None) -> int | None:
+        # (warned last, visit under way first; under way: the robot's shorter trip
+        # first; likely: the likelier, then the sooner entry, first; target)
+        first = self.slots[0]
+        ranked = []
+        for k, slot in enumerate(self.slots):
             est = slot.estimate
             if slot.target is None or est is None:
                 continue
             under_way = est.inside == slot.target
-            eta = est.forecast(slot.target).eta_s if not under_way else 0.0
-            ranked.append((not under_way, -est.p(slot.target), eta, slot.target))
+            served = under_way and self._served[k] == slot.target
+            if under_way:
+                ranked.append((served, False, 0.0, first.trip_s(robot_cell, slot.target),
+                               slot.target))  # fmt: skip
+            else:
+                eta = est.forecast(slot.target).eta_s
+                ranked.append((served, True, -est.p(slot.target), eta, slot.target))
         if not ranked:
             return None
         ranked.sort()
         best = ranked[0]
-        held = next((r for r in ranked if r[3] == self.target), None)
-        if held is not None and (not held[0] or best[0]):  # keep it, unless a visit
-            return held[3]  # under way elsewhere outranks a likely one
-        return best[3]
+        held = min((r for r in ranked if r[4] == self.target), default=None)
+        if held is not None and (best[0] or not held[0]) and (not held[1] or best[1]):
+            return held[4]  # kept, unless warned while another is not, or a visit under
+        return best[4]  # way elsewhere outranks a likely one
 
     def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
         """As :meth:`Anticipator.advise`, for the chosen target; without one, the
