@@ -467,3 +467,25 @@ def test_of_two_visits_under_way_the_guard_takes_the_one_it_is_nearer():
     for k in range(8):
         ant.observe(0.25 * k, [(5.5, 0.75), (0.5, 2.25)], robot_cell=10)
         assert ant.target == 12
+
+
+def test_of_two_visits_the_guard_heads_for_the_one_it_can_reach_while_it_lasts():
+    """One person walks toward cell 12, the other into cell 1. A guard near 12 keeps
+    heading for 12, which it reaches in time, rather than turn to the visit under way
+    across the room, which would be over before it got there; a guard near 1 takes 1."""
+    from stack.planning.anticipate import PeopleAnticipator
+
+    cfg = AnticipationConfig(exits_m=((7.0, 5.2),))
+    west = walk((4.5, 2.6), (0.5, 2.25), speed=1.0)
+    south = walk((6.5, 3.5), (5.5, 0.75), speed=1.0)
+    chosen = {}
+    for robot_cell in (9, 3):
+        ant = PeopleAnticipator(GRID, (1, 12), cfg, people=2)
+        for k in range(len(south) + 2):
+            ant.observe(0.25 * k, [west[min(k, len(west) - 1)], south[min(k, len(south) - 1)]],
+                        robot_cell=robot_cell)  # fmt: skip
+        assert ant.slots[1].estimate.inside == 1 and ant.slots[0].target == 12
+        values = ant.values(robot_cell)
+        chosen[robot_cell] = (ant.target, values)
+    assert chosen[9][0] == 12 and chosen[9][1][12] > chosen[9][1][1]
+    assert chosen[3][0] == 1 and chosen[3][1][1] > chosen[3][1][12]

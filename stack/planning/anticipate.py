@@ -82,8 +82,14 @@ class AnticipationConfig(Config):
         lateness by at least this (s): no back and forth on small changes of belief.
     serve_s: with several people, a visit the robot has been in for this long with the
         person inside (s; the warning heard: the speech node's ``confirm_s`` and the
-        3 s warning) ranks after every visit it has not been to: a guard who has
-        warned one visitor moves on to a visitor nobody has warned yet.
+        3 s warning) is warned: heading there is worth nothing more, and the guard
+        moves on to a visitor nobody has warned yet.
+    stay_mean_s: with several people, the mean of the exponential stay a visitor is
+        assumed to make in a restricted cell (s): the chance that a visit the robot
+        reaches ``x`` seconds after the entry is still under way is exp(-x / mean).
+        5 s: the stays of 3.5-6.3 s people make at a machine or a door.
+    switch_margin: with several people, the target in hand is kept while it is worth
+        at least the best candidate's value less this (a share of a visit).
     intent: the goal inference (:class:`stack.planning.intent.IntentConfig`).
     """
 
@@ -100,6 +106,8 @@ class AnticipationConfig(Config):
     standby: bool = True
     standby_margin_s: float = 0.3
     serve_s: float = 4.0
+    stay_mean_s: float = 5.0
+    switch_margin: float = 0.1
     intent: IntentConfig = field(default_factory=IntentConfig)
 
     def __post_init__(self) -> None:
@@ -119,6 +127,10 @@ class AnticipationConfig(Config):
                 self.standby_margin_s, "must be in [0, 60] s")  # fmt: skip
         require(0.0 <= self.serve_s <= 600.0, "serve_s", self.serve_s,
                 "must be in [0, 600] s")  # fmt: skip
+        require(0.0 < self.stay_mean_s <= 600.0, "stay_mean_s", self.stay_mean_s,
+                "must be in (0, 600] s")  # fmt: skip
+        require(0.0 <= self.switch_margin <= 1.0, "switch_margin", self.switch_margin,
+                "must be in [0, 1]")  # fmt: skip
 
 
 def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
@@ -344,12 +356,13 @@ class Anticipator:
 class PeopleAnticipator:
     """The anticipation layer for several people (a task's ``people`` >= 2): one
     :class:`Anticipator` per person slot, and one target for the robot, chosen by
-    expected loss: a visit the robot has not been to before one it has warned
-    (``serve_s`` together in the cell), a visit under way (a person in a restricted
-    cell: a certain loss while unguarded) before a likely one, the likelier before the
-    less likely, the sooner entry on a tie. The target in hand is kept while it stays
-    a candidate, unless it is a warned visit and another is not, or a visit under way
-    elsewhere takes precedence over a likely one.
+    expected loss among the people's targets (a visit under way, or a likely one):
+    the cell with the most visits the robot would reach while they last
+    (:meth:`values`: the goal's probability times the chance the stay outlasts the
+    robot's lateness; a visit the robot has warned counts no more, so a guard who has
+    warned one visitor moves on to one nobody has warned). The target in hand is kept
+    while it stays a candidate and is worth at least the best less ``switch_margin``
+    (a warned visit: while no other is worth anything).
 
     The interface of :class:`Anticipator` as the agents use it: :meth:`observe` takes
     one floor position (or None) per person slot.
@@ -417,30 +430,39 @@ class PeopleAnticipator:
             self._served[k] = inside
 
     def _choose(self, robot_cell: int | None) -> int | None:
-        # (warned last, visit under way first; under way: the robot's shorter trip
-        # first; likely: the likelier, then the sooner entry, first; target)
-        first = self.slots[0]
-        ranked = []
-        for k, slot in enumerate(self.slots):
-            est = slot.estimate
-            if slot.target is None or est is None:
-                continue
-            under_way = est.inside == slot.target
-            served = under_way and self._served[k] == slot.target
-            if under_way:
-                ranked.append((served, False, 0.0, first.trip_s(robot_cell, slot.target),
-                               slot.target))  # fmt: skip
-            else:
-                eta = est.forecast(slot.target).eta_s
-                ranked.append((served, True, -est.p(slot.target), eta, slot.target))
-        if not ranked:
+        values = self.values(robot_cell)
+        if not values:
             return None
-        ranked.sort()
-        best = ranked[0]
-        held = min((r for r in ranked if r[4] == self.target), default=None)
-        if held is not None and (best[0] or not held[0]) and (not held[1] or best[1]):
-            return held[4]  # kept, unless warned while another is not, or a visit under
-        return best[4]  # way elsewhere outranks a likely one
+        best = max(values, key=lambda c: (values[c], -c))
+        held = self.target
+        if held in values:  # kept within the margin; a warned visit only when no other
+            v, top = values[held], values[best]  # is worth anything either
+            if v == top or (v > 0 and v >= top - self.config.switch_margin):
+                return held
+        return best
+
+    def values(self, robot_cell: int | None) -> dict[int, float]:
+        """What heading for each candidate cell (a person's target: a visit under way
+        or a likely one) is worth: the chance of a visit there that the robot reaches
+        while it lasts, summed over the people. A person's term is P(goal = c) times
+        the chance their stay outlasts the robot's lateness (its trip time into c minus
+        the person's time to entry, 0 for a visit under way) under an exponential stay
+        of mean ``stay_mean_s``; nothing for a visit the robot has warned (``serve_s``
+        with them in the cell)."""
+        cfg, first = self.config, self.slots[0]
+        values: dict[int, float] = {}
+        for k, slot in enumerate(self.slots):
+            est, c = slot.estimate, slot.target
+            if c is None or est is None:
+                continue
+            under_way = est.inside == c
+            if under_way and self._served[k] == c:
+                values.setdefault(c, 0.0)
+                continue
+            late = first.trip_s(robot_cell, c) - (0.0 if under_way else est.forecast(c).eta_s)
+            reach = 1.0 if late <= 0 else math.exp(-late / cfg.stay_mean_s)
+            values[c] = values.get(c, 0.0) + est.p(c) * reach
+        return values
 
     def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
         """As :meth:`Anticipator.advise`, for the chosen target; without one, the
