@@ -228,26 +228,45 @@ def test_a_two_person_scenario_prepares_the_nodes_for_slots(tmp_path):
     assert len(twin["people"]) == 2
 
 
-def test_two_people_anticipated_the_visit_under_way_first_then_the_likelier():
-    """Person 1 walks to cell 1, person 2 stands in cell 12: the robot heads for 12
-    (a visit under way is a certain loss); once person 2 has left the map, for 1."""
+def test_two_people_anticipated_the_visit_the_robot_reaches_then_the_other():
+    """Person 1 walks to cell 1, person 2 stands in cell 12: a robot waiting next to
+    12 heads for 12 (a visit under way it reaches at once), one next to 1 for 1 (the
+    entry it reaches while the stay lasts); once person 2 has left the map, for 1."""
     from stack.planning.anticipate import AnticipationConfig, PeopleAnticipator
 
     grid = load_task(TASK).grid
-    ant = PeopleAnticipator(grid, (1, 12), AnticipationConfig(), 2)
-    t, targets = 0.0, []
-    for k in range(17):  # person 1 from (5.5, 4.0) south to (5.5, 1.6), person 2 in 12
-        ant.observe(t, [(5.5, 4.0 - 0.15 * k), (0.5, 2.25)], 6)
-        targets.append(ant.target)
-        t += 0.25
-    assert targets[-1] == 12 and ant.slots[0].target == 1
-    assert ant.advise(6) == "To 12" and ant.advise(12) == "Do nothing"
+    for robot_cell, first_target in ((10, 12), (3, 1)):
+        ant = PeopleAnticipator(grid, (1, 12), AnticipationConfig(), 2)
+        t = 0.0
+        for k in range(17):  # person 1 from (5.5, 4.0) south to (5.5, 1.6), person 2 in 12
+            ant.observe(t, [(5.5, 4.0 - 0.15 * k), (0.5, 2.25)], robot_cell)
+            t += 0.25
+        assert ant.target == first_target and ant.slots[0].target == 1
+        assert ant.slots[1].target == 12
+        assert ant.advise(robot_cell) == f"To {first_target}"
     for _ in range(12):  # person 2 gone (unseen): person 1's visit is the one left
         ant.observe(t, [(5.5, 1.6), None], 12)
         t += 0.25
     assert ant.target == 1 and ant.advise(12) == "To 1"
     note = ant.note()
     assert note["target"] == 1 and len(note["p_goal"]) == 2
+
+
+def test_with_nothing_to_head_for_the_robot_goes_home_not_stays_in_a_corner():
+    """The online planner's two steps of lookahead do not reach the rest cell from a
+    far corner: with no target and no standby, the layer sends a robot that would stay
+    (the planner's "Do nothing", or its move into a restricted cell held back) home,
+    and leaves the planner's own moves alone."""
+    from stack.planning.anticipate import AnticipationConfig, PeopleAnticipator
+
+    grid = load_task(TASK).grid
+    ant = PeopleAnticipator(grid, (1, 12), AnticipationConfig(), 2, home=5)
+    ant.observe(0.0, [(2.5, 2.25), None], 10)  # someone standing in 8: no target
+    assert ant.target is None and ant.standby is None
+    assert ant.advise(10, "Do nothing") == "To 5"
+    assert ant.advise(10, "West") == "To 5"  # into 12, which nobody is heading for
+    assert ant.advise(10, "South") is None  # the planner's own move
+    assert ant.advise(5, "Do nothing") is None
 
 
 def test_the_people_agent_sends_the_trip_the_layer_advises(pm):
