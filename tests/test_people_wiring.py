@@ -252,23 +252,6 @@ def test_two_people_anticipated_the_visit_the_robot_reaches_then_the_other():
     assert note["target"] == 1 and len(note["p_goal"]) == 2
 
 
-def test_with_nothing_to_head_for_the_robot_goes_home_not_stays_in_a_corner():
-    """The online planner's two steps of lookahead do not reach the rest cell from a
-    far corner: with no target and no standby, the layer sends a robot that would stay
-    (the planner's "Do nothing", or its move into a restricted cell held back) home,
-    and leaves the planner's own moves alone."""
-    from stack.planning.anticipate import AnticipationConfig, PeopleAnticipator
-
-    grid = load_task(TASK).grid
-    ant = PeopleAnticipator(grid, (1, 12), AnticipationConfig(), 2, home=5)
-    ant.observe(0.0, [(2.5, 2.25), None], 10)  # someone standing in 8: no target
-    assert ant.target is None and ant.standby is None
-    assert ant.advise(10, "Do nothing") == "To 5"
-    assert ant.advise(10, "West") == "To 5"  # into 12, which nobody is heading for
-    assert ant.advise(10, "South") is None  # the planner's own move
-    assert ant.advise(5, "Do nothing") is None
-
-
 def test_the_people_agent_sends_the_trip_the_layer_advises(pm):
     from stack.planning.anticipate import AnticipationConfig, PeopleAnticipator
 

@@ -467,23 +467,14 @@ class PeopleAnticipator:
     def advise(self, robot_cell: int | None, policy_action: str | None = None) -> str | None:
         """As :meth:`Anticipator.advise`, for the chosen target; without one, the
         policy's move into a restricted cell is held back when none of the people seen
-        is heading there. With nothing to head for or stand by for, a robot away from
-        home (the task's rest cell) that would stay where it is (the policy's "Do
-        nothing", or its move held back) goes home: the online planner's few steps of
-        lookahead do not reach the rest cell from a far corner, where the layer's
-        trips may have left the robot."""
+        is heading there."""
         if robot_cell is None:
             return None
         first = self.slots[0]
         if self.target is not None:
             return first.move_to(robot_cell, self.target)
         estimates = [s.estimate for s in self.slots]
-        move = first.wait(robot_cell, self.standby, policy_action, estimates)
-        staying = move == "Do nothing" or (move is None and policy_action == "Do nothing")
-        home = first.home
-        if self.standby is None and staying and home is not None and robot_cell != home:
-            return first.move_to(robot_cell, home)
-        return move
+        return first.wait(robot_cell, self.standby, policy_action, estimates)
 
     def note(self) -> dict[str, Any] | None:
         """For the step record: the target and each slot's goal probabilities."""
