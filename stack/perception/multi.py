@@ -285,6 +285,7 @@ class PeoplePerception:
         self.laser_sigma_m = laser_sigma_m
         self.laser_max_age_s = laser_max_age_s
         self._legs_of: dict[int, int] = {}  # camera track id -> its laser track's id
+        self._seen: set[int] = set()  # the tracks the last frame's detections updated
 
     def update(
         self,
@@ -292,32 +293,53 @@ class PeoplePerception:
         positions_m: Iterable[tuple[float, float]],
         laser_tracks: Sequence[TrackEstimate] = (),
     ) -> tuple[SlotPerson, ...]:
-        """One frame: the camera's people (map positions), the laser's tracks.
+        """One frame (:meth:`track`) and the laser's tracks then (:meth:`report`).
 
         Returns:
             One report per slot, slot 0 first.
         """
+        self.track(stamp_s, positions_m)
+        return self.report(laser_tracks)
+
+    def track(self, stamp_s: float, positions_m: Iterable[tuple[float, float]]) -> None:
+        """One camera frame: the camera's people (map positions) move the tracks, their
+        directions and the slots on."""
         tracks = self.tracker.update(stamp_s, positions_m)
-        seen = {t.track_id for t in tracks if t.last_update_s >= stamp_s}  # by the camera
-        tracks = self._laser_keeps(stamp_s, tracks, laser_tracks)
+        self._seen = {t.track_id for t in tracks if t.last_update_s >= stamp_s}
         live = {t.track_id for t in tracks}
         for tid in list(self._directions):
             if tid not in live:
                 del self._directions[tid]
-        fresh = {t.track_id for t in tracks if t.last_update_s == stamp_s}
         for t in tracks:
             est = self._directions.setdefault(
                 t.track_id, DirectionEstimator(self._direction_config)
             )
-            if t.track_id in fresh:
+            if t.track_id in self._seen:
                 est.update(stamp_s, t.position_m)
+        self._legs_of = {c: leg for c, leg in self._legs_of.items() if c in live}
+        self.slots.assign(tracks)
+
+    def report(self, laser_tracks: Sequence[TrackEstimate] = ()) -> tuple[SlotPerson, ...]:
+        """The slots now, with the laser's latest tracks: each person's speed from the
+        laser track associated with them, and a person the last frame missed kept by
+        their own laser track (see the class doc). The observations node calls it when
+        it observes, not at each camera frame, so the laser tracks it uses are those of
+        the observation instant whatever order the camera's and the laser's messages
+        came in (the lock-step replay and the in-process loop agree).
+
+        Returns:
+            One report per slot, slot 0 first.
+        """
+        stamp_s = self.tracker.stamp_s
+        tracks = self._laser_keeps(stamp_s, self.tracker.tracks(), laser_tracks)
+        by_id = {t.track_id: t for t in tracks}
         legs = associate(tracks, laser_tracks, self.leg_gate_m)
         # a person's legs are learnt while the camera sees them: a coasting track does
         # not take up the laser track it drifts past (furniture, another person)
-        self._legs_of = {c: leg for c, leg in self._legs_of.items() if c in live}
-        self._legs_of.update({c: leg.track_id for c, leg in legs.items() if c in seen})
+        self._legs_of.update({c: leg.track_id for c, leg in legs.items() if c in self._seen})
         out = []
-        for k, slot in enumerate(self.slots.assign(tracks)):
+        for k, tid in enumerate(self.slots.track_ids):
+            slot = by_id.get(tid) if tid is not None else None
             if slot is None:
                 out.append(SlotPerson(k))
                 continue
@@ -331,7 +353,7 @@ class PeoplePerception:
                     direction=self._directions[slot.track_id].direction,
                     speed_mps=None if leg is None else leg.speed_mps,
                     laser_track_id=None if leg is None else leg.track_id,
-                    measured=slot.track_id in fresh,
+                    measured=slot.last_update_s >= stamp_s,
                 )
             )
         return tuple(out)

@@ -88,7 +88,7 @@ class Observer:
         # frame after an outage): the slots' tracker moves on once, with the first
         if self.slots is not None and camera.stamp_s > self._slots_stamp_s:
             self._slots_stamp_s = camera.stamp_s
-            self.slot_people = self.slots.update(camera.stamp_s, camera.people_m, self.tracks)
+            self.slots.track(camera.stamp_s, camera.people_m)
 
     def on_tracks(self, tracks: tuple) -> None:
         self.tracks = tracks
@@ -111,5 +111,6 @@ class Observer:
         # the frame the labels come from: the latency from camera to decision (issue 25)
         record["frame_stamp_s"] = self.camera.stamp_s if self.camera is not None else None
         if self.slots is not None:
+            self.slot_people = self.slots.report(self.tracks)
             record["people"] = slot_labels(self.slot_people, obs.blind)
         return obs, record
