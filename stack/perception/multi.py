@@ -28,8 +28,10 @@ Pure (numpy, scipy), no rclpy. The pieces:
   laser track, thesis 4.5, per person).
 - :class:`stack.perception.slots.PersonSlots`: which track is "person 1", "person
   2", ... for the planner (the rules in :mod:`stack.perception.slots`).
-- :class:`PeoplePerception`: the three together, per frame, giving one
-  :class:`SlotPerson` per slot; :func:`model_persons` turns them into the per-person
+- :class:`PeoplePerception`: the three together, the camera's part at each frame and
+  the laser's when the observations node observes, giving one
+  :class:`~stack.perception.slots.SlotPerson` per slot;
+  :func:`stack.perception.slots.model_persons` turns them into the per-person
   observation ``FactoredModel.observation_index`` takes.
 
 """
