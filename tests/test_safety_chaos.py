@@ -70,9 +70,20 @@ def test_killing_the_velocity_gate_at_real_time_stops_the_base_within_its_timeou
     """The hardware chain (navigation -> gate -> base) with the twin at real time: a
     SIGKILLed gate sends no last zero, its last command stands at the base until the
     base's own watchdog (the gate's heartbeat silent, or the command stale) stops it."""
-    run = _kill_while_driving(tmp_path, "velocity_gate", realtime=True)
-    assert [k.node for k in run.kills][:1] == ["velocity_gate"], (run.lines[-20:], run.stderr)
-    result = check_run(run.out)
+    for seed in (3, 4):  # a kill that missed the drive is run again (another delay)
+        folder = tmp_path / f"seed-{seed}"
+        folder.mkdir()
+        run = _kill_while_driving(folder, "velocity_gate", realtime=True, seed=seed)
+        assert [k.node for k in run.kills][:1] == ["velocity_gate"], (
+            run.lines[-20:],
+            run.stderr,
+        )
+        result = check_run(run.out)
+        # as for navigation's kill: the kill may find the trip braked to its goal (the
+        # last command a zero: no silence to test); seen once in CI (a clean clone of
+        # 52bf537, 28 Nov), the run before and after it passed
+        if sum(b["silences"] for b in result["bags"].values()) >= 1:
+            break
     assert run.returncode == EXIT_NODE, run.lines[-20:]
     assert run.last_line.startswith("vigil run: velocity_gate exited (code -9, SIGKILL)")
     assert result["run"]["cause"].startswith("velocity_gate exited (code -9, SIGKILL)")
