@@ -42,8 +42,6 @@ from stack.perception.observation import speed_class
 from stack.perception.tracker import TrackEstimate
 from stack.vocabulary import NO_PERSON, NOT_MOVING, UNSEEN
 
-_FAR = 1e6  # cost of a forbidden pair
-
 
 @dataclass(frozen=True)
 class SlotConfig(Config):
