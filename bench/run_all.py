@@ -117,6 +117,11 @@ LONG = (
         "~1.5 h rendered on 2 workers (about 100 s an episode at load 6-9)",
     ),
     (
+        "bench/bench_decision.py --episodes 30",
+        "the planner's decision time, anticipation layer included, on r1, r2, two people",
+        "~1 min",
+    ),
+    (
         "bench/bench_online.py run --planner NAME --episodes 200",
         "two people: online planner and baselines (then `bench_online.py report`)",
         "12 s (greedy) to 22 min (single) per planner",
