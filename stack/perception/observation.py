@@ -355,17 +355,8 @@ class ObservationCombiner:
             )
             self._pose = robot_pose
         robot_cell = self._robot_cell
-        cfg = self.config
-        fresh = [
-            t
-            for t in tracks
-            if stamp_s - t.last_update_s <= cfg.max_track_age_s and t.confirmed and _finite_track(t)
-        ]
-        camera_sees = (
-            camera is not None
-            and camera.status is not PersonStatus.UNKNOWN
-            and stamp_s - camera.stamp_s <= cfg.max_camera_age_s
-        )
+        fresh = self.fresh_tracks(stamp_s, tracks)
+        camera_sees = self.camera_sees(stamp_s, camera)
         outside: tuple[float, float] | None = None  # a person seen off the grid
         if (
             camera_sees
@@ -385,6 +376,25 @@ class ObservationCombiner:
             stamp_s, None, Direction.NOT_MOVING, None, robot_cell, outside,
             source="none", hidden=tuple(sorted(hidden.items())), blind=not camera_sees,
         )  # fmt: skip
+
+    def fresh_tracks(self, stamp_s: float, tracks: Iterable[TrackEstimate]) -> list[TrackEstimate]:
+        """The laser's people at ``stamp_s``: confirmed tracks, finite, updated within
+        ``max_track_age_s``."""
+        age = self.config.max_track_age_s
+        return [
+            t
+            for t in tracks
+            if stamp_s - t.last_update_s <= age and t.confirmed and _finite_track(t)
+        ]
+
+    def camera_sees(self, stamp_s: float, camera: CameraPersonState | None) -> bool:
+        """Whether the camera looks at ``stamp_s``: a state that is not "unknown" (no
+        frame, failed) and no older than ``max_camera_age_s``; otherwise it is blind."""
+        return (
+            camera is not None
+            and camera.status is not PersonStatus.UNKNOWN
+            and stamp_s - camera.stamp_s <= self.config.max_camera_age_s
+        )
 
     def _camera_person(
         self,

@@ -111,6 +111,13 @@ class Observer:
         # the frame the labels come from: the latency from camera to decision (issue 25)
         record["frame_stamp_s"] = self.camera.stamp_s if self.camera is not None else None
         if self.slots is not None:
+            if not self.combiner.camera_sees(now_s, self.camera) and now_s > self._slots_stamp_s:
+                # a blind camera (off, frozen, failed): the laser's people stand in for
+                # its detections, so that a person who comes in meanwhile is tracked
+                # (one person: the combiner's laser-only rule)
+                self._slots_stamp_s = now_s
+                fresh = self.combiner.fresh_tracks(now_s, self.tracks)
+                self.slots.track(now_s, [t.position_m for t in fresh])
             self.slot_people = self.slots.report(self.tracks)
             record["people"] = slot_labels(self.slot_people, obs.blind)
         return obs, record
