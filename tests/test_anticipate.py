@@ -489,3 +489,18 @@ def test_of_two_visits_the_guard_heads_for_the_one_it_can_reach_while_it_lasts()
         chosen[robot_cell] = (ant.target, values)
     assert chosen[9][0] == 12 and chosen[9][1][12] > chosen[9][1][1]
     assert chosen[3][0] == 1 and chosen[3][1][1] > chosen[3][1][12]
+
+
+def test_the_note_says_when_its_estimate_was_taken():
+    """The step record is written at the step's end with the note of the decision that
+    began it: ``at_s`` says which observation the target and probabilities are of."""
+    from stack.planning.anticipate import PeopleAnticipator
+
+    one = Anticipator(GRID, (1, 12), AnticipationConfig())
+    two = PeopleAnticipator(GRID, (1, 12), AnticipationConfig(), people=2)
+    assert one.note() is None and two.note() is None
+    for k, p in enumerate(walk((2.5, 0.75), (5.5, 0.75))[:6]):
+        one.observe(0.25 * k, p, robot_cell=5)
+        two.observe(0.25 * k, [p, None], robot_cell=5)
+    assert one.note()["at_s"] == two.note()["at_s"] == 1.25
+    assert set(one.note()["p_goal"]) == {"1", "12"} and len(two.note()["p_goal"]) == 2

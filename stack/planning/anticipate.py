@@ -174,6 +174,7 @@ class Anticipator:
         self.estimate: IntentEstimate | None = None
         self.target: int | None = None
         self.standby: int | None = None  # where to wait for the target (config.standby)
+        self.stamp_s: float | None = None  # the last observation's time
         # trip times (s) from every cell into each restricted cell, at the trip speed
         self._trip_s = trip_times(grid, self.restricted, config.robot_speed_mps, config.motion)
         self._waits = tuple(c for c in grid.cells if c not in self.restricted)
@@ -192,6 +193,7 @@ class Anticipator:
         cell (None: unknown); returns whether the target or the standby cell changed
         (an event worth a new decision)."""
         before, held = self.target, self.standby
+        self.stamp_s = t
         self.track_goal(t, position_m, robot_cell)
         waiting = [] if self.target is not None else self.seen([self.estimate])
         self.standby = self.choose_standby(waiting, robot_cell, held)
@@ -343,10 +345,13 @@ class Anticipator:
         return None
 
     def note(self) -> dict[str, Any] | None:
-        """For the step record: the target and the goal probabilities."""
+        """For the step record: the target and the goal probabilities, as of the last
+        observation (``at_s``; the record is written at the step's end, the note taken
+        at the decision that began it)."""
         if self.estimate is None:
             return None
         return {
+            "at_s": None if self.stamp_s is None else round(self.stamp_s, 3),
             "target": self.target,
             "standby": self.standby,
             "p_goal": {str(c): round(self.estimate.p(c), 3) for c in self.restricted},
@@ -382,6 +387,7 @@ class PeopleAnticipator:
         self.config = config
         self.target: int | None = None
         self.standby: int | None = None
+        self.stamp_s: float | None = None  # the last observation's time
         # per slot: (cell, since when the robot is in it with the person), and the
         # cell of the person's visit under way that the robot has warned
         self._with: list[tuple[int, float] | None] = [None] * people
@@ -402,6 +408,7 @@ class PeopleAnticipator:
     ) -> bool:
         """Each slot's floor position at ``t`` (None: not seen; missing slots are not
         seen); returns whether the robot's target changed."""
+        self.stamp_s = t
         for k, slot in enumerate(self.slots):
             slot.track_goal(t, positions_m[k] if k < len(positions_m) else None, robot_cell)
             self._note_served(k, t, robot_cell)
@@ -477,11 +484,13 @@ class PeopleAnticipator:
         return first.wait(robot_cell, self.standby, policy_action, estimates)
 
     def note(self) -> dict[str, Any] | None:
-        """For the step record: the target and each slot's goal probabilities."""
+        """For the step record: the target and each slot's goal probabilities, as of the
+        last observation (``at_s``)."""
         notes = [s.note() for s in self.slots]
         if all(n is None for n in notes):
             return None
         return {
+            "at_s": None if self.stamp_s is None else round(self.stamp_s, 3),
             "target": self.target,
             "standby": self.standby,
             "p_goal": [None if n is None else n["p_goal"] for n in notes],
