@@ -264,8 +264,11 @@ class PeoplePerception:
     with the laser's position. A person who walked behind the robot and stopped is kept
     where they stand, not carried on past the wall and dropped. The identity rule keeps
     furniture out: a laser track takes over only for the person it was the legs of.
-    (One person: :class:`stack.perception.observation.ObservationCombiner`'s own rule,
-    the laser alone where the camera cannot see.)
+    While the camera is blind the observer feeds the laser's people to :meth:`track`
+    in its place (:class:`stack.perception.observer.Observer`), so a person who comes in
+    during an outage is tracked too. (One person:
+    :class:`stack.perception.observation.ObservationCombiner`'s own rule, the laser
+    alone where the camera cannot see.)
     """
 
     def __init__(

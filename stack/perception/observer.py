@@ -27,6 +27,10 @@ from stack.perception.visibility import CameraVisibility, VisibilityConfig
 class Observer:
     """Joins the camera, the laser tracks and the pose into the planner's observation.
 
+    With several people the camera's frames move the person slots on
+    (:meth:`on_camera`), and while the camera is blind (off, frozen, failed) the laser's
+    fresh, confirmed tracks do, at each observation (:meth:`observe`).
+
     Args:
         config_file: the observations' configuration (optional ``grid``,
             ``observations``, ``visibility`` and ``slots`` sections).
