@@ -9,7 +9,7 @@ person or several (person slots, :class:`stack.perception.multi.PeoplePerception
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from stack.cells import ConfigError
@@ -88,11 +88,16 @@ class Observer:
     def on_camera(self, camera: CameraPersonState) -> None:
         """The camera people node's latest state (and the person slots moved on)."""
         self.camera = camera
-        # two camera messages in one instant (the frame watchdog's "silent" and the first
-        # frame after an outage): the slots' tracker moves on once, with the first
-        if self.slots is not None and camera.stamp_s > self._slots_stamp_s:
-            self._slots_stamp_s = camera.stamp_s
-            self.slots.track(camera.stamp_s, camera.people_m)
+        self._move_slots(camera.stamp_s, camera.people_m)
+
+    def _move_slots(self, stamp_s: float, positions_m: Sequence[tuple[float, float]]) -> None:
+        """The person slots' tracker moves on to ``stamp_s`` with these people, once an
+        instant: two camera messages in one instant (the frame watchdog's "silent" and
+        the first frame after an outage), or a frame no later than the laser's stand-in
+        for a blind camera, move it on with the first only."""
+        if self.slots is not None and stamp_s > self._slots_stamp_s:
+            self._slots_stamp_s = stamp_s
+            self.slots.track(stamp_s, positions_m)
 
     def on_tracks(self, tracks: tuple) -> None:
         self.tracks = tracks
@@ -115,13 +120,12 @@ class Observer:
         # the frame the labels come from: the latency from camera to decision (issue 25)
         record["frame_stamp_s"] = self.camera.stamp_s if self.camera is not None else None
         if self.slots is not None:
-            if not self.combiner.camera_sees(now_s, self.camera) and now_s > self._slots_stamp_s:
+            if not self.combiner.camera_sees(now_s, self.camera):
                 # a blind camera (off, frozen, failed): the laser's people stand in for
                 # its detections, so that a person who comes in meanwhile is tracked
                 # (one person: the combiner's laser-only rule)
-                self._slots_stamp_s = now_s
                 fresh = self.combiner.fresh_tracks(now_s, self.tracks)
-                self.slots.track(now_s, [t.position_m for t in fresh])
+                self._move_slots(now_s, [t.position_m for t in fresh])
             self.slot_people = self.slots.report(self.tracks)
             record["people"] = slot_labels(self.slot_people, obs.blind)
         return obs, record
