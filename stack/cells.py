@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -243,6 +244,26 @@ class CellGrid:
         size = _pair(f"{key}.cell_size_m", data.get("cell_size_m", (1.0, 1.5)))
         origin = _pair(f"{key}.origin_m", data.get("origin_m", (0.0, 0.0)))
         return cls(numbering=numbering, cell_size_m=size, origin_m=origin)
+
+
+def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
+    """The first action ("North", ...) of a shortest path of cell moves from ``start``
+    to ``goal`` (ties: the order of :data:`MOVING_DIRECTIONS`); None when there."""
+    if start == goal:
+        return None
+    first: dict[int, str] = {start: ""}
+    queue = deque([start])
+    while queue:
+        c = queue.popleft()
+        for d in MOVING_DIRECTIONS:
+            n = grid.neighbour(c, d)
+            if n is None or n in first:
+                continue
+            first[n] = first[c] or d.label
+            if n == goal:
+                return first[n]
+            queue.append(n)
+    return None
 
 
 def default_numbering(rows: int, cols: int) -> tuple[tuple[int, ...], ...]:

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from stack.cells import CellGrid, ConfigError
+from stack.cells import CellGrid, ConfigError, first_move
 from stack.planning.agent import Observed, PlannerAgent
-from stack.planning.anticipate import AnticipationConfig, Anticipator, first_move
+from stack.planning.anticipate import AnticipationConfig, Anticipator
 from stack.planning.intent import IntentConfig
 from stack.planning.model import build_model
 from stack.planning.policy import AlphaPolicy

@@ -34,12 +34,11 @@ Pure (numpy): the planner node and the in-process loop run it through
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from stack.cells import MOVING_DIRECTIONS, CellGrid
+from stack.cells import MOVING_DIRECTIONS, CellGrid, first_move
 from stack.config import Config, require
 from stack.planning.intent import GoalInference, IntentConfig, IntentEstimate, TrackObservation
 from stack.planning.standby import expected_lateness, trip_times
@@ -131,26 +130,6 @@ class AnticipationConfig(Config):
                 "must be in (0, 600] s")  # fmt: skip
         require(0.0 <= self.switch_margin <= 1.0, "switch_margin", self.switch_margin,
                 "must be in [0, 1]")  # fmt: skip
-
-
-def first_move(grid: CellGrid, start: int, goal: int) -> str | None:
-    """The first action ("North", ...) of a shortest path of cell moves from ``start``
-    to ``goal`` (ties: the order of :data:`MOVING_DIRECTIONS`); None when there."""
-    if start == goal:
-        return None
-    first: dict[int, str] = {start: ""}
-    queue = deque([start])
-    while queue:
-        c = queue.popleft()
-        for d in MOVING_DIRECTIONS:
-            n = grid.neighbour(c, d)
-            if n is None or n in first:
-                continue
-            first[n] = first[c] or d.label
-            if n == goal:
-                return first[n]
-            queue.append(n)
-    return None
 
 
 class Anticipator:

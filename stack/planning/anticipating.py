@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from stack.cells import CellGrid
-from stack.planning.anticipate import Anticipator, PeopleAnticipator, first_move
+from stack.cells import CellGrid, first_move
+from stack.planning.anticipate import Anticipator, PeopleAnticipator
 from stack.vocabulary import ACTIONS, parse_trip
 
 
