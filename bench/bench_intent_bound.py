@@ -1,7 +1,7 @@
-"""How early the goal inference could send a guard, with perfect tracking (issue 26).
+"""How early the goal inference could send a guard, with no latency (issue 26).
 
     .venv/bin/python bench/bench_intent_bound.py STUDY [--task config/task-r2-goal.yaml]
-        [--episodes 400] [--wait-cell 5]
+        [--episodes 1000] [--wait-cell 5]
 
 STUDY is a ``vigil montecarlo`` folder of the task. For each episode's first visit the
 person's floor positions (``trace.jsonl``, from the moment they are inside the room)
@@ -85,7 +85,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("study", type=Path)
     p.add_argument("--task", type=Path, default=REPO / "config" / "task-r2-goal.yaml")
-    p.add_argument("--episodes", type=int, default=400)
+    p.add_argument("--episodes", type=int, default=1000, help="the study's first episodes")
     p.add_argument("--wait-cell", type=int, default=5)
     p.add_argument("--door-y", type=float, default=5.2, help="inside the room below this y")
     args = p.parse_args()

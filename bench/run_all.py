@@ -71,8 +71,8 @@ QUICK = (
 LONG = (
     (
         "bench/bench_intent_bound.py runs/mc-r2-goal",
-        "how early goal inference could send a guard, perfect tracking (needs an r2 study)",
-        "~1 min, after a 1,000-walk r2 study (14 min)",
+        "how early goal inference could send a guard with no latency (needs an r2 study)",
+        "~7 s for 1,000 walks, after a 1,000-walk r2 study (~5 min)",
     ),
     (
         "bench/bench_perception_walks.py",
